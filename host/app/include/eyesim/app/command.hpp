@@ -1,0 +1,53 @@
+#pragma once
+/// \file
+/// Sub-command registry of the `eyesim` program. Each `host/app/cmd_*.cpp` registers one sub-command with a
+/// static `Registrar`, so adding a command never touches main.cpp.
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace eyesim::app {
+
+/// What a sub-command does once its options are parsed; returns the process exit code.
+using Action = std::function<int()>;
+
+/// Declares a sub-command's options on `sub` and returns the action to run when it is chosen.
+using Setup = std::function<Action(CLI::App& sub)>;
+
+/// One registered sub-command.
+struct CommandSpec {
+    std::string name;  ///< e.g. "fpga"
+    std::string help;  ///< one line for `eyesim --help`
+    Setup setup;
+};
+
+/// All sub-commands registered so far (static-initialisation safe).
+std::vector<CommandSpec>& registry();
+
+/// Registers a sub-command at static-initialisation time: `static Registrar reg{"fpga", "…", setup};`.
+struct Registrar {
+    Registrar(std::string name, std::string help, Setup setup);
+};
+
+/// A user-facing failure: main prints `eyesim: error: <what>` on one line and exits with `exit_code`.
+/// Name the file, field and value at fault in the message.
+class Error : public std::runtime_error {
+public:
+    explicit Error(const std::string& what, int exit_code = 1) : std::runtime_error(what), exit_code_(exit_code) {}
+    int exit_code() const noexcept { return exit_code_; }
+
+private:
+    int exit_code_;
+};
+
+/// True when progress lines should go to stderr: stderr is a terminal and `--json` was not given.
+bool show_progress(bool json);
+
+/// Path of the running executable's folder (to find `eyesim-device` beside `eyesim`).
+std::string executable_dir();
+
+}  // namespace eyesim::app

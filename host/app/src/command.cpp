@@ -1,0 +1,26 @@
+#include "eyesim/app/command.hpp"
+
+#include <unistd.h>
+
+#include <filesystem>
+
+namespace eyesim::app {
+
+std::vector<CommandSpec>& registry() {
+    static std::vector<CommandSpec> commands;  // function-local: safe from static-init order
+    return commands;
+}
+
+Registrar::Registrar(std::string name, std::string help, Setup setup) {
+    registry().push_back({std::move(name), std::move(help), std::move(setup)});
+}
+
+bool show_progress(bool json) { return !json && ::isatty(STDERR_FILENO) == 1; }
+
+std::string executable_dir() {
+    std::error_code ec;
+    const auto self = std::filesystem::read_symlink("/proc/self/exe", ec);
+    return ec ? std::string(".") : self.parent_path().string();
+}
+
+}  // namespace eyesim::app

@@ -1,0 +1,47 @@
+#pragma once
+/// \file
+/// Triangle meshes in contiguous arrays, shared by collision detection and tissue simulation.
+/// All coordinates are millimetres in the frame the owner states (membranes and instruments: the eye frame).
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace eyesim::sim {
+
+using Vec3f = Eigen::Vector3f;
+
+/// Indexed triangle mesh. Vertices and triangles are contiguous; adjacency is derived on demand.
+struct TriangleMesh {
+    std::vector<Vec3f> vertices_mm;                   ///< vertex positions, mm
+    std::vector<std::array<uint32_t, 3>> triangles;   ///< counter-clockwise seen from the front (+normal) side
+
+    /// Vertex → adjacent triangles in compressed-row form: triangles of vertex v are
+    /// vertex_triangles[vertex_triangle_begin[v] .. vertex_triangle_begin[v+1]).
+    std::vector<uint32_t> vertex_triangle_begin;
+    std::vector<uint32_t> vertex_triangles;
+
+    /// Unique undirected edges (a < b), each listed once, in first-seen order.
+    std::vector<std::array<uint32_t, 2>> edges;
+
+    size_t vertex_count() const { return vertices_mm.size(); }
+    size_t triangle_count() const { return triangles.size(); }
+
+    /// Rebuilds vertex_triangle_* and edges from `triangles`. Call after any topology change.
+    void build_adjacency();
+};
+
+/// Regular triangulated rectangular patch in the z = 0 plane, centred on the origin: nx × ny quads, each split
+/// into two triangles (alternating diagonals so the mesh has no preferred shear direction), normal +z.
+/// 2·nx·ny triangles: 14×14 → 392 (≈400), 22×23 → 1012 (≈1k), 39×39 → 3042 (≈3k).
+TriangleMesh make_membrane_patch(float width_mm, float height_mm, int nx, int ny);
+
+/// The paper's Table 3 membrane sizes: nx, ny for ≈400, ≈1k and ≈3k triangles.
+struct PatchSize { int nx, ny; };
+inline constexpr PatchSize kPatch400{14, 14};
+inline constexpr PatchSize kPatch1k{22, 23};
+inline constexpr PatchSize kPatch3k{39, 39};
+
+}  // namespace eyesim::sim
