@@ -1,6 +1,7 @@
 #include "eyesim/sim/mesh.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <unordered_set>
 
 namespace eyesim::sim {
@@ -47,6 +48,37 @@ TriangleMesh make_membrane_patch(float width_mm, float height_mm, int nx, int ny
                 m.triangles.push_back({a, b, d});
                 m.triangles.push_back({b, c, d});
             }
+        }
+    }
+    m.build_adjacency();
+    return m;
+}
+
+TriangleMesh make_retina_hemisphere(float radius_mm, int rings, int segments) {
+    rings = std::max(rings, 1);
+    segments = std::max(segments, 3);
+    TriangleMesh m;
+    m.vertices_mm.reserve(1 + size_t(rings) * size_t(segments));
+    m.vertices_mm.emplace_back(0.0f, 0.0f, -radius_mm);
+    const double pi = 3.14159265358979323846;
+    for (int r = 1; r <= rings; ++r) {
+        const double polar = 0.5 * pi * double(r) / double(rings);  // angle from the posterior pole
+        for (int s = 0; s < segments; ++s) {
+            const double az = 2.0 * pi * double(s) / double(segments);
+            m.vertices_mm.emplace_back(float(radius_mm * std::sin(polar) * std::cos(az)),
+                                       float(radius_mm * std::sin(polar) * std::sin(az)),
+                                       float(-radius_mm * std::cos(polar)));
+        }
+    }
+    auto ring = [segments](int r, int s) { return uint32_t(1 + (r - 1) * segments + (s % segments)); };
+    m.triangles.reserve(size_t(segments) * size_t(2 * rings - 1));
+    // Seen from the centre (looking towards -z) increasing azimuth runs counter-clockwise: (inner, s, s+1).
+    for (int s = 0; s < segments; ++s) m.triangles.push_back({0u, ring(1, s), ring(1, s + 1)});
+    for (int r = 1; r < rings; ++r) {
+        for (int s = 0; s < segments; ++s) {
+            const uint32_t a = ring(r, s), b = ring(r, s + 1), c = ring(r + 1, s + 1), d = ring(r + 1, s);
+            m.triangles.push_back({a, d, c});
+            m.triangles.push_back({a, c, b});
         }
     }
     m.build_adjacency();

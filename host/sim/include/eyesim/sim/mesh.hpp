@@ -44,4 +44,15 @@ inline constexpr PatchSize kPatch400{14, 14};
 inline constexpr PatchSize kPatch1k{22, 23};
 inline constexpr PatchSize kPatch3k{39, 39};
 
+/// Eye frame convention used by every generator here: eye centre at the origin, +z along the optical axis
+/// towards the cornea; the retina lines the posterior inner wall (z < 0).
+inline constexpr float kEyeRadius_mm = 12.0f;
+
+/// Posterior retina hemisphere: the inner eye sphere of radius `radius_mm` (centre at the origin) for z ≤ 0,
+/// from the posterior pole (0, 0, -radius_mm) up to the equator z = 0. `rings` latitude bands (≥ 1) and
+/// `segments` longitude sectors (≥ 3): vertex 0 is the pole, then `rings` rings of `segments` vertices each.
+/// segments·(2·rings − 1) triangles, e.g. rings 20, segments 64 → 2496. Triangles are counter-clockwise seen
+/// from the eye centre, so normals point inwards (towards the instruments). The equator ring is the open rim.
+TriangleMesh make_retina_hemisphere(float radius_mm, int rings, int segments);
+
 }  // namespace eyesim::sim
