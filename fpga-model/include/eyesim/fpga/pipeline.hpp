@@ -1,0 +1,225 @@
+#pragma once
+/// \file
+/// Streaming model of one camera's colour-marker pipeline: classify → runs → single-pass connected components →
+/// moments → completed blobs, fed one field line at a time; line buffers and fixed tables only.
+///
+/// Usage (no heap after construction, no exceptions, no RTTI):
+/// \code
+///   eyesim::fpga::RegisterMap regs;                  // reset values: four default colours
+///   eyesim::fpga::Pipeline pipe(&regs);              // live map, sampled at each begin_field
+///   pipe.begin_field(field_counter, parity);
+///   for (int y = 0; y < 288; ++y) {
+///       pipe.push_line(field + y * 1440, y);         // 720 px UYVY
+///       eyesim::fpga::Blob b;
+///       while (pipe.pop_blob(b)) send(b);            // blobs leave as soon as they are complete
+///   }
+///   pipe.end_field();                                // flushes blobs touching the last line
+/// \endcode
+/// Instead of draining the ring, a sink callback may be set; it is called from push_line/end_field the moment a
+/// blob completes. Connectivity is 8-connected per class (pixels of different classes never join).
+
+#include "eyesim/fpga/blob.hpp"
+#include "eyesim/fpga/field_stats.hpp"
+#include "eyesim/fpga/register_map.hpp"
+#include "eyesim/fpga/timing.hpp"
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+
+namespace eyesim::fpga {
+
+/// Bytes of one 720-pixel UYVY line.
+inline constexpr size_t kLineBytes = 2 * kActivePixelsPerLine;
+/// Most lines a field may have (9-bit line counter).
+inline constexpr int kMaxFieldLines = 512;
+/// Capacity of the blob (label) table: slots for partial blobs alive at once.
+inline constexpr int kMaxBlobSlots = 256;
+/// Most runs on one line (alternating classes give one run per pixel).
+inline constexpr int kMaxRunsPerLine = static_cast<int>(kActivePixelsPerLine);
+/// Capacity of the output ring the caller drains.
+inline constexpr int kOutputRingCapacity = 64;
+/// Chroma LUT: 6 bits of Cb and 6 of Cr index 4096 entries of 3 bits (class 0..4).
+inline constexpr int kLutChromaBits = 6;
+/// Modelled clocks from a pixel on the wire to its run being labelled (classify 3, run close 1, label 4).
+inline constexpr uint32_t kPipelineDepthClocks = 8;
+/// Modelled clocks between two blob emissions (serial output through one pipelined divider).
+inline constexpr uint32_t kEmitIntervalClocks = 4;
+/// Modelled latency of the centroid divider (36-bit ÷ 26-bit, radix-4, 18 stages + 2).
+inline constexpr uint32_t kDividerLatencyClocks = 20;
+
+/// Result of a pipeline call.
+enum class PipelineStatus : uint8_t {
+    kOk = 0,
+    kNotInField,       ///< push_line/end_field without begin_field
+    kAlreadyInField,   ///< begin_field twice without end_field
+    kLineOutOfOrder,   ///< y not greater than the previous line's y
+    kLineOutOfRange,   ///< y < 0 or y ≥ kMaxFieldLines
+    kNullLine,         ///< null pixel pointer
+};
+
+/// Construction-time options (hardware build parameters, not registers).
+struct PipelineConfig {
+    uint8_t camera = 0;                     ///< copied into every Blob
+    int blob_table_capacity = kMaxBlobSlots;  ///< 1..kMaxBlobSlots usable slots (smaller = cheaper FPGA)
+    bool float_reference = false;           ///< also accumulate the floating reference moments (slower)
+};
+
+/// Storage the FPGA needs for this configuration, in bits. Depends on the line width and table sizes only.
+struct StorageBits {
+    uint64_t chroma_lut = 0;      ///< 4096 × 3-bit class LUT
+    uint64_t run_buffers = 0;     ///< previous + current line run buffers
+    uint64_t blob_table = 0;      ///< accumulators, bbox, merge table entries
+    uint64_t output_fifo = 0;     ///< emitted-blob FIFO
+    uint64_t registers = 0;       ///< register file
+    uint64_t total() const { return chroma_lut + run_buffers + blob_table + output_fifo + registers; }
+};
+
+/// Called once per emitted blob, at the moment it completes.
+using BlobSink = void (*)(void* context, const Blob& blob);
+
+/// The streaming pipeline of one camera.
+class Pipeline {
+public:
+    /// A pipeline with its own copy of `snapshot` (later changes to the caller's map do not reach it).
+    explicit Pipeline(const RegisterMap& snapshot, const PipelineConfig& config = {});
+    /// A pipeline that re-reads `*live` at every begin_field (writes take effect at the next field boundary).
+    explicit Pipeline(const RegisterMap* live, const PipelineConfig& config = {});
+
+    Pipeline(const Pipeline&) = delete;
+    Pipeline& operator=(const Pipeline&) = delete;
+
+    /// Replaces the private register snapshot (used when constructed from a snapshot); applies at begin_field.
+    void set_registers(const RegisterMap& snapshot);
+
+    /// Sets a sink called for each completed blob; nullptr delivers into the output ring instead.
+    void set_sink(BlobSink sink, void* context);
+
+    /// Starts a field: samples the register map, recompiles the LUT if it changed, clears per-field state.
+    PipelineStatus begin_field(uint32_t field_counter, uint8_t parity);
+
+    /// Feeds active line y (strictly increasing; skipped lines are treated as background) of 720 UYVY pixels.
+    PipelineStatus push_line(const uint8_t* uyvy_line, int y);
+
+    /// Ends the field: completes every open blob (after the last pushed line) and finalises the stats.
+    PipelineStatus end_field();
+
+    /// Convenience: begin_field, push `lines` lines spaced `stride_bytes` apart, end_field.
+    PipelineStatus process_field(const uint8_t* uyvy_field, int lines, uint32_t field_counter, uint8_t parity,
+                                 size_t stride_bytes = kLineBytes);
+
+    /// Takes the oldest queued blob; false when the ring is empty.
+    bool pop_blob(Blob& out);
+
+    /// Number of blobs waiting in the ring.
+    int pending_blobs() const { return ring_count_; }
+
+    /// Stats of the field in progress, or of the last field after end_field.
+    const FieldStats& field_stats() const { return stats_; }
+
+    /// Decoded registers in effect for the current field.
+    const PipelineParams& params() const { return params_; }
+
+    /// True between begin_field and end_field.
+    bool in_field() const { return in_field_; }
+
+    /// Storage in bits the hardware needs for this configuration.
+    StorageBits storage_bits() const;
+
+    /// Class (0..4) the compiled LUT gives a Cb/Cr pair (before the luma band); for tests and tools.
+    uint8_t lut_class(uint8_t cb, uint8_t cr) const;
+
+    /// Classifies one pixel exactly as the datapath does: class 0..4 after luma band and class enables.
+    uint8_t classify(uint8_t y, uint8_t cb, uint8_t cr) const;
+
+    /// Weight of a pixel of class `cls` (1..4) with chroma (cb, cr), as the datapath computes it.
+    uint16_t weight(uint8_t cls, uint8_t cb, uint8_t cr) const;
+
+    /// Floating reference weight for the same pixel (no quantisation of direction, weight or width).
+    double weight_reference(uint8_t cls, double cb, double cr) const;
+
+    /// Half-width of the grey chroma box the fast path treats as background (0: fast path off).
+    int fast_path_half_width() const { return fast_half_width_; }
+
+private:
+    struct Run {
+        uint16_t x0, x1;      // inclusive
+        uint16_t label;       // blob-table slot (kNoLabel: dropped)
+        uint8_t cls;
+        uint32_t sum_w;       // Σw over the run (18 bits)
+        uint32_t sum_wx;      // Σw·x (28 bits)
+        uint64_t sum_wxx;     // Σw·x² (38 bits)
+        double ref_w, ref_wx, ref_wxx;  // floating reference sums
+    };
+    struct Slot {
+        uint16_t parent;      // merge table: == own index for a root
+        uint8_t cls;
+        uint8_t flags;
+        bool live;
+        bool seen_this_line;  // got a run on the current line
+        uint16_t x_min, x_max, y_min, y_max;
+        uint16_t last_y;          // last line with a run
+        uint16_t last_line_x_max; // rightmost pixel on last_y
+        uint32_t area;
+        uint64_t sw, swx, swy, swxx, swyy, swxy;
+        double rw, rwx, rwy;
+    };
+    static constexpr uint16_t kNoLabel = 0xFFFF;
+
+    void init(const PipelineConfig& config);
+    void compile();
+    void classify_line(const uint8_t* line, int y);
+    void label_line(int y);
+    void complete_blobs(int y_done, bool end_of_field);
+    uint16_t find_root(uint16_t s);
+    uint16_t alloc_slot();
+    void merge_into(uint16_t dst, uint16_t src);
+    void emit(uint16_t slot, uint32_t decision_cycle);
+    void deliver(const Blob& b);
+
+    // Registers.
+    const RegisterMap* live_ = nullptr;
+    RegisterMap own_;
+    uint32_t compiled_generation_ = 0xFFFFFFFFu;
+    bool compiled_once_ = false;
+    PipelineParams params_{};
+    PipelineConfig config_{};
+
+    // Compiled datapath tables.
+    std::array<uint8_t, 1u << (2 * kLutChromaBits)> lut_{};
+    std::array<int16_t, kNumClasses + 1> dir_cb_q7_{}, dir_cr_q7_{};
+    std::array<uint16_t, kMaxFieldLines> roi_span_x0_{}, roi_span_x1_{};  // per-line processed span
+    int fast_half_width_ = 0;
+
+    // Line buffers.
+    std::array<Run, kMaxRunsPerLine> prev_runs_{}, cur_runs_{};
+    int n_prev_ = 0, n_cur_ = 0;
+    int prev_y_ = -2;
+
+    // Blob table.
+    std::array<Slot, kMaxBlobSlots> slots_{};
+    std::array<uint16_t, kMaxBlobSlots> free_list_{};
+    int n_free_ = 0;
+    int n_live_ = 0;
+    std::array<uint16_t, kMaxBlobSlots> to_free_{};
+    int n_to_free_ = 0;
+
+    // Emission.
+    std::array<uint16_t, kMaxBlobSlots> done_{};
+    std::array<uint32_t, kMaxBlobSlots> done_cycle_{};
+    uint32_t next_emit_free_cycle_ = 0;
+    BlobSink sink_ = nullptr;
+    void* sink_ctx_ = nullptr;
+    std::array<Blob, kOutputRingCapacity> ring_{};
+    int ring_head_ = 0, ring_count_ = 0;
+
+    // Field state.
+    bool in_field_ = false;
+    uint32_t field_counter_ = 0;
+    uint8_t parity_ = 0;
+    int last_line_ = -1;
+    uint16_t next_index_ = 0;
+    FieldStats stats_{};
+};
+
+}  // namespace eyesim::fpga
