@@ -1,0 +1,84 @@
+#pragma once
+/// \file
+/// Cross-camera correspondence of marker images: by colour class, gated by epipolar (two-view) and epipolar
+/// transfer (three-view, trifocal) consistency, decided by triangulated reprojection error with outlier
+/// rejection. Fixed capacities; no allocation per frame.
+
+#include "eyesim/tracking/camera_geometry.hpp"
+#include "eyesim/tracking/triangulate.hpp"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstdint>
+#include <span>
+
+namespace eyesim::tracking {
+
+/// Marker images one camera can contribute to one tracking frame.
+inline constexpr int kMaxMarkersPerCamera = 32;
+/// 3D markers one tracking frame can hold.
+inline constexpr int kMaxMarkersPerFrame = 32;
+
+/// One marker image, already mapped to full-frame pixels and undistorted.
+struct ImagePoint {
+    std::uint8_t colour_class = 0;                 ///< 1..4
+    std::uint8_t flags = 0;                        ///< protocol Marker flags (border, merged, …)
+    Eigen::Vector2d px = Eigen::Vector2d::Zero();  ///< distorted full-frame pixel
+    Eigen::Vector2d xn = Eigen::Vector2d::Zero();  ///< undistorted normalised point (z = 1)
+    double sigma_px = 0.05;                        ///< 1σ centroid noise (pixels)
+};
+
+/// Everything one camera contributes to one tracking frame (after time alignment).
+struct CameraObservations {
+    bool present = false;  ///< false: camera missing in this frame (dropped field, out of sync)
+    int count = 0;         ///< valid entries in `points`
+    std::array<ImagePoint, kMaxMarkersPerCamera> points{};  ///< the first `count` are valid
+};
+
+/// One 3D marker found by correspondence.
+struct MatchedMarker {
+    std::uint8_t colour_class = 0;  ///< 1..4
+    TriangulatedPoint point;        ///< position, covariance, residual, flags
+    std::array<std::int8_t, kMaxCameras> image_index{};  ///< index in each camera's points, −1 when unused
+};
+
+/// Result of one frame's correspondence.
+struct CorrespondenceResult {
+    int count = 0;  ///< valid entries in `markers`
+    std::array<MatchedMarker, kMaxMarkersPerFrame> markers{};  ///< the first `count` are valid
+    int unmatched_images = 0;      ///< marker images left without a consistent partner (one-view, outliers)
+    int rejected_hypotheses = 0;   ///< candidate matches that failed the residual test
+};
+
+/// Options of the correspondence search.
+struct CorrespondenceOptions {
+    double epipolar_gate_px = 2.0;   ///< max distance of an image from the partner's epipolar line (pixels)
+    double max_rms_px = 0.6;         ///< max reprojection RMS of an accepted match (pixels)
+    TriangulationOptions triangulation;  ///< passed to `triangulate`
+};
+
+/// Finds, per colour class, which images in different cameras show the same marker, and triangulates them.
+class Correspondence {
+public:
+    /// Precomputes the essential matrices of every camera pair. `cams` must outlive this object.
+    Correspondence(std::span<const CameraGeometry> cams, const CorrespondenceOptions& opt = {});
+
+    /// Matches `views` (one entry per camera, same order as the cameras) into `out`. Prefers three-view
+    /// matches; a three-view hypothesis that fails the residual test falls back to its best two-view subset,
+    /// which rejects one outlier image. Greedy by (views, residual); an image is used at most once.
+    void solve(std::span<const CameraObservations> views, CorrespondenceResult& out) const;
+
+    /// Symmetric epipolar distance (pixels) between image `xa` in camera a and `xb` in camera b.
+    double epipolar_distance_px(int a, int b, const Eigen::Vector2d& xa, const Eigen::Vector2d& xb) const;
+
+    /// The options in use.
+    const CorrespondenceOptions& options() const { return opt_; }
+
+private:
+    std::span<const CameraGeometry> cams_;
+    CorrespondenceOptions opt_;
+    std::array<std::array<Eigen::Matrix3d, kMaxCameras>, kMaxCameras> E_{};  ///< x_bᵀ E[a][b] x_a = 0
+};
+
+}  // namespace eyesim::tracking
