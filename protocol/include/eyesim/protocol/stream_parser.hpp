@@ -77,9 +77,16 @@ public:
         while (next(frame)) on_frame(static_cast<const DecodedFrame&>(frame));
     }
 
-    /// Declares the end of the stream: buffered bytes are counted (truncated frame or skipped garbage) and
-    /// dropped, and a pending damaged frame is classified.
-    void finish() noexcept;
+    /// Declares the end of the stream: frames still recoverable from the buffered bytes are delivered to
+    /// `on_frame`, a candidate cut short by the end counts as truncated, the rest as skipped bytes. The parser
+    /// is then ready for a new stream (counters kept).
+    template <class F>
+    void finish(F&& on_frame) noexcept {
+        eos_ = true;
+        DecodedFrame frame;
+        while (next(frame)) on_frame(static_cast<const DecodedFrame&>(frame));
+        close();
+    }
 
     /// The counters.
     const ParserStats& stats() const noexcept { return stats_; }
@@ -95,6 +102,8 @@ private:
     void skip(std::size_t n) noexcept;
     void bytes_in_direct(std::size_t n) noexcept;
     bool header_error_counted() const noexcept;
+    void cut_short(std::size_t claimed_bytes) noexcept;
+    void close() noexcept;
 
     std::array<std::uint8_t, kParserBufferBytes> buf_{};
     std::size_t fill_ = 0;          // bytes in buf_
@@ -102,6 +111,8 @@ private:
     bool skipping_ = false;         // inside a run of skipped bytes
     bool suspect_ = false;          // a CRC-failed frame is awaiting classification (crc vs truncated)
     std::uint64_t suspect_end_ = 0; // stream offset just past that frame
+    bool eos_ = false;              // finishing: incomplete candidates are truncated, not awaited
+    std::uint64_t cut_end_ = 0;     // stream offset past the last frame counted as truncated at the end
     bool have_seq_ = false;
     std::uint16_t last_seq_ = 0;
     ParserStats stats_{};

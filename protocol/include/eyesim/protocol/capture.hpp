@@ -1,0 +1,123 @@
+#pragma once
+/// \file
+/// Capture files: the received bytes with their host receive timestamps, appendable, and readable after a crash
+/// mid-write (a torn last record is reported and skipped, all earlier records survive). Layout (little-endian):
+///
+///   file header, 16 bytes: magic "EYESIMCP" (8), u16 format version 1, u16 header bytes 16, u32 reserved 0
+///   record: u16 length L (1..kMaxCaptureRecordBytes), u16 reserved 0, u64 host receive time µs, L bytes,
+///           u32 CRC-32C over the 12 record-header bytes and the L bytes
+///
+/// A record normally holds one frame; it may hold any received chunk (the reader feeds it to a StreamParser).
+/// A file that does not start with the magic is read as a raw byte stream (chunks without timestamps).
+/// Host-side code: uses stdio (the codec and parser stay heap-free), never throws.
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <cstdio>
+#include <span>
+
+namespace eyesim::protocol {
+
+/// Capture file magic, the first 8 bytes.
+inline constexpr std::array<std::uint8_t, 8> kCaptureMagic = {'E', 'Y', 'E', 'S', 'I', 'M', 'C', 'P'};
+/// Capture format version.
+inline constexpr std::uint16_t kCaptureVersion = 1;
+/// Capture file header bytes.
+inline constexpr std::size_t kCaptureHeaderBytes = 16;
+/// Record header bytes (length, reserved, host time).
+inline constexpr std::size_t kCaptureRecordHeaderBytes = 12;
+/// Record trailer bytes (CRC-32C).
+inline constexpr std::size_t kCaptureRecordCrcBytes = 4;
+/// Largest record payload.
+inline constexpr std::size_t kMaxCaptureRecordBytes = 16384;
+
+/// One record as read back.
+struct CaptureRecord {
+    std::uint64_t host_rx_us = 0;            ///< host receive time, µs (0 for raw streams)
+    bool has_time = false;                   ///< false for chunks of a raw byte stream
+    std::uint64_t file_offset = 0;           ///< offset of the record (or chunk) in the file
+    std::span<const std::uint8_t> bytes;     ///< the received bytes; valid until the next read
+};
+
+/// Outcome of CaptureReader::next().
+enum class CaptureStatus : std::uint8_t {
+    Ok,       ///< a record was read
+    End,      ///< clean end of file
+    Torn,     ///< the last record is incomplete or fails its CRC at the end of the file (skipped; reading ends)
+    Corrupt,  ///< a record in the middle of the file is damaged (reading stops there; earlier records are good)
+    IoError,  ///< read error
+};
+
+/// What kind of file a reader opened.
+enum class CaptureKind : std::uint8_t {
+    Capture,    ///< "EYESIMCP" capture file
+    RawStream,  ///< any other file: a raw byte stream
+};
+
+/// Reads a capture file (or a raw byte stream) record by record without allocating per record.
+class CaptureReader {
+public:
+    CaptureReader() = default;
+    CaptureReader(const CaptureReader&) = delete;
+    CaptureReader& operator=(const CaptureReader&) = delete;
+    ~CaptureReader() { close(); }
+
+    /// Opens `path`; false when it cannot be opened or has a capture magic with an unsupported version/header.
+    bool open(const char* path) noexcept;
+    /// Closes the file.
+    void close() noexcept;
+    /// Capture or raw stream (valid after open()).
+    CaptureKind kind() const noexcept { return kind_; }
+    /// Reads the next record (raw streams: the next chunk of up to kMaxCaptureRecordBytes).
+    CaptureStatus next(CaptureRecord& rec) noexcept;
+    /// Bytes of the file that were not returned in records (the torn or corrupt tail), after End/Torn/Corrupt.
+    std::uint64_t dropped_bytes() const noexcept { return dropped_; }
+    /// Offset where a Torn or Corrupt record starts.
+    std::uint64_t bad_offset() const noexcept { return bad_offset_; }
+
+private:
+    std::FILE* f_ = nullptr;
+    CaptureKind kind_ = CaptureKind::RawStream;
+    std::uint64_t offset_ = 0;     // file offset of the next record
+    std::uint64_t size_ = 0;       // file size at open()
+    std::uint64_t dropped_ = 0;
+    std::uint64_t bad_offset_ = 0;
+    bool done_ = false;
+    std::array<std::uint8_t, kCaptureRecordHeaderBytes + kMaxCaptureRecordBytes + kCaptureRecordCrcBytes> buf_{};
+};
+
+/// Writes capture files: creates a new one, or appends to an existing one after dropping its torn tail.
+class CaptureWriter {
+public:
+    CaptureWriter() = default;
+    CaptureWriter(const CaptureWriter&) = delete;
+    CaptureWriter& operator=(const CaptureWriter&) = delete;
+    ~CaptureWriter() { close(); }
+
+    /// Creates (truncates) `path` and writes the file header.
+    bool create(const char* path) noexcept;
+    /// Opens `path` for appending: creates it if missing; otherwise checks the header, keeps every good record
+    /// and cuts a torn or corrupt tail off (see recovered_records() / dropped_bytes()).
+    bool append(const char* path) noexcept;
+    /// Appends one record (1..kMaxCaptureRecordBytes bytes) and, with flush_each (default), flushes it to the OS.
+    bool write(std::uint64_t host_rx_us, std::span<const std::uint8_t> bytes) noexcept;
+    /// Flushes buffered records to the OS.
+    bool flush() noexcept;
+    /// Flushes and closes.
+    void close() noexcept;
+    /// Flush after every record (default true: a crash loses at most the record being written).
+    void set_flush_each(bool on) noexcept { flush_each_ = on; }
+    /// Good records found in the file by append().
+    std::uint64_t recovered_records() const noexcept { return recovered_; }
+    /// Bytes cut off a torn tail by append().
+    std::uint64_t dropped_bytes() const noexcept { return dropped_; }
+
+private:
+    std::FILE* f_ = nullptr;
+    bool flush_each_ = true;
+    std::uint64_t recovered_ = 0;
+    std::uint64_t dropped_ = 0;
+};
+
+}  // namespace eyesim::protocol
