@@ -1,0 +1,86 @@
+#pragma once
+/// \file
+/// Motion scenarios of the rig: the eye (3 rotational DOF on springs), two instruments through the trocars and
+/// the foot pedal as smooth, deterministic functions of time (seeded).
+///
+/// Scenarios: "static" (everything still), "sweep" (slow sweeps of both instruments and the eye over the whole
+/// working volume), "surgery" (membrane-peel-like strokes near the retina, forceps closing/opening with the
+/// pedal, light pipe following), "fast" (quick moves: motion blur of several pixels), "occlusion" (instruments
+/// crossing, retracting out of view, large eye rotations hiding markers behind the eye).
+
+#include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/truth.hpp"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace eyesim::rig {
+
+/// Pose of one instrument, in the eye frame (it goes through a trocar fixed on the eye).
+struct InstrumentPose {
+    InstrumentKind kind = InstrumentKind::kPick;
+    int trocar = 0;                                        ///< trocar id
+    Eigen::Vector3d tip_eye_mm = Eigen::Vector3d::Zero();  ///< tip, eye frame
+    Eigen::Vector3d axis_eye = Eigen::Vector3d::UnitZ();   ///< unit, tip → handle, eye frame
+    double insertion_mm = 0.0;                             ///< tip depth behind the trocar (negative: outside)
+    double jaw_opening = 0.0;                              ///< forceps jaws 0 closed .. 1 open
+};
+
+/// State of the whole scene at one instant.
+struct SceneState {
+    double t_us = 0.0;                                          ///< time on the recording clock
+    Eigen::Quaterniond q_eye_to_rig = Eigen::Quaterniond::Identity();  ///< eye rotation
+    Eigen::Vector3d eye_center_rig_mm = Eigen::Vector3d::Zero();       ///< fixed rotation centre
+    std::vector<InstrumentPose> instruments;                    ///< tissue instrument first, then light pipe
+    PedalTruth pedal;                                           ///< foot pedal
+
+    /// Eye-frame point → rig frame.
+    Eigen::Vector3d eye_to_rig(const Eigen::Vector3d& p_eye_mm) const { return eye_center_rig_mm + q_eye_to_rig * p_eye_mm; }
+};
+
+/// Names accepted by `Scenario::make`.
+std::vector<std::string> scenario_names();
+
+/// A deterministic motion scenario. `state_at` is a pure function of t (any t, also before 0).
+class Scenario {
+public:
+    /// Builds scenario `name` for `seed`, valid on [-1 s, duration_us + 1 s]. Throws RigError on an unknown name.
+    static Scenario make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies);
+
+    /// Scene state at time t_us.
+    SceneState state_at(double t_us) const;
+    /// Scenario name.
+    const std::string& name() const noexcept { return name_; }
+    /// Instrument kinds in the scene (tissue instrument, light pipe).
+    const std::vector<InstrumentKind>& kinds() const noexcept { return kinds_; }
+
+    /// Eye spring model: natural frequency (Hz) and damping ratio of each rotation axis.
+    static constexpr double kEyeSpringHz = 2.0;
+    static constexpr double kEyeDamping = 0.7;
+
+private:
+    struct Wave { double amp, freq_hz, phase; };
+    static double eval(const std::vector<Wave>& waves, double t_s);
+
+    std::string name_;
+    std::vector<InstrumentKind> kinds_;
+    Bodies bodies_;
+    // Per instrument: pivot tilt x/y (rad) about the trocar normal, insertion (mm); sums of sines around bases.
+    struct InstrumentMotion {
+        double tilt_x0 = 0, tilt_y0 = 0, insertion0 = 10;
+        std::vector<Wave> tilt_x, tilt_y, insertion;
+        double retract_start_s = 1e30, retract_end_s = 1e30;  ///< occlusion: pulled out of the eye and back
+    };
+    std::vector<InstrumentMotion> motion_;
+    std::vector<Wave> pedal0_, pedal1_, pedal2_;
+    double pedal0_base_ = 0.0;
+    // Eye rotation vector (rad) sampled on a fixed grid by integrating the spring model (RK4).
+    double eye_t0_s_ = -1.0, eye_dt_s_ = 0.0005;
+    std::vector<Eigen::Vector3d> eye_rot_, eye_rate_;
+};
+
+}  // namespace eyesim::rig
