@@ -5,7 +5,8 @@
 /// Coordinates are field pixels: x right (0..719), y down in active field lines (0..287); pixel centres are at
 /// integer coordinates. Moments are exact integer sums over the blob's pixels of weight w (see RegisterMap,
 /// WEIGHT_MODE / WEIGHT_BITS; w ≤ 255) with the widths the hardware accumulators have (documented in
-/// docs/fpga-pipeline.md): Σw 26 bits, Σwx 36, Σwy 35, Σwx² 46, Σwy² 44, Σwxy 45. The centroid is the divider's
+/// docs/fpga-pipeline.md; enough for one blob covering a whole 720×512 field): Σw 27 bits, Σwx 37, Σwy 36,
+/// Σwx² 46, Σwy² 45, Σwxy 45. The centroid is the divider's
 /// output: round(Σwx · 2^8 / Σw), i.e. fixed point with scale 1/256 px (kCentroidFracBits).
 
 #include <cstdint>
@@ -15,7 +16,7 @@ namespace eyesim::fpga {
 /// Fractional bits of Blob::cx_q8 / cy_q8 (scale 1/256 px).
 inline constexpr int kCentroidFracBits = 8;
 /// Accumulator widths in bits (hardware; the model checks them in tests).
-inline constexpr int kSumWBits = 26, kSumWxBits = 36, kSumWyBits = 35, kSumWxxBits = 46, kSumWyyBits = 44,
+inline constexpr int kSumWBits = 27, kSumWxBits = 37, kSumWyBits = 36, kSumWxxBits = 46, kSumWyyBits = 45,
                      kSumWxyBits = 45;
 
 /// Bits of Blob::flags.

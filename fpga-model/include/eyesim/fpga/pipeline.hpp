@@ -45,7 +45,7 @@ inline constexpr int kLutChromaBits = 6;
 inline constexpr uint32_t kPipelineDepthClocks = 8;
 /// Modelled clocks between two blob emissions (serial output through one pipelined divider).
 inline constexpr uint32_t kEmitIntervalClocks = 4;
-/// Modelled latency of the centroid divider (36-bit ÷ 26-bit, radix-4, 18 stages + 2).
+/// Modelled latency of the centroid divider (37-bit ÷ 27-bit, radix-4, 18 stages + 2).
 inline constexpr uint32_t kDividerLatencyClocks = 20;
 
 /// Result of a pipeline call.
@@ -168,13 +168,13 @@ private:
 
     void init(const PipelineConfig& config);
     void compile();
+    template <bool kRef>
     void classify_line(const uint8_t* line, int y);
-    void label_line(int y);
-    void complete_blobs(int y_done, bool end_of_field);
+    void label_line(int y, bool end_of_field);
     uint16_t find_root(uint16_t s);
     uint16_t alloc_slot();
     void merge_into(uint16_t dst, uint16_t src);
-    void emit(uint16_t slot, uint32_t decision_cycle);
+    void emit(uint16_t slot, uint32_t decision_cycle, bool end_of_field);
     void deliver(const Blob& b);
 
     // Registers.
@@ -188,13 +188,14 @@ private:
     // Compiled datapath tables.
     std::array<uint8_t, 1u << (2 * kLutChromaBits)> lut_{};
     std::array<int16_t, kNumClasses + 1> dir_cb_q7_{}, dir_cr_q7_{};
-    std::array<uint16_t, kMaxFieldLines> roi_span_x0_{}, roi_span_x1_{};  // per-line processed span
     int fast_half_width_ = 0;
 
     // Line buffers.
-    std::array<Run, kMaxRunsPerLine> prev_runs_{}, cur_runs_{};
-    int n_prev_ = 0, n_cur_ = 0;
-    int prev_y_ = -2;
+    std::array<std::array<Run, kMaxRunsPerLine>, 2> runs_{};  // [cur_buf_] current line, other: previous
+    std::array<int, 2> n_runs_{};
+    int cur_buf_ = 0;
+    std::array<int16_t, kNumClasses + 1> luma_min_{}, luma_max_{};
+    std::array<double, kNumClasses + 1> dir_cb_ref_{}, dir_cr_ref_{};
 
     // Blob table.
     std::array<Slot, kMaxBlobSlots> slots_{};

@@ -1,0 +1,617 @@
+#include "eyesim/fpga/pipeline.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+namespace eyesim::fpga {
+namespace {
+
+constexpr double kTwoPi = 6.283185307179586;
+constexpr int kPairs = static_cast<int>(kActivePixelsPerLine / 2);
+
+// Hue distance in 1/256 turns, wrapped to [-128, 128).
+double hue_delta(double a, double b) {
+    double d = std::fmod(a - b, 256.0);
+    if (d < -128.0) d += 256.0;
+    if (d >= 128.0) d -= 256.0;
+    return d;
+}
+
+// Bits needed to hold values 0..n.
+uint64_t bits_for(uint64_t n) {
+    uint64_t b = 1;
+    while ((n >> b) != 0) ++b;
+    return b;
+}
+
+}  // namespace
+
+Pipeline::Pipeline(const RegisterMap& snapshot, const PipelineConfig& config) : own_(snapshot) { init(config); }
+
+Pipeline::Pipeline(const RegisterMap* live, const PipelineConfig& config) : live_(live) { init(config); }
+
+void Pipeline::init(const PipelineConfig& config) {
+    config_ = config;
+    config_.blob_table_capacity = std::clamp(config_.blob_table_capacity, 1, kMaxBlobSlots);
+    n_free_ = 0;
+    for (int i = config_.blob_table_capacity - 1; i >= 0; --i) free_list_[n_free_++] = static_cast<uint16_t>(i);
+    compile();
+}
+
+void Pipeline::set_registers(const RegisterMap& snapshot) { own_ = snapshot; }
+
+void Pipeline::set_sink(BlobSink sink, void* context) {
+    sink_ = sink;
+    sink_ctx_ = context;
+}
+
+// Compiles the register map into the datapath tables: class LUT, weight directions, luma bands, fast-path box.
+void Pipeline::compile() {
+    const RegisterMap& m = live_ ? *live_ : own_;
+    if (compiled_once_ && m.generation() == compiled_generation_ && live_) return;
+    compiled_generation_ = m.generation();
+    compiled_once_ = true;
+    params_ = decode(m);
+    const PipelineParams& p = params_;
+
+    constexpr int kCells = 1 << kLutChromaBits;
+    constexpr double kStep = 256.0 / kCells;
+    for (int qb = 0; qb < kCells; ++qb) {
+        for (int qr = 0; qr < kCells; ++qr) {
+            // A cell is classified by its centre chroma.
+            const double cb = qb * kStep + (kStep - 1) / 2.0, cr = qr * kStep + (kStep - 1) / 2.0;
+            const double dcb = cb - 128.0, dcr = cr - 128.0;
+            const double sat = std::hypot(dcb, dcr);
+            double hue = std::atan2(dcr, dcb) / kTwoPi * 256.0;
+            if (hue < 0) hue += 256.0;
+            uint8_t cls = 0;
+            for (int c = 1; c <= kNumClasses && cls == 0; ++c) {
+                if (!(p.class_enable & (1u << (c - 1)))) continue;
+                const int i = c - 1;
+                if (std::fabs(hue_delta(hue, p.hue_centre[i])) <= p.hue_half_width[i] && sat >= p.sat_min[i] &&
+                    sat <= p.sat_max[i])
+                    cls = static_cast<uint8_t>(c);
+            }
+            lut_[static_cast<size_t>(qb << kLutChromaBits | qr)] = cls;
+        }
+    }
+    luma_min_[0] = 0;
+    luma_max_[0] = 255;
+    for (int c = 1; c <= kNumClasses; ++c) {
+        const double a = p.hue_centre[c - 1] * kTwoPi / 256.0;
+        dir_cb_ref_[c] = std::cos(a);
+        dir_cr_ref_[c] = std::sin(a);
+        dir_cb_q7_[c] = static_cast<int16_t>(std::lround(128.0 * dir_cb_ref_[c]));
+        dir_cr_q7_[c] = static_cast<int16_t>(std::lround(128.0 * dir_cr_ref_[c]));
+        luma_min_[c] = p.luma_min[c - 1];
+        luma_max_[c] = p.luma_max[c - 1];
+    }
+
+    // Fast path: the largest grey box |Cb-128|, |Cr-128| ≤ T whose LUT cells are all background. Chroma of an
+    // odd pixel is the mean of two in-box pairs, hence in the box too: skipping is exact.
+    fast_half_width_ = 0;
+    if (p.fast_path) {
+        for (int t = 1; t <= 127; ++t) {
+            bool all_bg = true;
+            const int q0 = (128 - t) >> 2, q1 = (128 + t) >> 2;
+            for (int qb = q0; qb <= q1 && all_bg; ++qb)
+                for (int qr = q0; qr <= q1 && all_bg; ++qr)
+                    all_bg = lut_[static_cast<size_t>(qb << kLutChromaBits | qr)] == 0;
+            if (!all_bg) break;
+            fast_half_width_ = t;
+        }
+    }
+}
+
+uint8_t Pipeline::lut_class(uint8_t cb, uint8_t cr) const {
+    return lut_[static_cast<size_t>((cb >> (8 - kLutChromaBits)) << kLutChromaBits | (cr >> (8 - kLutChromaBits)))];
+}
+
+uint8_t Pipeline::classify(uint8_t y, uint8_t cb, uint8_t cr) const {
+    const uint8_t c = lut_class(cb, cr);
+    return (c != 0 && y >= luma_min_[c] && y <= luma_max_[c]) ? c : 0;
+}
+
+uint16_t Pipeline::weight(uint8_t cls, uint8_t cb, uint8_t cr) const {
+    if (params_.weight_mode == 0) return 1;
+    // Projection of the chroma vector on the class hue direction (Q1.7 coefficients, floor), minus background.
+    const int proj = ((cb - 128) * dir_cb_q7_[cls] + (cr - 128) * dir_cr_q7_[cls]) >> 7;
+    const int w = std::clamp(proj - static_cast<int>(params_.weight_bg), 0, 255);
+    return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
+}
+
+double Pipeline::weight_reference(uint8_t cls, double cb, double cr) const {
+    if (params_.weight_mode == 0) return 1.0;
+    const double proj = (cb - 128.0) * dir_cb_ref_[cls] + (cr - 128.0) * dir_cr_ref_[cls];
+    return std::clamp(proj - params_.weight_bg, 0.0, 255.0);
+}
+
+PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
+    if (in_field_) return PipelineStatus::kAlreadyInField;
+    compile();
+    in_field_ = true;
+    field_counter_ = field_counter;
+    parity_ = parity;
+    last_line_ = -1;
+    next_index_ = 0;
+    next_emit_free_cycle_ = 0;
+    n_runs_ = {0, 0};
+    stats_ = FieldStats{};
+    stats_.field_counter = field_counter;
+    return PipelineStatus::kOk;
+}
+
+PipelineStatus Pipeline::push_line(const uint8_t* uyvy_line, int y) {
+    if (!in_field_) return PipelineStatus::kNotInField;
+    if (y < 0 || y >= kMaxFieldLines) return PipelineStatus::kLineOutOfRange;
+    if (y <= last_line_) return PipelineStatus::kLineOutOfOrder;
+    if (uyvy_line == nullptr) return PipelineStatus::kNullLine;
+    if (!params_.enable) {
+        last_line_ = y;
+        ++stats_.lines;
+        return PipelineStatus::kOk;
+    }
+    // A gap: the line after the previous one is background, which completes every blob still open.
+    if (last_line_ >= 0 && y > last_line_ + 1) {
+        cur_buf_ ^= 1;
+        n_runs_[cur_buf_] = 0;
+        label_line(last_line_ + 1, false);
+    }
+    cur_buf_ ^= 1;
+    if (config_.float_reference)
+        classify_line<true>(uyvy_line, y);
+    else
+        classify_line<false>(uyvy_line, y);
+    label_line(y, false);
+    last_line_ = y;
+    ++stats_.lines;
+    return PipelineStatus::kOk;
+}
+
+PipelineStatus Pipeline::end_field() {
+    if (!in_field_) return PipelineStatus::kNotInField;
+    if (params_.enable && last_line_ >= 0) {
+        cur_buf_ ^= 1;
+        n_runs_[cur_buf_] = 0;
+        label_line(last_line_, true);
+    }
+    stats_.last_active_line_end_cycle = active_line_end_cycle(static_cast<uint32_t>(std::max(last_line_, 0)));
+    stats_.last_blob_latency_cycles = stats_.last_emit_cycle > stats_.last_active_line_end_cycle
+                                          ? stats_.last_emit_cycle - stats_.last_active_line_end_cycle
+                                          : 0;
+    in_field_ = false;
+    return PipelineStatus::kOk;
+}
+
+PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uint32_t field_counter, uint8_t parity,
+                                       size_t stride_bytes) {
+    PipelineStatus s = begin_field(field_counter, parity);
+    if (s != PipelineStatus::kOk) return s;
+    if (uyvy_field == nullptr && lines > 0) {
+        end_field();
+        return PipelineStatus::kNullLine;
+    }
+    for (int y = 0; y < lines; ++y) {
+        s = push_line(uyvy_field + static_cast<size_t>(y) * stride_bytes, y);
+        if (s != PipelineStatus::kOk) {
+            end_field();
+            return s;
+        }
+    }
+    return end_field();
+}
+
+template <bool kRef>
+void Pipeline::classify_line(const uint8_t* line, int y) {
+    Run* runs = runs_[cur_buf_].data();
+    int n = 0;
+
+    // Processed spans of this line: the whole line, or the union of the ROI windows containing it.
+    uint16_t span_x0[kNumRoiWindows + 1], span_x1[kNumRoiWindows + 1];
+    int n_spans = 0;
+    if (params_.roi_enable == 0) {
+        span_x0[0] = 0;
+        span_x1[0] = kActivePixelsPerLine - 1;
+        n_spans = 1;
+    } else {
+        for (int w = 0; w < kNumRoiWindows; ++w) {
+            if (!(params_.roi_enable & (1u << w)) || y < params_.roi_y0[w] || y > params_.roi_y1[w]) continue;
+            int i = n_spans++;  // insertion sort by x0
+            while (i > 0 && span_x0[i - 1] > params_.roi_x0[w]) {
+                span_x0[i] = span_x0[i - 1];
+                span_x1[i] = span_x1[i - 1];
+                --i;
+            }
+            span_x0[i] = params_.roi_x0[w];
+            span_x1[i] = params_.roi_x1[w];
+        }
+        int m = 0;  // merge overlapping or touching spans
+        for (int i = 0; i < n_spans; ++i) {
+            if (m > 0 && span_x0[i] <= span_x1[m - 1] + 1) {
+                span_x1[m - 1] = std::max(span_x1[m - 1], span_x1[i]);
+            } else {
+                span_x0[m] = span_x0[i];
+                span_x1[m] = span_x1[i];
+                ++m;
+            }
+        }
+        n_spans = m;
+    }
+
+    const int T = fast_half_width_;
+#if defined(__SSE2__)
+    const __m128i lo = _mm_set1_epi16(static_cast<short>(128 - T));  // chroma bytes even, luma bytes odd: 0
+    const __m128i hi = _mm_set1_epi16(static_cast<short>(0xFF00 | (128 + T)));
+#endif
+    auto pair_in_box = [&](int k) {
+        const uint8_t* q = line + 4 * k;
+        return std::abs(q[0] - 128) <= T && std::abs(q[2] - 128) <= T;
+    };
+    // True when the 4 pairs starting at pixel x (even) are all inside the grey box.
+    auto chunk_in_box = [&](int x) {
+#if defined(__SSE2__)
+        const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(line + 2 * x));
+        const __m128i ok = _mm_and_si128(_mm_cmpeq_epi8(_mm_max_epu8(v, lo), v), _mm_cmpeq_epi8(_mm_min_epu8(v, hi), v));
+        return _mm_movemask_epi8(ok) == 0xFFFF;
+#else
+        const int k = x >> 1;
+        return pair_in_box(k) && pair_in_box(k + 1) && pair_in_box(k + 2) && pair_in_box(k + 3);
+#endif
+    };
+
+    const int last_pair = kPairs - 1;
+    for (int s = 0; s < n_spans; ++s) {
+        const int xe = span_x1[s];
+        int x = span_x0[s];
+        // Open run state.
+        uint8_t cls_open = 0;
+        int x_open = 0;
+        uint32_t sw = 0, swx = 0;
+        uint64_t swxx = 0;
+        double rw = 0, rwx = 0, rwxx = 0;
+        auto close = [&](int x_end) {
+            if (cls_open != 0) {
+                Run& r = runs[n++];
+                r.x0 = static_cast<uint16_t>(x_open);
+                r.x1 = static_cast<uint16_t>(x_end);
+                r.label = kNoLabel;
+                r.cls = cls_open;
+                r.sum_w = sw;
+                r.sum_wx = swx;
+                r.sum_wxx = swxx;
+                r.ref_w = rw;
+                r.ref_wx = rwx;
+                r.ref_wxx = rwxx;
+            }
+            cls_open = 0;
+        };
+        auto pixel = [&](int px) {
+            const int k = px >> 1;
+            const uint8_t* q = line + 4 * k;
+            int cb = q[0], cr = q[2];
+            const int luma = q[1 + 2 * (px & 1)];
+            double cbd = cb, crd = cr;
+            if ((px & 1) && k < last_pair) {  // odd pixel: chroma interpolated between co-sited neighbours
+                if constexpr (kRef) {
+                    cbd = 0.5 * (cb + q[4]);
+                    crd = 0.5 * (cr + q[6]);
+                }
+                cb = (cb + q[4] + 1) >> 1;
+                cr = (cr + q[6] + 1) >> 1;
+            }
+            uint8_t c = lut_[static_cast<size_t>((cb >> 2) << kLutChromaBits | (cr >> 2))];
+            if (c != 0 && (luma < luma_min_[c] || luma > luma_max_[c])) c = 0;
+            if (c != cls_open) {
+                close(px - 1);
+                if (c != 0) {
+                    cls_open = c;
+                    x_open = px;
+                    sw = swx = 0;
+                    swxx = 0;
+                    rw = rwx = rwxx = 0;
+                }
+            }
+            if (c != 0) {
+                const uint32_t w = weight(c, static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+                sw += w;
+                swx += w * static_cast<uint32_t>(px);
+                swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
+                if constexpr (kRef) {
+                    const double wr = weight_reference(c, cbd, crd);
+                    rw += wr;
+                    rwx += wr * px;
+                    rwxx += wr * px * px;
+                }
+            }
+        };
+
+        // Scalar head up to an even pixel.
+        if (x & 1) pixel(x++);
+        while (x <= xe) {
+            if (T > 0 && x + 7 <= xe && chunk_in_box(x) && (x + 8 >= static_cast<int>(kActivePixelsPerLine) ||
+                                                            pair_in_box((x + 8) >> 1))) {
+                // 8 background pixels (the 8th's interpolated chroma is the mean of two in-box pairs).
+                close(x - 1);
+                stats_.fast_path_pixels += 8;
+                x += 8;
+                continue;
+            }
+            const int stop = std::min(x + 7, xe);
+            for (; x <= stop; ++x) pixel(x);
+        }
+        close(xe);
+    }
+    n_runs_[cur_buf_] = n;
+    stats_.runs += static_cast<uint32_t>(n);
+    stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
+}
+
+uint16_t Pipeline::find_root(uint16_t s) {
+    while (slots_[s].parent != s) {
+        slots_[s].parent = slots_[slots_[s].parent].parent;  // path halving
+        s = slots_[s].parent;
+    }
+    return s;
+}
+
+uint16_t Pipeline::alloc_slot() {
+    if (n_free_ == 0) return kNoLabel;
+    const uint16_t s = free_list_[--n_free_];
+    ++n_live_;
+    stats_.max_table_occupancy = std::max(stats_.max_table_occupancy, static_cast<uint32_t>(n_live_));
+    return s;
+}
+
+void Pipeline::merge_into(uint16_t dst, uint16_t src) {
+    Slot& d = slots_[dst];
+    Slot& s = slots_[src];
+    d.flags |= s.flags;
+    d.x_min = std::min(d.x_min, s.x_min);
+    d.x_max = std::max(d.x_max, s.x_max);
+    d.y_min = std::min(d.y_min, s.y_min);
+    d.y_max = std::max(d.y_max, s.y_max);
+    if (s.seen_this_line && !d.seen_this_line) {
+        d.seen_this_line = true;
+        d.last_y = s.last_y;
+        d.last_line_x_max = s.last_line_x_max;
+    } else if (s.seen_this_line == d.seen_this_line) {
+        if (s.last_y > d.last_y) {
+            d.last_y = s.last_y;
+            d.last_line_x_max = s.last_line_x_max;
+        } else if (s.last_y == d.last_y) {
+            d.last_line_x_max = std::max(d.last_line_x_max, s.last_line_x_max);
+        }
+    }
+    d.area += s.area;
+    d.sw += s.sw;
+    d.swx += s.swx;
+    d.swy += s.swy;
+    d.swxx += s.swxx;
+    d.swyy += s.swyy;
+    d.swxy += s.swxy;
+    d.rw += s.rw;
+    d.rwx += s.rwx;
+    d.rwy += s.rwy;
+    s.parent = dst;
+    to_free_[n_to_free_++] = src;
+}
+
+// Connects the current line's runs (line y) to the previous line's, then completes every blob of the previous
+// line that no run continued. With end_of_field the current line is empty and y is the field's last line.
+void Pipeline::label_line(int y, bool end_of_field) {
+    Run* cur = runs_[cur_buf_].data();
+    const int n_cur = n_runs_[cur_buf_];
+    Run* prev = runs_[cur_buf_ ^ 1].data();
+    const int n_prev = n_runs_[cur_buf_ ^ 1];
+    const uint16_t yy = static_cast<uint16_t>(y);
+
+    int j = 0;
+    for (int i = 0; i < n_cur; ++i) {
+        Run& r = cur[i];
+        while (j < n_prev && prev[j].x1 + 1 < r.x0) ++j;
+        uint16_t label = kNoLabel;
+        bool touched_dropped = false;
+        for (int k = j; k < n_prev && prev[k].x0 <= r.x1 + 1; ++k) {  // 8-connected overlap
+            if (prev[k].cls != r.cls) continue;
+            if (prev[k].label == kNoLabel) {
+                touched_dropped = true;
+                continue;
+            }
+            const uint16_t root = find_root(prev[k].label);
+            if (label == kNoLabel) {
+                label = root;
+            } else if (root != label) {
+                merge_into(label, root);
+                ++stats_.merges;
+            }
+        }
+        if (label == kNoLabel) {
+            if (touched_dropped) continue;  // the rest of a dropped blob stays dropped
+            label = alloc_slot();
+            if (label == kNoLabel) {
+                ++stats_.table_overflows;
+                continue;
+            }
+            Slot& s = slots_[label];
+            s = Slot{};
+            s.parent = label;
+            s.cls = r.cls;
+            s.live = true;
+            s.x_min = r.x0;
+            s.x_max = r.x1;
+            s.y_min = s.y_max = yy;
+        } else if (touched_dropped) {
+            slots_[label].flags |= kBlobIncomplete;
+        }
+        Slot& s = slots_[label];
+        const uint64_t area = static_cast<uint64_t>(r.x1 - r.x0 + 1);
+        s.area += static_cast<uint32_t>(area);
+        s.x_min = std::min(s.x_min, r.x0);
+        s.x_max = std::max(s.x_max, r.x1);
+        s.y_max = yy;
+        s.sw += r.sum_w;
+        s.swx += r.sum_wx;
+        s.swy += static_cast<uint64_t>(r.sum_w) * yy;
+        s.swxx += r.sum_wxx;
+        s.swyy += static_cast<uint64_t>(r.sum_w) * yy * yy;
+        s.swxy += static_cast<uint64_t>(r.sum_wx) * yy;
+        s.rw += r.ref_w;
+        s.rwx += r.ref_wx;
+        s.rwy += r.ref_w * y;
+        if (!s.seen_this_line) {
+            s.seen_this_line = true;
+            s.last_y = yy;
+            s.last_line_x_max = r.x1;
+        } else {
+            s.last_line_x_max = std::max(s.last_line_x_max, r.x1);
+        }
+        r.label = label;
+    }
+
+    // Blobs of the previous line that got no run on this line are complete.
+    int n_done = 0;
+    for (int k = 0; k < n_prev; ++k) {
+        if (prev[k].label == kNoLabel) continue;
+        const uint16_t root = find_root(prev[k].label);
+        Slot& s = slots_[root];
+        if (s.seen_this_line || !s.live) continue;
+        s.live = false;  // marks it done (once)
+        // Decided when the scan of the next line has passed the blob's rightmost pixel on its last line by one.
+        const uint32_t decision =
+            end_of_field ? active_line_end_cycle(static_cast<uint32_t>(y)) + kPipelineDepthClocks
+                         : pixel_cycle(std::min<uint32_t>(s.last_line_x_max + 2u, kActivePixelsPerLine),
+                                       static_cast<uint32_t>(y)) +
+                               kPipelineDepthClocks;
+        int i = n_done++;  // insertion sort by decision cycle
+        while (i > 0 && done_cycle_[i - 1] > decision) {
+            done_[i] = done_[i - 1];
+            done_cycle_[i] = done_cycle_[i - 1];
+            --i;
+        }
+        done_[i] = root;
+        done_cycle_[i] = decision;
+    }
+    for (int i = 0; i < n_cur; ++i) {
+        if (cur[i].label == kNoLabel) continue;
+        cur[i].label = find_root(cur[i].label);
+    }
+    for (int i = 0; i < n_to_free_; ++i) {
+        slots_[to_free_[i]].live = false;
+        free_list_[n_free_++] = to_free_[i];
+        --n_live_;
+    }
+    n_to_free_ = 0;
+    for (int i = 0; i < n_done; ++i) {
+        emit(done_[i], done_cycle_[i], end_of_field);
+        free_list_[n_free_++] = done_[i];
+        --n_live_;
+    }
+    for (int i = 0; i < n_cur; ++i)
+        if (cur[i].label != kNoLabel) slots_[cur[i].label].seen_this_line = false;
+}
+
+void Pipeline::emit(uint16_t slot, uint32_t decision_cycle, bool end_of_field) {
+    const Slot& s = slots_[slot];
+    const PipelineParams& p = params_;
+    const uint32_t bw = static_cast<uint32_t>(s.x_max - s.x_min + 1), bh = static_cast<uint32_t>(s.y_max - s.y_min + 1);
+    bool pass = s.area >= p.min_area_px && s.area <= p.max_area_px;
+    if (p.min_fill_q8 != 0) pass = pass && s.area * 256u >= p.min_fill_q8 * bw * bh;
+    if (p.max_aspect_q4 != 0) pass = pass && std::max(bw, bh) * 16u <= p.max_aspect_q4 * std::min(bw, bh);
+    if (!pass) {
+        ++stats_.blobs_filtered;
+        return;
+    }
+    Blob b;
+    b.field_counter = field_counter_;
+    b.index = next_index_++;
+    b.camera = config_.camera;
+    b.class_id = s.cls;
+    b.parity = parity_;
+    b.flags = s.flags;
+    if (s.x_min == 0) b.flags |= kBlobTouchesLeft;
+    if (s.x_max == kActivePixelsPerLine - 1) b.flags |= kBlobTouchesRight;
+    if (s.y_min == 0) b.flags |= kBlobTouchesTop;
+    if (s.y_max == kActiveLinesPerField - 1 || end_of_field) b.flags |= kBlobTouchesBottom;
+    b.area_px = s.area;
+    b.x_min = s.x_min;
+    b.x_max = s.x_max;
+    b.y_min = s.y_min;
+    b.y_max = s.y_max;
+    b.sum_w = s.sw;
+    b.sum_wx = s.swx;
+    b.sum_wy = s.swy;
+    b.sum_wxx = s.swxx;
+    b.sum_wyy = s.swyy;
+    b.sum_wxy = s.swxy;
+    if (s.sw != 0) {
+        b.cx_q8 = static_cast<int32_t>(((s.swx << kCentroidFracBits) + s.sw / 2) / s.sw);
+        b.cy_q8 = static_cast<int32_t>(((s.swy << kCentroidFracBits) + s.sw / 2) / s.sw);
+    } else {
+        b.flags |= kBlobZeroWeight;
+        b.cx_q8 = static_cast<int32_t>((s.x_min + s.x_max) << (kCentroidFracBits - 1));
+        b.cy_q8 = static_cast<int32_t>((s.y_min + s.y_max) << (kCentroidFracBits - 1));
+    }
+    if (config_.float_reference && s.rw > 0) {
+        b.ref_sum_w = s.rw;
+        b.ref_cx_px = s.rwx / s.rw;
+        b.ref_cy_px = s.rwy / s.rw;
+    }
+    b.last_pixel_cycle = pixel_cycle(s.last_line_x_max, s.last_y);
+    const uint32_t start = std::max(decision_cycle, next_emit_free_cycle_);
+    next_emit_free_cycle_ = start + kEmitIntervalClocks;
+    b.emit_cycle = start + kDividerLatencyClocks;
+    b.latency_cycles = b.emit_cycle - b.last_pixel_cycle;
+    stats_.last_emit_cycle = b.emit_cycle;
+    deliver(b);
+}
+
+void Pipeline::deliver(const Blob& b) {
+    if (sink_ != nullptr) {
+        sink_(sink_ctx_, b);
+        ++stats_.blobs_emitted;
+        return;
+    }
+    if (ring_count_ == kOutputRingCapacity) {
+        ++stats_.dropped_blobs;
+        return;
+    }
+    ring_[static_cast<size_t>((ring_head_ + ring_count_) % kOutputRingCapacity)] = b;
+    ++ring_count_;
+    ++stats_.blobs_emitted;
+}
+
+bool Pipeline::pop_blob(Blob& out) {
+    if (ring_count_ == 0) return false;
+    out = ring_[static_cast<size_t>(ring_head_)];
+    ring_head_ = (ring_head_ + 1) % kOutputRingCapacity;
+    --ring_count_;
+    return true;
+}
+
+StorageBits Pipeline::storage_bits() const {
+    StorageBits s;
+    const uint64_t cap = static_cast<uint64_t>(config_.blob_table_capacity);
+    const uint64_t label_bits = bits_for(cap);  // slot index plus "dropped"
+    const uint64_t x_bits = bits_for(kActivePixelsPerLine - 1), y_bits = bits_for(kMaxFieldLines - 1);
+    s.chroma_lut = (1ull << (2 * kLutChromaBits)) * 3;
+    // Per run: x0, x1, class, label (moment sums go straight into the blob table, not into the line buffer).
+    s.run_buffers = 2ull * kMaxRunsPerLine * (2 * x_bits + 3 + label_bits);
+    // Per slot: parent, class, flags, live, seen, bbox, last line + its rightmost x, area, six moment sums.
+    const uint64_t slot_bits = label_bits + 3 + 6 + 2 + 2 * x_bits + 2 * y_bits + y_bits + x_bits +
+                               bits_for(kActivePixelsPerLine * kMaxFieldLines) + kSumWBits + kSumWxBits +
+                               kSumWyBits + kSumWxxBits + kSumWyyBits + kSumWxyBits;
+    s.blob_table = cap * slot_bits;
+    // Output FIFO entry: class, flags, area, bbox, centroid (18-bit Q10.8 each), Σw, three second moments, cycle.
+    const uint64_t fifo_bits = 3 + 6 + bits_for(kActivePixelsPerLine * kMaxFieldLines) + 2 * x_bits + 2 * y_bits + 2 * 18 + kSumWBits + kSumWxxBits +
+                               kSumWyyBits + kSumWxyBits + bits_for(kClocksPerField);
+    s.output_fifo = kOutputRingCapacity * fifo_bits;
+    for (const RegisterInfo& r : register_table()) s.registers += r.width_bits;
+    return s;
+}
+
+}  // namespace eyesim::fpga
