@@ -1,0 +1,418 @@
+// Firmware core: camera lines → pipelines → blobs → frames → bounded queue → sink; commands → replies.
+#include "eyesim/firmware/device_core.hpp"
+
+#include "eyesim/firmware/marker_conversion.hpp"
+#include "eyesim/firmware/registers.hpp"
+
+#include "eyesim/fpga/timing.hpp"
+#include "eyesim/protocol/codec.hpp"
+
+namespace eyesim::firmware {
+
+using protocol::Command;
+using protocol::NackReason;
+using protocol::Opcode;
+using protocol::Reply;
+using protocol::ReplyStatus;
+
+namespace {
+
+/// Device time (ns) of a pipeline cycle of the field that started at `field_start_us`.
+std::uint64_t cycle_time_ns(std::uint64_t field_start_us, std::uint32_t cycle) noexcept {
+    return field_start_us * 1000u + fpga::cycles_to_ns(cycle);
+}
+
+Reply nack(Reply r, NackReason why) noexcept {
+    r.status = static_cast<std::uint8_t>(ReplyStatus::Nack);
+    r.reason = static_cast<std::uint8_t>(why);
+    return r;
+}
+
+NackReason reason_of(fpga::RegWriteResult w) noexcept {
+    switch (w) {
+        case fpga::RegWriteResult::kOk: return NackReason::None;
+        case fpga::RegWriteResult::kUnknownAddress:
+        case fpga::RegWriteResult::kMisaligned: return NackReason::BadAddress;
+        case fpga::RegWriteResult::kBadWidth: return NackReason::Malformed;
+        case fpga::RegWriteResult::kReadOnly: return NackReason::ReadOnly;
+        case fpga::RegWriteResult::kTooWide:
+        case fpga::RegWriteResult::kOutOfRange: return NackReason::BadRange;
+    }
+    return NackReason::Malformed;
+}
+
+}  // namespace
+
+DeviceCore::DeviceCore(const DeviceHal& hal, const CoreConfig& config) noexcept
+    : hal_(hal),
+      config_(config),
+      streaming_(config.stream_on_start),
+      low_latency_(config.low_latency),
+      status_period_ms_(config.status_period_ms),
+      pedal_period_ms_(config.pedal_period_ms) {
+    for (std::size_t c = 0; c < kCameras; ++c) cams_[c].pipeline.set_sink(&DeviceCore::blob_sink, this);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Pixel side: never waits for the host. Everything below runs in bounded time per line.
+// ---------------------------------------------------------------------------------------------------------------
+
+StepStatus DeviceCore::step_cameras() noexcept {
+    bool any = false;
+    std::size_t finished = 0;
+    for (std::size_t c = 0; c < kCameras; ++c) {
+        Camera& cam = cams_[c];
+        if (cam.finished || hal_.cameras[c] == nullptr) {
+            ++finished;
+            continue;
+        }
+        CameraLine line;
+        switch (hal_.cameras[c]->next_line(line)) {
+            case LineStatus::line:
+                any = true;
+                if (!cam.in_field || line.field != cam.field) {
+                    if (cam.in_field) end_field(c);  // the source skipped the field end: close it anyway
+                    begin_field(c, line);
+                }
+                if (line.width_px == fpga::kActivePixelsPerLine && line.uyvy != nullptr) {
+                    sink_camera_ = c;
+                    cam.pipeline.push_line(line.uyvy, line.line);
+                }
+                break;
+            case LineStatus::field_end:
+                any = true;
+                if (cam.in_field) end_field(c);
+                break;
+            case LineStatus::idle: break;
+            case LineStatus::end_of_stream:
+                if (cam.in_field) end_field(c);
+                cam.finished = true;
+                ++finished;
+                break;
+        }
+    }
+    if (finished == kCameras) return StepStatus::finished;
+    return any ? StepStatus::active : StepStatus::idle;
+}
+
+void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcept {
+    Camera& cam = cams_[camera];
+    cam.in_field = true;
+    cam.field = line.field;
+    cam.parity = line.parity;
+    cam.field_start_us = line.field_start_us;
+    cam.part_index = 0;
+    cam.blobs_dropped = false;
+    cam.markers.clear();
+    cam.pending.clear();
+    cam.pipeline.begin_field(line.field, line.parity);
+}
+
+void DeviceCore::blob_sink(void* context, const fpga::Blob& blob) {
+    auto* self = static_cast<DeviceCore*>(context);
+    self->on_blob(self->sink_camera_, blob);
+}
+
+void DeviceCore::on_blob(std::size_t camera, const fpga::Blob& blob) noexcept {
+    Camera& cam = cams_[camera];
+    const PendingBlob p{cycle_time_ns(cam.field_start_us, blob.last_pixel_cycle),
+                        cycle_time_ns(cam.field_start_us, blob.emit_cycle), blob.index};
+    const protocol::Marker m = to_marker(blob, cam.field_start_us);
+    if (!streaming_) return;
+    if (low_latency_) {
+        // One frame per blob, queued the moment the soft core has handled it.
+        send_field_part(camera, &m, &p, 1, protocol::kFieldFlagLowLatency | protocol::kFieldFlagMoreFollows, 0,
+                        p.complete_ns);
+        return;
+    }
+    if (!cam.markers.push_back(m) || !cam.pending.push_back(p)) {
+        cam.blobs_dropped = true;
+        ++blobs_dropped_;
+    }
+}
+
+void DeviceCore::end_field(std::size_t camera) noexcept {
+    Camera& cam = cams_[camera];
+    sink_camera_ = camera;
+    cam.pipeline.end_field();  // may deliver the blobs touching the last line through blob_sink
+    cam.in_field = false;
+    ++cam.fields_processed;
+    const fpga::FieldStats& st = cam.pipeline.field_stats();
+    if (st.table_overflows > 0) ++blob_table_overflows_;
+    if (st.dropped_blobs > 0) {
+        blobs_dropped_ += st.dropped_blobs;
+        cam.blobs_dropped = true;
+    }
+    if (!streaming_) return;
+    // The field is over once its last active pixel is in and the last blob has left the pipeline.
+    const std::uint32_t end_cycle =
+        st.last_emit_cycle > st.last_active_line_end_cycle ? st.last_emit_cycle : st.last_active_line_end_cycle;
+    const std::uint64_t field_end_us = (cam.field_start_us * 1000u + fpga::cycles_to_ns(st.last_active_line_end_cycle)) / 1000u;
+    const std::uint64_t ready_ns = cycle_time_ns(cam.field_start_us, end_cycle);
+    const std::uint8_t dropped = cam.blobs_dropped ? protocol::kFieldFlagBlobsDropped : 0;
+    if (low_latency_) {
+        // Closing part: no markers (each already left on its own), the field's end time, no more-follows.
+        send_field_part(camera, nullptr, nullptr, 0, protocol::kFieldFlagLowLatency | dropped, field_end_us, ready_ns);
+        return;
+    }
+    // One message train per field: parts of up to kMaxMarkersPerMessage, the last without more-follows.
+    const std::size_t n = cam.markers.size();
+    std::size_t sent = 0;
+    do {
+        const std::size_t k = n - sent < protocol::kMaxMarkersPerMessage ? n - sent : protocol::kMaxMarkersPerMessage;
+        const bool last = sent + k == n;
+        send_field_part(camera, cam.markers.data() + sent, cam.pending.data() + sent, k,
+                        static_cast<std::uint8_t>(dropped | (last ? 0 : protocol::kFieldFlagMoreFollows)),
+                        field_end_us, ready_ns);
+        sent += k;
+    } while (sent < n);
+}
+
+void DeviceCore::send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
+                                 std::size_t count, std::uint8_t flags, std::uint64_t field_end_us,
+                                 std::uint64_t ready_ns) noexcept {
+    Camera& cam = cams_[camera];
+    protocol::FieldMarkers fm;
+    fm.camera_id = static_cast<std::uint8_t>(camera);
+    fm.field_parity = cam.parity;
+    fm.flags = flags;
+    fm.marker_count = static_cast<std::uint8_t>(count);
+    fm.field_counter = cam.field;
+    fm.field_end_us = field_end_us;
+    fm.part_index = cam.part_index++;
+    for (std::size_t i = 0; i < count; ++i) fm.markers[i] = markers[i];
+    const std::size_t bytes = queue_message(protocol::Message{fm}, static_cast<std::uint32_t>(count));
+    if (bytes == 0) return;
+    counters_.blobs_sent += count;
+    // Modelled timeline: the soft core handles frames one at a time, then the link sends them in order.
+    const std::uint64_t start_ns = ready_ns > core_free_ns_ ? ready_ns : core_free_ns_;
+    const std::uint64_t queued_ns = start_ns + frame_cost_ns(bytes, count);
+    core_free_ns_ = queued_ns;
+    const std::uint64_t written_ns = link_.transmit(queued_ns, bytes);
+    if (hal_.latency == nullptr) return;
+    for (std::size_t i = 0; i < count; ++i) {
+        BlobLatency r;
+        r.camera = static_cast<std::uint8_t>(camera);
+        r.low_latency = low_latency_ ? 1 : 0;
+        r.blob_index = pending[i].index;
+        r.field_counter = cam.field;
+        r.last_pixel_ns = pending[i].last_pixel_ns;
+        r.complete_ns = pending[i].complete_ns;
+        r.queued_ns = queued_ns;
+        r.written_ns = written_ns;
+        hal_.latency->on_blob(r);
+    }
+}
+
+std::size_t DeviceCore::queue_message(const protocol::Message& m, std::uint32_t blobs) noexcept {
+    const std::size_t n = protocol::encode_frame(m, tx_sequence_, frame_);
+    if (n == 0) return 0;  // an invalid message is a firmware bug; never put garbage on the wire
+    ++tx_sequence_;
+    ++counters_.frames_queued;
+    // The tag remembers how many blobs a frame carries, so a dropped frame is counted in blobs_dropped too.
+    queue_.push(frame_.data(), n, blobs, [this](std::uint32_t tag) { blobs_dropped_ += tag; });
+    return n;
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Host side.
+// ---------------------------------------------------------------------------------------------------------------
+
+void DeviceCore::service() noexcept {
+    handle_rx();
+    send_periodic();
+    pump_tx();
+}
+
+void DeviceCore::host_disconnected() noexcept {
+    streaming_ = config_.stream_on_start;
+    queue_.clear();
+    tx_len_ = tx_off_ = 0;
+    parser_.reset();
+}
+
+void DeviceCore::handle_rx() noexcept {
+    if (hal_.source == nullptr) return;
+    std::size_t commands = 0;
+    while (commands < kMaxCommandsPerService) {
+        const std::size_t n = hal_.source->read_some(rx_.data(), rx_.size());
+        if (n == 0) break;
+        parser_.parse(std::span<const std::uint8_t>(rx_.data(), n), [&](const protocol::DecodedFrame& f) {
+            if (const auto* c = std::get_if<Command>(&f.message)) {
+                const Reply r = execute(*c);
+                queue_message(protocol::Message{r}, 0);
+                ++commands;
+            } else {
+                ++parse_errors_other_;  // the host sends commands only
+            }
+        });
+    }
+}
+
+void DeviceCore::send_periodic() noexcept {
+    if (!streaming_) return;
+    const std::uint64_t now = hal_.clock->now_us();
+    if (hal_.pedal != nullptr) {
+        protocol::PedalState p;
+        p.device_us = now;
+        p.axes[0] = hal_.pedal->position();
+        p.buttons = hal_.pedal->switch_pressed() ? 1 : 0;
+        const bool changed = p.axes != last_pedal_.axes || p.buttons != last_pedal_.buttons;
+        if (!pedal_sent_once_ || changed || now - last_pedal_us_ >= pedal_period_ms_ * 1000ull) {
+            queue_message(protocol::Message{p}, 0);
+            last_pedal_ = p;
+            last_pedal_us_ = now;
+            pedal_sent_once_ = true;
+        }
+    }
+    if (!status_sent_once_ || now - last_status_us_ >= status_period_ms_ * 1000ull) {
+        queue_message(protocol::Message{status()}, 0);
+        last_status_us_ = now;
+        status_sent_once_ = true;
+    }
+}
+
+void DeviceCore::pump_tx() noexcept {
+    if (hal_.sink == nullptr) return;
+    if (!hal_.sink->connected()) {
+        // Nobody listens: what would be written is lost anyway; keep the queue from filling with stale data.
+        queue_.clear();
+        tx_len_ = tx_off_ = 0;
+        return;
+    }
+    for (;;) {
+        if (tx_off_ == tx_len_) {
+            tx_len_ = queue_.pop(tx_.data(), tx_.size());
+            tx_off_ = 0;
+            if (tx_len_ == 0) return;
+        }
+        const std::size_t n = hal_.sink->write_some(tx_.data() + tx_off_, tx_len_ - tx_off_);
+        if (n == 0) return;  // the link is busy: try again on the next service call, never wait
+        tx_off_ += n;
+        bytes_sent_ += n;
+        if (tx_off_ == tx_len_) ++counters_.frames_written;
+    }
+}
+
+protocol::DeviceStatus DeviceCore::status() const noexcept {
+    protocol::DeviceStatus s;
+    s.device_us = hal_.clock->now_us();
+    s.uptime_us = s.device_us;
+    for (std::size_t c = 0; c < kCameras; ++c) s.fields_processed[c] = cams_[c].fields_processed;
+    s.blobs_dropped = blobs_dropped_;
+    s.blob_table_overflows = blob_table_overflows_;
+    s.queue_overflows = static_cast<std::uint32_t>(queue_.stats().dropped_packets);
+    s.bytes_sent = bytes_sent_;
+    s.crc_errors = static_cast<std::uint32_t>(parser_.stats().crc_errors);
+    s.parse_errors = static_cast<std::uint32_t>(parser_.stats().errors() - parser_.stats().crc_errors) +
+                     parse_errors_other_;
+    return s;
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Commands: every field validated; a refused command changes nothing and gets a Nack with the reason.
+// ---------------------------------------------------------------------------------------------------------------
+
+Reply DeviceCore::execute(const Command& c) noexcept {
+    ++counters_.commands;
+    Reply r;
+    r.command_id = c.command_id;
+    r.opcode = c.opcode;
+    r.host_us = c.host_us;
+    r.device_us = hal_.clock->now_us();
+    switch (static_cast<Opcode>(c.opcode)) {
+        case Opcode::RegisterWrite: r = write_register(c, r); break;
+        case Opcode::RegisterRead:
+            r = c.value != 0 ? nack(r, NackReason::Malformed) : read_register(c, r);
+            break;
+        case Opcode::StreamStart:
+        case Opcode::StreamStop:
+        case Opcode::Ping:
+            if (c.address != 0 || c.value != 0) {
+                r = nack(r, NackReason::Malformed);
+            } else if (static_cast<Opcode>(c.opcode) == Opcode::StreamStart) {
+                if (!streaming_) {
+                    status_sent_once_ = pedal_sent_once_ = false;  // first status and pedal at once
+                }
+                streaming_ = true;
+            } else if (static_cast<Opcode>(c.opcode) == Opcode::StreamStop) {
+                streaming_ = false;
+            }
+            break;
+        case Opcode::SetLowLatency:
+            if (c.address != 0) r = nack(r, NackReason::Malformed);
+            else if (c.value > 1) r = nack(r, NackReason::BadRange);
+            else low_latency_ = c.value == 1, r.value = c.value;
+            break;
+        default: r = nack(r, NackReason::BadOpcode); break;
+    }
+    if (r.status != static_cast<std::uint8_t>(ReplyStatus::Ack)) ++counters_.nacks;
+    return r;
+}
+
+Reply DeviceCore::write_register(const Command& c, Reply r) noexcept {
+    const std::uint32_t a = c.address;
+    if (a % 4 != 0 || a > 0xFFFF) return nack(r, NackReason::BadAddress);
+    if (a >= kFwRegBase) {
+        switch (a) {
+            case fwreg::kId:
+            case fwreg::kVersion:
+            case fwreg::kStreaming: return nack(r, NackReason::ReadOnly);
+            case fwreg::kStatusPeriodMs:
+                if (c.value < 10 || c.value > 10000) return nack(r, NackReason::BadRange);
+                status_period_ms_ = c.value;
+                break;
+            case fwreg::kPedalPeriodMs:
+                if (c.value < 1 || c.value > 1000) return nack(r, NackReason::BadRange);
+                pedal_period_ms_ = c.value;
+                break;
+            case fwreg::kLowLatency:
+                if (c.value > 1) return nack(r, NackReason::BadRange);
+                low_latency_ = c.value == 1;
+                break;
+            default: return nack(r, NackReason::BadAddress);
+        }
+        r.value = c.value;
+        return r;
+    }
+    const std::uint32_t target = a & kRegTargetMask;
+    const auto offset = static_cast<std::uint16_t>(a & kRegOffsetMask);
+    if (target > kRegCameraBase * kCameras) return nack(r, NackReason::BadAddress);
+    const std::size_t first = target == 0 ? 0 : target / kRegCameraBase - 1;
+    const std::size_t last = target == 0 ? kCameras : first + 1;
+    // Validate on every target first, so a broadcast write is all-or-nothing.
+    for (std::size_t cam = first; cam < last; ++cam) {
+        const fpga::RegWriteResult w = cams_[cam].regs.check_write(offset, c.value);
+        if (w != fpga::RegWriteResult::kOk) return nack(r, reason_of(w));
+    }
+    // The pipelines sample their map at begin_field: the write takes effect with the next field.
+    for (std::size_t cam = first; cam < last; ++cam) cams_[cam].regs.write(offset, c.value);
+    r.value = cams_[first].regs.get(offset);
+    return r;
+}
+
+Reply DeviceCore::read_register(const Command& c, Reply r) noexcept {
+    const std::uint32_t a = c.address;
+    if (a % 4 != 0 || a > 0xFFFF) return nack(r, NackReason::BadAddress);
+    if (a >= kFwRegBase) {
+        switch (a) {
+            case fwreg::kId: r.value = kFirmwareId; break;
+            case fwreg::kVersion: r.value = kFirmwareVersion; break;
+            case fwreg::kStatusPeriodMs: r.value = status_period_ms_; break;
+            case fwreg::kPedalPeriodMs: r.value = pedal_period_ms_; break;
+            case fwreg::kLowLatency: r.value = low_latency_ ? 1 : 0; break;
+            case fwreg::kStreaming: r.value = streaming_ ? 1 : 0; break;
+            default: return nack(r, NackReason::BadAddress);
+        }
+        return r;
+    }
+    const std::uint32_t target = a & kRegTargetMask;
+    if (target > kRegCameraBase * kCameras) return nack(r, NackReason::BadAddress);
+    const std::size_t cam = target == 0 ? 0 : target / kRegCameraBase - 1;
+    std::uint32_t v = 0;
+    if (!cams_[cam].regs.read(static_cast<std::uint16_t>(a & kRegOffsetMask), v)) return nack(r, NackReason::BadAddress);
+    r.value = v;
+    return r;
+}
+
+}  // namespace eyesim::firmware

@@ -1,0 +1,27 @@
+#pragma once
+/// \file
+/// Every capacity of the firmware core as a named constant: the core's memory is fixed by these at build time.
+
+#include "eyesim/protocol/messages.hpp"
+
+#include <cstddef>
+#include <cstdint>
+
+namespace eyesim::firmware {
+
+/// Cameras driven by one device (genlocked PAL cameras, one pipeline each).
+inline constexpr std::size_t kCameras = protocol::kCameraCount;
+/// Largest frame the core encodes or receives (one USB high-speed bulk packet).
+inline constexpr std::size_t kMaxFrameBytes = protocol::kMaxFrameBytes;
+/// Transmit queue: bytes of queued frames. 32 KiB hold ~1.6 fields of all three cameras at 10 markers each.
+inline constexpr std::size_t kTxQueueBytes = 32 * 1024;
+/// Transmit queue: most frames queued at once.
+inline constexpr std::size_t kTxQueuePackets = 256;
+/// Markers kept per camera and field in per-field mode; more are dropped and flagged (kFieldFlagBlobsDropped).
+inline constexpr std::size_t kMaxMarkersPerField = 128;
+/// Bytes read from the host per service call (commands are 33-byte frames).
+inline constexpr std::size_t kRxChunkBytes = 256;
+/// Commands executed per service call at most (bounds the time one call can take).
+inline constexpr std::size_t kMaxCommandsPerService = 16;
+
+}  // namespace eyesim::firmware

@@ -1,0 +1,176 @@
+#pragma once
+/// \file
+/// The firmware core: three fpga-model pipelines, the packetiser, command handling and the bounded transmit
+/// queue, behind the HAL (hal.hpp). Embedded rules: construct once at start-up (static storage or one start-up
+/// allocation); afterwards no heap, no exceptions, no RTTI, every call bounded and non-blocking.
+///
+/// A board (or eyesim-device) runs it as
+/// \code
+///   DeviceCore core(hal, config);                 // at start-up
+///   for (;;) {
+///       core.step_cameras();                      // one line (or field end) from each camera
+///       core.service();                           // commands in, pedal, status, bytes out
+///   }
+/// \endcode
+
+#include "eyesim/firmware/capacity.hpp"
+#include "eyesim/firmware/fixed_vector.hpp"
+#include "eyesim/firmware/hal.hpp"
+#include "eyesim/firmware/latency.hpp"
+#include "eyesim/firmware/packet_queue.hpp"
+
+#include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/register_map.hpp"
+#include "eyesim/protocol/messages.hpp"
+#include "eyesim/protocol/stream_parser.hpp"
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+
+namespace eyesim::firmware {
+
+/// Start-up settings (the host can change the run-time ones by command).
+struct CoreConfig {
+    bool low_latency = false;          ///< start in per-blob mode
+    bool stream_on_start = false;      ///< stream without waiting for StreamStart
+    std::uint32_t status_period_ms = 100;  ///< DeviceStatus period while streaming
+    std::uint32_t pedal_period_ms = 20;    ///< PedalState keep-alive period (also sent on every change)
+};
+
+/// Everything the core is connected to. Cameras, sink, source and clock are required; pedal and latency optional.
+struct DeviceHal {
+    std::array<CameraSource*, kCameras> cameras{};  ///< one field source per camera
+    ByteSink* sink = nullptr;                       ///< towards the host
+    ByteSource* source = nullptr;                   ///< from the host
+    const Clock* clock = nullptr;                   ///< device time
+    const PedalInput* pedal = nullptr;              ///< foot pedal, or nullptr (no PedalState then)
+    LatencyObserver* latency = nullptr;             ///< per-blob latency records, or nullptr
+};
+
+/// What step_cameras() found.
+enum class StepStatus : std::uint8_t {
+    active,    ///< at least one camera delivered a line or a field end
+    idle,      ///< no camera had anything (real-time sources between lines)
+    finished   ///< every camera reached the end of its stream
+};
+
+/// Counters beyond DeviceStatus, for tests, tools and benchmarks.
+struct CoreCounters {
+    std::uint64_t commands = 0;        ///< commands executed
+    std::uint64_t nacks = 0;           ///< of which refused
+    std::uint64_t frames_queued = 0;   ///< frames put into the transmit queue
+    std::uint64_t frames_written = 0;  ///< frames whose last byte the sink took
+    std::uint64_t blobs_sent = 0;      ///< blobs put into queued frames
+};
+
+/// The device firmware core.
+class DeviceCore {
+public:
+    /// Sets up the pipelines (register reset values), the queue and the parser. `hal` pointers must outlive it.
+    DeviceCore(const DeviceHal& hal, const CoreConfig& config = {}) noexcept;
+    DeviceCore(const DeviceCore&) = delete;
+    DeviceCore& operator=(const DeviceCore&) = delete;
+
+    /// Pulls one item (line or field end) from every camera and runs it through that camera's pipeline; blobs
+    /// are packetised as they complete (low-latency mode) or at the field end.
+    StepStatus step_cameras() noexcept;
+
+    /// Reads and executes host commands, sends pedal and periodic status messages, writes queued bytes.
+    void service() noexcept;
+
+    /// The host went away (TCP disconnect, USB reset): stop streaming, drop queued and partial data, reset the
+    /// command parser.
+    void host_disconnected() noexcept;
+
+    /// True while FieldMarkers, PedalState and DeviceStatus are being sent.
+    bool streaming() const noexcept { return streaming_; }
+    /// True in per-blob (low-latency) mode.
+    bool low_latency() const noexcept { return low_latency_; }
+    /// True when nothing is queued or half written.
+    bool tx_idle() const noexcept { return queue_.empty() && tx_len_ == tx_off_; }
+    /// Current DeviceStatus values.
+    protocol::DeviceStatus status() const noexcept;
+    /// Transmit queue counters (drops, high-water marks).
+    const PacketQueueStats& queue_stats() const noexcept { return queue_.stats(); }
+    /// Other counters.
+    const CoreCounters& counters() const noexcept { return counters_; }
+    /// Camera c's live register map (c < kCameras); pipelines sample it at each field start.
+    const fpga::RegisterMap& registers(std::size_t camera) const noexcept { return cams_[camera].regs; }
+    /// Executes one command and returns its reply (also used by service(); exposed for tests).
+    protocol::Reply execute(const protocol::Command& command) noexcept;
+
+    /// The transmit queue type.
+    using TxQueue = PacketQueue<kTxQueueBytes, kTxQueuePackets>;
+
+private:
+    struct PendingBlob {
+        std::uint64_t last_pixel_ns;
+        std::uint64_t complete_ns;
+        std::uint16_t index;
+    };
+    struct Camera {
+        Camera() noexcept : pipeline(&regs) {}
+        fpga::RegisterMap regs;
+        fpga::Pipeline pipeline;
+        bool in_field = false;
+        std::uint32_t field = 0;
+        std::uint8_t parity = 0;
+        std::uint64_t field_start_us = 0;
+        std::uint16_t part_index = 0;
+        bool blobs_dropped = false;
+        bool finished = false;
+        std::uint32_t fields_processed = 0;
+        FixedVector<protocol::Marker, kMaxMarkersPerField> markers;
+        FixedVector<PendingBlob, kMaxMarkersPerField> pending;
+    };
+
+    static void blob_sink(void* context, const fpga::Blob& blob);
+    void on_blob(std::size_t camera, const fpga::Blob& blob) noexcept;
+    void begin_field(std::size_t camera, const CameraLine& line) noexcept;
+    void end_field(std::size_t camera) noexcept;
+    void send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
+                         std::size_t count, std::uint8_t flags, std::uint64_t field_end_us,
+                         std::uint64_t ready_ns) noexcept;
+    std::size_t queue_message(const protocol::Message& m, std::uint32_t blobs) noexcept;
+    void handle_rx() noexcept;
+    void send_periodic() noexcept;
+    void pump_tx() noexcept;
+    protocol::Reply write_register(const protocol::Command& c, protocol::Reply r) noexcept;
+    protocol::Reply read_register(const protocol::Command& c, protocol::Reply r) noexcept;
+
+    DeviceHal hal_;
+    CoreConfig config_;
+    std::array<Camera, kCameras> cams_;
+    std::size_t sink_camera_ = 0;  // camera whose pipeline is calling blob_sink right now
+
+    bool streaming_ = false;
+    bool low_latency_ = false;
+    std::uint32_t status_period_ms_ = 100;
+    std::uint32_t pedal_period_ms_ = 20;
+    std::uint64_t last_status_us_ = 0;
+    bool status_sent_once_ = false;
+    std::uint64_t last_pedal_us_ = 0;
+    bool pedal_sent_once_ = false;
+    protocol::PedalState last_pedal_{};
+
+    TxQueue queue_;
+    std::array<std::uint8_t, kMaxFrameBytes> frame_{};  // encode scratch
+    std::array<std::uint8_t, kMaxFrameBytes> tx_{};     // frame being written to the sink
+    std::size_t tx_len_ = 0;
+    std::size_t tx_off_ = 0;
+    std::uint16_t tx_sequence_ = 0;
+
+    protocol::StreamParser parser_;
+    std::array<std::uint8_t, kRxChunkBytes> rx_{};
+    std::uint32_t parse_errors_other_ = 0;  // frames of a type the device does not accept
+
+    LinkModel link_;
+    std::uint64_t core_free_ns_ = 0;  // modelled soft core busy until
+    std::uint64_t bytes_sent_ = 0;
+    std::uint32_t blobs_dropped_ = 0;
+    std::uint32_t blob_table_overflows_ = 0;
+    CoreCounters counters_{};
+};
+
+}  // namespace eyesim::firmware

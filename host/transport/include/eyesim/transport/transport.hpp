@@ -1,0 +1,58 @@
+#pragma once
+/// \file
+/// Host-side byte transport to the device: the one interface the tracking code reads packets through, whatever
+/// carries them (TCP loopback to `eyesim-device`, USB bulk endpoints via libusb, an in-process pipe in tests).
+/// The transport moves bytes; packet boundaries are found by the protocol's stream parser.
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <stdexcept>
+#include <string>
+
+namespace eyesim::transport {
+
+/// Outcome of one read or write.
+enum class IoStatus : std::uint8_t {
+    ok,        ///< `bytes` were moved (may be fewer than asked)
+    timeout,   ///< nothing moved before the timeout; the link is still up
+    closed,    ///< the peer closed the link (TCP EOF, in-process peer gone); nothing more will arrive
+    error      ///< the link failed (see Transport::last_error()); USB retries by reconnecting
+};
+
+/// Result of Transport::read / Transport::write.
+struct IoResult {
+    std::size_t bytes = 0;            ///< bytes moved
+    IoStatus status = IoStatus::ok;   ///< why the call returned
+};
+
+/// Thrown by the connect functions when a link cannot be opened; what() is one line naming the address.
+class TransportError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+/// A bidirectional byte stream to one device.
+class Transport {
+public:
+    virtual ~Transport() = default;
+    /// Reads up to `out.size()` bytes, waiting at most `timeout_ms` (0 = poll) for the first byte.
+    virtual IoResult read(std::span<std::uint8_t> out, int timeout_ms) = 0;
+    /// Writes all of `data` (one command packet), waiting at most `timeout_ms`; returns the bytes written.
+    virtual IoResult write(std::span<const std::uint8_t> data, int timeout_ms) = 0;
+    /// True while the link is up.
+    virtual bool connected() const = 0;
+    /// Closes the link (idempotent); the peer sees `closed`.
+    virtual void close() = 0;
+    /// Human-readable address, e.g. `tcp://127.0.0.1:5100` or `usb://1209:0001`.
+    virtual std::string describe() const = 0;
+    /// Last error, one line (empty when none).
+    virtual std::string last_error() const = 0;
+};
+
+/// Opens a transport from a URI: `tcp://HOST:PORT`, `usb` (default ids) or `usb://VID:PID` (hex).
+/// Throws TransportError with a one-line reason (bad URI, connection refused, no USB device present).
+std::unique_ptr<Transport> open_transport(const std::string& uri, int timeout_ms = 2000);
+
+}  // namespace eyesim::transport
