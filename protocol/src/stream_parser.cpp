@@ -73,7 +73,7 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
         }
         if (n - i < kFrameHeaderBytes) {      // need the whole header
             if (!eos_) break;
-            cut_short(n - i);
+            cut_short();
             ++i;
             continue;
         }
@@ -98,21 +98,24 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
             ++i;
             continue;
         }
+        // A plausible header inside the span of a CRC-failed frame marks where that frame was cut short.
+        if (suspect_ && pos_ < suspect_end_) {
+            suspect_ = false;
+            ++stats_.truncated;
+        }
         const std::size_t total = frame_size(len);
         if (n - i < total) {  // need the rest of the frame
             if (!eos_) break;
-            cut_short(total);
+            cut_short();
             ++i;
             continue;
         }
         const std::uint32_t crc = wire::get_u32(p + kFrameHeaderBytes + len);
         if (crc != frame_crc({p + 2, kFrameHeaderBytes - 2 + len}, schema_hash(type))) {
             // Corrupt in place, or cut short with the next frame's bytes inside: decided once the scan passes
-            // the end of this span (crc_errors) or finds a good frame starting inside it (truncated).
-            if (!suspect_) {
-                suspect_ = true;
-                suspect_end_ = pos_ + total;
-            }
+            // the end of this span (crc_errors) or finds a plausible header inside it (truncated).
+            suspect_ = true;
+            suspect_end_ = pos_ + total;
             skip(1);
             ++i;
             continue;
@@ -125,10 +128,6 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
             continue;
         }
         // A good frame.
-        if (suspect_) {
-            suspect_ = false;
-            if (pos_ < suspect_end_) ++stats_.truncated; else ++stats_.crc_errors;
-        }
         skipping_ = false;
         out.header = FrameHeader{p[2], type, wire::get_u16(p + 4), static_cast<std::uint16_t>(len)};
         if (have_seq_ && out.header.sequence != static_cast<std::uint16_t>(last_seq_ + 1)) ++stats_.sequence_gaps;
@@ -143,12 +142,8 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
     return false;
 }
 
-void StreamParser::cut_short(std::size_t claimed_bytes) noexcept {
-    // Counted once per claimed span, so candidates nested inside a cut frame are not counted again.
-    if (header_error_counted() && pos_ >= cut_end_) {
-        ++stats_.truncated;
-        cut_end_ = pos_ + claimed_bytes;
-    }
+void StreamParser::cut_short() noexcept {
+    if (header_error_counted()) ++stats_.truncated;
     skip(1);
 }
 

@@ -102,7 +102,7 @@ private:
     void skip(std::size_t n) noexcept;
     void bytes_in_direct(std::size_t n) noexcept;
     bool header_error_counted() const noexcept;
-    void cut_short(std::size_t claimed_bytes) noexcept;
+    void cut_short() noexcept;
     void close() noexcept;
 
     std::array<std::uint8_t, kParserBufferBytes> buf_{};
@@ -112,7 +112,6 @@ private:
     bool suspect_ = false;          // a CRC-failed frame is awaiting classification (crc vs truncated)
     std::uint64_t suspect_end_ = 0; // stream offset just past that frame
     bool eos_ = false;              // finishing: incomplete candidates are truncated, not awaited
-    std::uint64_t cut_end_ = 0;     // stream offset past the last frame counted as truncated at the end
     bool have_seq_ = false;
     std::uint16_t last_seq_ = 0;
     ParserStats stats_{};
