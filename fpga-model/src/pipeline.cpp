@@ -117,18 +117,20 @@ uint8_t Pipeline::classify(uint8_t y, uint8_t cb, uint8_t cr) const {
     return (c != 0 && y >= luma_min_[c] && y <= luma_max_[c]) ? c : 0;
 }
 
-uint16_t Pipeline::weight(uint8_t cls, uint8_t cb, uint8_t cr) const {
+uint16_t Pipeline::weight(uint8_t cls, uint8_t y, uint8_t cb, uint8_t cr) const {
     if (params_.weight_mode == 0) return 1;
-    // Projection of the chroma vector on the class hue direction (Q1.7 coefficients, floor), minus background.
-    const int proj = ((cb - 128) * dir_cb_q7_[cls] + (cr - 128) * dir_cr_q7_[cls]) >> 7;
-    const int w = std::clamp(proj - static_cast<int>(params_.weight_bg), 0, 255);
+    // Mode 1: projection of the chroma vector on the class hue direction (Q1.7 coefficients, floor).
+    // Mode 2: luma. Both minus the background level.
+    const int v = params_.weight_mode == 2 ? y : ((cb - 128) * dir_cb_q7_[cls] + (cr - 128) * dir_cr_q7_[cls]) >> 7;
+    const int w = std::clamp(v - static_cast<int>(params_.weight_bg), 0, 255);
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
 }
 
-double Pipeline::weight_reference(uint8_t cls, double cb, double cr) const {
+double Pipeline::weight_reference(uint8_t cls, double y, double cb, double cr) const {
     if (params_.weight_mode == 0) return 1.0;
-    const double proj = (cb - 128.0) * dir_cb_ref_[cls] + (cr - 128.0) * dir_cr_ref_[cls];
-    return std::clamp(proj - params_.weight_bg, 0.0, 255.0);
+    const double v =
+        params_.weight_mode == 2 ? y : (cb - 128.0) * dir_cb_ref_[cls] + (cr - 128.0) * dir_cr_ref_[cls];
+    return std::clamp(v - params_.weight_bg, 0.0, 255.0);
 }
 
 PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
@@ -317,12 +319,12 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
                 }
             }
             if (c != 0) {
-                const uint32_t w = weight(c, static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+                const uint32_t w = weight(c, static_cast<uint8_t>(luma), static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
                 sw += w;
                 swx += w * static_cast<uint32_t>(px);
                 swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
                 if constexpr (kRef) {
-                    const double wr = weight_reference(c, cbd, crd);
+                    const double wr = weight_reference(c, luma, cbd, crd);
                     rw += wr;
                     rwx += wr * px;
                     rwxx += wr * px * px;
@@ -397,6 +399,7 @@ void Pipeline::merge_into(uint16_t dst, uint16_t src) {
     d.rw += s.rw;
     d.rwx += s.rwx;
     d.rwy += s.rwy;
+    d.flags |= kBlobMerged;
     s.parent = dst;
     to_free_[n_to_free_++] = src;
 }
@@ -537,6 +540,16 @@ void Pipeline::emit(uint16_t slot, uint32_t decision_cycle, bool end_of_field) {
     if (s.x_max == kActivePixelsPerLine - 1) b.flags |= kBlobTouchesRight;
     if (s.y_min == 0) b.flags |= kBlobTouchesTop;
     if (s.y_max == kActiveLinesPerField - 1 || end_of_field) b.flags |= kBlobTouchesBottom;
+    for (int w = 0; w < kNumRoiWindows; ++w) {
+        if (!(p.roi_enable & (1u << w))) continue;
+        const bool inside = s.x_min >= p.roi_x0[w] && s.x_max <= p.roi_x1[w] && s.y_min >= p.roi_y0[w] &&
+                            s.y_max <= p.roi_y1[w];
+        if (inside && ((s.x_min == p.roi_x0[w] && p.roi_x0[w] > 0) ||
+                       (s.x_max == p.roi_x1[w] && p.roi_x1[w] < kActivePixelsPerLine - 1) ||
+                       (s.y_min == p.roi_y0[w] && p.roi_y0[w] > 0) ||
+                       (s.y_max == p.roi_y1[w] && static_cast<int>(p.roi_y1[w]) < last_line_)))
+            b.flags |= kBlobClippedByRoi;
+    }
     b.area_px = s.area;
     b.x_min = s.x_min;
     b.x_max = s.x_max;
@@ -549,12 +562,12 @@ void Pipeline::emit(uint16_t slot, uint32_t decision_cycle, bool end_of_field) {
     b.sum_wyy = s.swyy;
     b.sum_wxy = s.swxy;
     if (s.sw != 0) {
-        b.cx_q8 = static_cast<int32_t>(((s.swx << kCentroidFracBits) + s.sw / 2) / s.sw);
-        b.cy_q8 = static_cast<int32_t>(((s.swy << kCentroidFracBits) + s.sw / 2) / s.sw);
+        b.cx_q16 = static_cast<uint32_t>(((s.swx << kCentroidFracBits) + s.sw / 2) / s.sw);
+        b.cy_q16 = static_cast<uint32_t>(((s.swy << kCentroidFracBits) + s.sw / 2) / s.sw);
     } else {
         b.flags |= kBlobZeroWeight;
-        b.cx_q8 = static_cast<int32_t>((s.x_min + s.x_max) << (kCentroidFracBits - 1));
-        b.cy_q8 = static_cast<int32_t>((s.y_min + s.y_max) << (kCentroidFracBits - 1));
+        b.cx_q16 = static_cast<uint32_t>(s.x_min + s.x_max) << (kCentroidFracBits - 1);
+        b.cy_q16 = static_cast<uint32_t>(s.y_min + s.y_max) << (kCentroidFracBits - 1);
     }
     if (config_.float_reference && s.rw > 0) {
         b.ref_sum_w = s.rw;
@@ -606,8 +619,8 @@ StorageBits Pipeline::storage_bits() const {
                                bits_for(kActivePixelsPerLine * kMaxFieldLines) + kSumWBits + kSumWxBits +
                                kSumWyBits + kSumWxxBits + kSumWyyBits + kSumWxyBits;
     s.blob_table = cap * slot_bits;
-    // Output FIFO entry: class, flags, area, bbox, centroid (18-bit Q10.8 each), Σw, three second moments, cycle.
-    const uint64_t fifo_bits = 3 + 6 + bits_for(kActivePixelsPerLine * kMaxFieldLines) + 2 * x_bits + 2 * y_bits + 2 * 18 + kSumWBits + kSumWxxBits +
+    // Output FIFO entry: class, flags, area, bbox, centroid (26-bit Q10.16 each), Σw, three second moments, cycle.
+    const uint64_t fifo_bits = 3 + 6 + bits_for(kActivePixelsPerLine * kMaxFieldLines) + 2 * x_bits + 2 * y_bits + 2 * 26 + kSumWBits + kSumWxxBits +
                                kSumWyyBits + kSumWxyBits + bits_for(kClocksPerField);
     s.output_fifo = kOutputRingCapacity * fifo_bits;
     for (const RegisterInfo& r : register_table()) s.registers += r.width_bits;

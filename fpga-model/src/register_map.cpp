@@ -5,7 +5,7 @@ namespace {
 
 constexpr uint32_t pack2(uint32_t lo, uint32_t hi, int shift) { return lo | (hi << shift); }
 
-// Reset hue centres (1/256 turn) of the default colours in full-range BT.601 Cb/Cr:
+// Reset hue centres (1/256 turn) of the default colours in BT.601 Cb/Cr (studio or full swing alike):
 // red 108.7° → 77, green 237.9° → 169, blue 337.8° → 240, yellow 164.9° → 117.
 constexpr std::array<uint8_t, kNumClasses> kResetHue{77, 169, 240, 117};
 constexpr uint8_t kResetHueHalfWidth = 16;  // ±22.5°: the closest pair (red, yellow) is 40 units apart
@@ -59,7 +59,7 @@ int index_of(uint16_t address) {
 bool in_range(uint16_t address, uint32_t v) {
     const uint32_t lo8 = v & 0xFFu, hi8 = (v >> 8) & 0xFFu;
     switch (address) {
-        case reg::kWeightMode: return v <= 1;
+        case reg::kWeightMode: return v <= 2;
         case reg::kWeightBits: return v >= 1 && v <= 8;
         case reg::kMinArea: return v >= 1 && v <= 720u * 288u;
         case reg::kMaxArea: return v >= 1 && v <= 720u * 288u;

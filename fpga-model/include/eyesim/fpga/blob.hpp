@@ -7,14 +7,15 @@
 /// WEIGHT_MODE / WEIGHT_BITS; w ≤ 255) with the widths the hardware accumulators have (documented in
 /// docs/fpga-pipeline.md; enough for one blob covering a whole 720×512 field): Σw 27 bits, Σwx 37, Σwy 36,
 /// Σwx² 46, Σwy² 45, Σwxy 45. The centroid is the divider's
-/// output: round(Σwx · 2^8 / Σw), i.e. fixed point with scale 1/256 px (kCentroidFracBits).
+/// output: round(Σwx · 2^16 / Σw), i.e. fixed point with scale 1/65536 px (kCentroidFracBits), the scale of the
+/// wire protocol's marker coordinates.
 
 #include <cstdint>
 
 namespace eyesim::fpga {
 
-/// Fractional bits of Blob::cx_q8 / cy_q8 (scale 1/256 px).
-inline constexpr int kCentroidFracBits = 8;
+/// Fractional bits of Blob::cx_q16 / cy_q16 (scale 1/65536 px).
+inline constexpr int kCentroidFracBits = 16;
 /// Accumulator widths in bits (hardware; the model checks them in tests).
 inline constexpr int kSumWBits = 27, kSumWxBits = 37, kSumWyBits = 36, kSumWxxBits = 46, kSumWyyBits = 45,
                      kSumWxyBits = 45;
@@ -27,6 +28,8 @@ enum BlobFlag : uint8_t {
     kBlobTouchesBottom = 1u << 3,  ///< has a pixel in the field's last pushed line (or the ROI's bottom)
     kBlobIncomplete = 1u << 4,     ///< touched a run dropped for lack of a blob-table slot: moments are partial
     kBlobZeroWeight = 1u << 5,     ///< Σw = 0: the centroid is the bounding-box centre
+    kBlobMerged = 1u << 6,         ///< formed by merging two or more provisional labels (U/W shapes)
+    kBlobClippedByRoi = 1u << 7,   ///< touches an inner edge of an enabled ROI window (may be cut)
 };
 
 /// A completed blob. Trivially copyable, fixed size.
@@ -46,8 +49,8 @@ struct Blob {
     uint64_t sum_wxx = 0;           ///< Σw·x²
     uint64_t sum_wyy = 0;           ///< Σw·y²
     uint64_t sum_wxy = 0;           ///< Σw·x·y
-    int32_t cx_q8 = 0;              ///< centroid x · 256 (round half up)
-    int32_t cy_q8 = 0;              ///< centroid y · 256 (round half up)
+    uint32_t cx_q16 = 0;            ///< centroid x · 65536 (round half up)
+    uint32_t cy_q16 = 0;            ///< centroid y · 65536 (round half up)
     uint32_t last_pixel_cycle = 0;  ///< cycle of the blob's last pixel on the wire (see timing.hpp)
     uint32_t emit_cycle = 0;        ///< cycle at which the blob leaves the pipeline
     uint32_t latency_cycles = 0;    ///< emit_cycle - last_pixel_cycle
@@ -56,9 +59,9 @@ struct Blob {
     double ref_cy_px = 0;           ///< floating reference centroid y
 
     /// Centroid x in pixels from the fixed-point value.
-    double cx_px() const { return cx_q8 / 256.0; }
+    double cx_px() const { return cx_q16 / 65536.0; }
     /// Centroid y in (field) pixels from the fixed-point value.
-    double cy_px() const { return cy_q8 / 256.0; }
+    double cy_px() const { return cy_q16 / 65536.0; }
     /// Central second moment μ20/μ00 in px² (from the exact sums).
     double mu20_px2() const;
     /// Central second moment μ02/μ00 in px².

@@ -1,21 +1,22 @@
 #pragma once
 /// \file
-/// BT.601 colour conversion as the model and its test renderers use it (full-range 8-bit YCbCr, as the
-/// register map's class definitions assume), and the hue/saturation measure of the class LUT.
+/// BT.601 colour conversion as BT.656 video carries it (studio swing: Y 16..235, Cb/Cr 16..240, as the rig's
+/// renderer writes it), and the hue/saturation measure of the class LUT.
 
 #include <cstdint>
 
 namespace eyesim::fpga {
 
-/// Full-range BT.601 YCbCr of an sRGB-encoded colour (components 0..255, not rounded).
+/// Studio-swing BT.601 Y'CbCr (not rounded).
 struct Ycc {
     double y, cb, cr;
 };
 
-/// Converts gamma-encoded R'G'B' (0..255) to full-range BT.601 Y'CbCr (0..255).
+/// Converts gamma-encoded R'G'B' (0..255) to studio-swing BT.601 Y'CbCr.
 constexpr Ycc rgb_to_ycc(double r, double g, double b) {
-    return {0.299 * r + 0.587 * g + 0.114 * b, 128.0 - 0.168736 * r - 0.331264 * g + 0.5 * b,
-            128.0 + 0.5 * r - 0.418688 * g - 0.081312 * b};
+    const double y = 0.299 * r + 0.587 * g + 0.114 * b;
+    return {16.0 + 219.0 / 255.0 * y, 128.0 + 224.0 / 255.0 * (b - y) / 1.772,
+            128.0 + 224.0 / 255.0 * (r - y) / 1.402};
 }
 
 /// Clamps and rounds to a byte.

@@ -45,8 +45,8 @@ inline constexpr int kLutChromaBits = 6;
 inline constexpr uint32_t kPipelineDepthClocks = 8;
 /// Modelled clocks between two blob emissions (serial output through one pipelined divider).
 inline constexpr uint32_t kEmitIntervalClocks = 4;
-/// Modelled latency of the centroid divider (37-bit ÷ 27-bit, radix-4, 18 stages + 2).
-inline constexpr uint32_t kDividerLatencyClocks = 20;
+/// Modelled latency of the centroid divider (53-bit ÷ 27-bit, radix-4: 27 stages + 3).
+inline constexpr uint32_t kDividerLatencyClocks = 30;
 
 /// Result of a pipeline call.
 enum class PipelineStatus : uint8_t {
@@ -132,11 +132,11 @@ public:
     /// Classifies one pixel exactly as the datapath does: class 0..4 after luma band and class enables.
     uint8_t classify(uint8_t y, uint8_t cb, uint8_t cr) const;
 
-    /// Weight of a pixel of class `cls` (1..4) with chroma (cb, cr), as the datapath computes it.
-    uint16_t weight(uint8_t cls, uint8_t cb, uint8_t cr) const;
+    /// Weight of a pixel of class `cls` (1..4) with luma y and chroma (cb, cr), as the datapath computes it.
+    uint16_t weight(uint8_t cls, uint8_t y, uint8_t cb, uint8_t cr) const;
 
     /// Floating reference weight for the same pixel (no quantisation of direction, weight or width).
-    double weight_reference(uint8_t cls, double cb, double cr) const;
+    double weight_reference(uint8_t cls, double y, double cb, double cr) const;
 
     /// Half-width of the grey chroma box the fast path treats as background (0: fast path off).
     int fast_path_half_width() const { return fast_half_width_; }

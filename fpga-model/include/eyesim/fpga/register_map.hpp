@@ -8,7 +8,7 @@
 /// the map at `begin_field`, so a write takes effect at the next field boundary, never inside a field.
 ///
 /// Colour classes 1..4 are defined by a hue wedge, a saturation (chroma radius) band and a luma band in the
-/// Cb/Cr plane of BT.601 YCbCr: hue = atan2(Cr-128, Cb-128) in 1/256 turns. The reset values classify exactly the
+/// Cb/Cr plane of BT.601 studio-swing YCbCr (as BT.656 carries it): hue = atan2(Cr-128, Cb-128) in 1/256 turns. The reset values classify exactly the
 /// four default marker colours: 1 red (220,40,40), 2 green (40,200,60), 3 blue (40,80,220), 4 yellow (230,210,40).
 
 #include <array>
@@ -28,7 +28,7 @@ inline constexpr uint16_t kId = 0x000;            ///< RO 32: 0x45594650 ("EYFP"
 inline constexpr uint16_t kVersion = 0x004;       ///< RO 16: register map version 0x0100
 inline constexpr uint16_t kEnable = 0x008;        ///< RW 1: pipeline enable (0: fields produce no blobs)
 inline constexpr uint16_t kClassEnable = 0x00C;   ///< RW 4: bit c-1 enables class c
-inline constexpr uint16_t kWeightMode = 0x010;    ///< RW 2: 0 binary, 1 chroma projection minus background
+inline constexpr uint16_t kWeightMode = 0x010;    ///< RW 2: 0 binary, 1 chroma projection − bg, 2 luma − bg
 inline constexpr uint16_t kWeightBg = 0x014;      ///< RW 8: background level subtracted from the projection
 inline constexpr uint16_t kWeightBits = 0x018;    ///< RW 4: weight width 1..8 bits (LSBs dropped)
 inline constexpr uint16_t kMinArea = 0x01C;       ///< RW 18: minimum blob area in field pixels
@@ -114,7 +114,7 @@ private:
 struct PipelineParams {
     bool enable = true;                                  ///< pipeline enable
     uint8_t class_enable = 0xF;                          ///< bit c-1 enables class c
-    uint8_t weight_mode = 1;                             ///< 0 binary, 1 chroma projection
+    uint8_t weight_mode = 1;                             ///< 0 binary, 1 chroma projection, 2 luma
     uint8_t weight_bg = 0;                               ///< background level
     uint8_t weight_bits = 8;                             ///< 1..8
     uint32_t min_area_px = 0;                            ///< area filter (inclusive)

@@ -1,0 +1,230 @@
+#pragma once
+/// \file
+/// Test helpers: synthetic UYVY fields (label images, anti-aliased markers with noise), the classified mask the
+/// pipeline must see (recomputed pixel by pixel), and OpenCV connected components on it as the reference.
+
+#include "eyesim/fpga/colour.hpp"
+#include "eyesim/fpga/pipeline.hpp"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <random>
+#include <tuple>
+#include <vector>
+
+namespace eyesim::fpga::test {
+
+inline constexpr int W = 720;
+
+/// Default marker colours (sRGB), index = class id (0 = background grey).
+inline const std::array<std::array<double, 3>, 5> kColours{{{90, 90, 90},
+                                                            {220, 40, 40},
+                                                            {40, 200, 60},
+                                                            {40, 80, 220},
+                                                            {230, 210, 40}}};
+
+/// A UYVY field.
+struct Field {
+    int height = 288;
+    std::vector<uint8_t> bytes;
+    explicit Field(int h = 288) : height(h), bytes(static_cast<size_t>(h) * W * 2) {}
+    uint8_t* line(int y) { return bytes.data() + static_cast<size_t>(y) * W * 2; }
+    const uint8_t* line(int y) const { return bytes.data() + static_cast<size_t>(y) * W * 2; }
+};
+
+/// Field from a label image (0 background, 1..4 class): each pair takes the chroma of its even pixel's label;
+/// luma is bright for labelled pixels and dark (below every class's luma band) for background, so the mask
+/// follows the labels at pixel resolution wherever chroma allows.
+inline Field field_from_labels(const cv::Mat1b& labels) {
+    Field f(labels.rows);
+    for (int y = 0; y < labels.rows; ++y) {
+        uint8_t* p = f.line(y);
+        for (int k = 0; k < W / 2; ++k) {
+            const int l0 = labels(y, 2 * k), l1 = labels(y, 2 * k + 1);
+            const int lc = l0 != 0 ? l0 : l1;
+            const auto& c = kColours[static_cast<size_t>(lc)];
+            const Ycc ycc = rgb_to_ycc(c[0], c[1], c[2]);
+            p[4 * k + 0] = to_byte(ycc.cb);
+            p[4 * k + 2] = to_byte(ycc.cr);
+            p[4 * k + 1] = l0 != 0 ? to_byte(ycc.y) : 18;
+            p[4 * k + 3] = l1 != 0 ? to_byte(ycc.y) : 18;
+        }
+    }
+    return f;
+}
+
+/// Luma, interpolated chroma (as the datapath computes it) of pixel x of a line.
+inline std::tuple<int, int, int> pixel_ycc(const uint8_t* line, int x) {
+    const int k = x >> 1;
+    const uint8_t* q = line + 4 * k;
+    int cb = q[0], cr = q[2];
+    if ((x & 1) && k < W / 2 - 1) {
+        cb = (cb + q[4] + 1) >> 1;
+        cr = (cr + q[6] + 1) >> 1;
+    }
+    return {q[1 + 2 * (x & 1)], cb, cr};
+}
+
+/// Class of every pixel, recomputed pixel by pixel (no runs, no fast path), ROI applied.
+inline cv::Mat1b classify_field(const Pipeline& p, const Field& f) {
+    cv::Mat1b m(f.height, W, uint8_t{0});
+    const PipelineParams& par = p.params();
+    for (int y = 0; y < f.height; ++y) {
+        for (int x = 0; x < W; ++x) {
+            bool in_roi = par.roi_enable == 0;
+            for (int w = 0; w < kNumRoiWindows; ++w)
+                if ((par.roi_enable >> w) & 1)
+                    in_roi = in_roi || (x >= par.roi_x0[w] && x <= par.roi_x1[w] && y >= par.roi_y0[w] &&
+                                        y <= par.roi_y1[w]);
+            if (!in_roi) continue;
+            const auto [yy, cb, cr] = pixel_ycc(f.line(y), x);
+            m(y, x) = p.classify(static_cast<uint8_t>(yy), static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+        }
+    }
+    return m;
+}
+
+/// One reference component (OpenCV) with exact integer and floating weighted sums.
+struct RefBlob {
+    int cls = 0;
+    int area = 0;
+    int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+    uint64_t sw = 0, swx = 0, swy = 0, swxx = 0, swyy = 0, swxy = 0;
+    double rw = 0, rwx = 0, rwy = 0;
+    bool operator<(const RefBlob& o) const {
+        return std::tie(cls, y0, x0, area, x1, y1) < std::tie(o.cls, o.y0, o.x0, o.area, o.x1, o.y1);
+    }
+};
+
+/// OpenCV connectedComponentsWithStats (8-connected) per class on the classified mask, plus weighted sums.
+inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, const cv::Mat1b& cls_mask) {
+    std::vector<RefBlob> out;
+    for (int c = 1; c <= kNumClasses; ++c) {
+        cv::Mat1b mask = (cls_mask == c) / 255;
+        cv::Mat labels, stats, centroids;
+        const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
+        const size_t base = out.size();
+        for (int i = 1; i < n; ++i) {
+            RefBlob b;
+            b.cls = c;
+            b.area = stats.at<int>(i, cv::CC_STAT_AREA);
+            b.x0 = stats.at<int>(i, cv::CC_STAT_LEFT);
+            b.y0 = stats.at<int>(i, cv::CC_STAT_TOP);
+            b.x1 = b.x0 + stats.at<int>(i, cv::CC_STAT_WIDTH) - 1;
+            b.y1 = b.y0 + stats.at<int>(i, cv::CC_STAT_HEIGHT) - 1;
+            out.push_back(b);
+        }
+        for (int y = 0; y < f.height; ++y) {
+            for (int x = 0; x < W; ++x) {
+                const int l = labels.at<int>(y, x);
+                if (l == 0) continue;
+                RefBlob& b = out[base + static_cast<size_t>(l - 1)];
+                const auto [yy, cb, cr] = pixel_ycc(f.line(y), x);
+                const uint64_t w = p.weight(static_cast<uint8_t>(c), static_cast<uint8_t>(yy),
+                                            static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+                const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
+                b.sw += w;
+                b.swx += w * ux;
+                b.swy += w * uy;
+                b.swxx += w * ux * ux;
+                b.swyy += w * uy * uy;
+                b.swxy += w * ux * uy;
+                // Floating reference: exact mean of the neighbouring chroma pairs.
+                const uint8_t* q = f.line(y) + 4 * (x >> 1);
+                double cbd = q[0], crd = q[2];
+                if ((x & 1) && (x >> 1) < W / 2 - 1) {
+                    cbd = 0.5 * (q[0] + q[4]);
+                    crd = 0.5 * (q[2] + q[6]);
+                }
+                const double wr = p.weight_reference(static_cast<uint8_t>(c), yy, cbd, crd);
+                b.rw += wr;
+                b.rwx += wr * x;
+                b.rwy += wr * y;
+            }
+        }
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
+/// Runs a whole field, collecting every emitted blob (sink callback), sorted like RefBlob.
+inline std::vector<Blob> run_field(Pipeline& p, const Field& f, uint32_t counter = 0) {
+    std::vector<Blob> blobs;
+    blobs.reserve(1024);
+    p.set_sink([](void* ctx, const Blob& b) { static_cast<std::vector<Blob>*>(ctx)->push_back(b); }, &blobs);
+    p.process_field(f.bytes.data(), f.height, counter, 0);
+    p.set_sink(nullptr, nullptr);
+    std::sort(blobs.begin(), blobs.end(), [](const Blob& a, const Blob& b) {
+        return std::tie(a.class_id, a.y_min, a.x_min, a.area_px, a.x_max, a.y_max) <
+               std::tie(b.class_id, b.y_min, b.x_min, b.area_px, b.x_max, b.y_max);
+    });
+    return blobs;
+}
+
+/// An anti-aliased elliptical marker (frame-px radius r; in the field its vertical radius is r/2).
+struct Marker {
+    int cls = 1;
+    double cx = 0, cy = 0;  ///< field px
+    double rx = 4, ry = 2;  ///< field px
+};
+
+/// Renders markers over a uniform background with `ss`×`ss` supersampling per pixel, mixes colours in sRGB,
+/// filters chroma [1 2 1]/4 co-sited (as BT.656 sources do), adds Gaussian noise (σ in 8-bit codes).
+inline Field render_markers(const std::vector<Marker>& markers, double noise_sigma, uint32_t seed, int height = 288,
+                            int ss = 8, const std::array<double, 3>& bg = {60, 60, 60}) {
+    std::vector<double> Y(static_cast<size_t>(height) * W), CB(Y.size()), CR(Y.size());
+    const Ycc bgc = rgb_to_ycc(bg[0], bg[1], bg[2]);
+    std::fill(Y.begin(), Y.end(), bgc.y);
+    std::fill(CB.begin(), CB.end(), bgc.cb);
+    std::fill(CR.begin(), CR.end(), bgc.cr);
+    for (const Marker& m : markers) {
+        const auto& c = kColours[static_cast<size_t>(m.cls)];
+        const Ycc mc = rgb_to_ycc(c[0], c[1], c[2]);
+        const int x0 = std::max(0, static_cast<int>(std::floor(m.cx - m.rx - 1)));
+        const int x1 = std::min(W - 1, static_cast<int>(std::ceil(m.cx + m.rx + 1)));
+        const int y0 = std::max(0, static_cast<int>(std::floor(m.cy - m.ry - 1)));
+        const int y1 = std::min(height - 1, static_cast<int>(std::ceil(m.cy + m.ry + 1)));
+        for (int y = y0; y <= y1; ++y) {
+            for (int x = x0; x <= x1; ++x) {
+                int hits = 0;
+                for (int sy = 0; sy < ss; ++sy)
+                    for (int sx = 0; sx < ss; ++sx) {
+                        const double px = x - 0.5 + (sx + 0.5) / ss, py = y - 0.5 + (sy + 0.5) / ss;
+                        const double u = (px - m.cx) / m.rx, v = (py - m.cy) / m.ry;
+                        hits += (u * u + v * v <= 1.0);
+                    }
+                if (hits == 0) continue;
+                const double a = static_cast<double>(hits) / (ss * ss);
+                const size_t i = static_cast<size_t>(y) * W + static_cast<size_t>(x);
+                Y[i] = (1 - a) * Y[i] + a * mc.y;
+                CB[i] = (1 - a) * CB[i] + a * mc.cb;
+                CR[i] = (1 - a) * CR[i] + a * mc.cr;
+            }
+        }
+    }
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> noise(0.0, noise_sigma);
+    Field f(height);
+    for (int y = 0; y < height; ++y) {
+        uint8_t* p = f.line(y);
+        const size_t r = static_cast<size_t>(y) * W;
+        for (int k = 0; k < W / 2; ++k) {
+            const int x = 2 * k;
+            const size_t i = r + static_cast<size_t>(x);
+            const size_t im = x > 0 ? i - 1 : i;
+            const double cb = 0.25 * CB[im] + 0.5 * CB[i] + 0.25 * CB[i + 1];
+            const double cr = 0.25 * CR[im] + 0.5 * CR[i] + 0.25 * CR[i + 1];
+            p[4 * k + 0] = to_byte(cb + (noise_sigma > 0 ? noise(rng) : 0.0));
+            p[4 * k + 1] = to_byte(Y[i] + (noise_sigma > 0 ? noise(rng) : 0.0));
+            p[4 * k + 2] = to_byte(cr + (noise_sigma > 0 ? noise(rng) : 0.0));
+            p[4 * k + 3] = to_byte(Y[i + 1] + (noise_sigma > 0 ? noise(rng) : 0.0));
+        }
+    }
+    return f;
+}
+
+}  // namespace eyesim::fpga::test

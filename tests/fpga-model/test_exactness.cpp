@@ -1,0 +1,305 @@
+// Exactness of the streaming pipeline against OpenCV connectedComponentsWithStats (8-connected, per class) on the
+// same classified mask, and of its integer moments against sums recomputed pixel by pixel.
+#include "field_gen.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <opencv2/imgproc.hpp>
+
+#include <cmath>
+#include <random>
+
+using namespace eyesim::fpga;
+using namespace eyesim::fpga::test;
+
+namespace {
+
+RegisterMap open_filters(int weight_mode) {
+    RegisterMap r;
+    REQUIRE(r.write(reg::kMinArea, 1) == RegWriteResult::kOk);
+    REQUIRE(r.write(reg::kMaxArea, 720u * 288u) == RegWriteResult::kOk);
+    REQUIRE(r.write(reg::kWeightMode, static_cast<uint32_t>(weight_mode)) == RegWriteResult::kOk);
+    return r;
+}
+
+// Runs the pipeline and the reference on `f`; checks blob set, areas, boxes, exact sums and centroids.
+void check_exact(const Field& f, const RegisterMap& regs, int capacity = kMaxBlobSlots) {
+    PipelineConfig cfg;
+    cfg.float_reference = true;
+    cfg.blob_table_capacity = capacity;
+    Pipeline p(regs, cfg);
+    const std::vector<Blob> got = run_field(p, f);
+    const cv::Mat1b cls = classify_field(p, f);
+    const std::vector<RefBlob> want = reference_blobs(p, f, cls);
+    REQUIRE(p.field_stats().table_overflows == 0);
+    REQUIRE(p.field_stats().dropped_blobs == 0);
+    REQUIRE(got.size() == want.size());
+    for (size_t i = 0; i < got.size(); ++i) {
+        const Blob& g = got[i];
+        const RefBlob& w = want[i];
+        INFO("blob " << i << " class " << w.cls << " at (" << w.x0 << "," << w.y0 << ")");
+        REQUIRE(g.class_id == w.cls);
+        REQUIRE(g.area_px == static_cast<uint32_t>(w.area));
+        REQUIRE(g.x_min == w.x0);
+        REQUIRE(g.y_min == w.y0);
+        REQUIRE(g.x_max == w.x1);
+        REQUIRE(g.y_max == w.y1);
+        REQUIRE(g.sum_w == w.sw);
+        REQUIRE(g.sum_wx == w.swx);
+        REQUIRE(g.sum_wy == w.swy);
+        REQUIRE(g.sum_wxx == w.swxx);
+        REQUIRE(g.sum_wyy == w.swyy);
+        REQUIRE(g.sum_wxy == w.swxy);
+        if (w.sw > 0) {
+            // The divider: round half up of Σwx·2^16/Σw.
+            REQUIRE(g.cx_q16 == static_cast<uint32_t>(((w.swx << 16) + w.sw / 2) / w.sw));
+            REQUIRE(g.cy_q16 == static_cast<uint32_t>(((w.swy << 16) + w.sw / 2) / w.sw));
+        }
+        if (w.rw > 0) {
+            REQUIRE(g.ref_cx_px == Approx(w.rwx / w.rw).margin(1e-9));
+            REQUIRE(g.ref_cy_px == Approx(w.rwy / w.rw).margin(1e-9));
+        }
+        REQUIRE(g.latency_cycles == g.emit_cycle - g.last_pixel_cycle);
+        REQUIRE(g.emit_cycle > g.last_pixel_cycle);
+    }
+}
+
+void check_all_modes(const cv::Mat1b& labels) {
+    const Field f = field_from_labels(labels);
+    for (int mode = 0; mode <= 2; ++mode) {
+        INFO("weight mode " << mode);
+        check_exact(f, open_filters(mode));
+    }
+}
+
+cv::Mat1b blank(int h = 288) { return cv::Mat1b(h, 720, uint8_t{0}); }
+
+}  // namespace
+
+TEST_CASE("random ellipses and rectangles of all classes match OpenCV", "[fpga][exact]") {
+    std::mt19937 rng(1234);
+    for (int trial = 0; trial < 6; ++trial) {
+        cv::Mat1b l = blank();
+        std::uniform_int_distribution<int> ux(0, 719), uy(0, 287), ur(1, 25), uc(1, 4), shape(0, 1);
+        for (int i = 0; i < 60; ++i) {
+            const cv::Point c(ux(rng), uy(rng));
+            const int cl = uc(rng);
+            if (shape(rng))
+                cv::ellipse(l, c, cv::Size(ur(rng), ur(rng) / 2 + 1), ur(rng) * 7.0, 0, 360, cl, cv::FILLED);
+            else
+                cv::rectangle(l, cv::Rect(c.x, c.y, ur(rng), ur(rng)), cl, cv::FILLED);
+        }
+        check_all_modes(l);
+    }
+}
+
+TEST_CASE("spirals match OpenCV", "[fpga][exact]") {
+    cv::Mat1b l = blank();
+    for (int s = 0; s < 3; ++s) {
+        std::vector<cv::Point> pts;
+        const cv::Point c(120 + 240 * s, 144);
+        for (double t = 0; t < 6 * 6.2832; t += 0.02) {
+            const double r = 3 + 3.2 * t;
+            pts.emplace_back(c.x + static_cast<int>(r * std::cos(t)), c.y + static_cast<int>(0.9 * r * std::sin(t)));
+        }
+        cv::polylines(l, pts, false, 1 + s, 1 + s % 2, cv::LINE_8);
+    }
+    check_all_modes(l);
+}
+
+TEST_CASE("U, W, nested U and inverted shapes (late merges) match OpenCV", "[fpga][exact]") {
+    cv::Mat1b l = blank();
+    // U: two arms joined only on their last line.
+    for (int i = 0; i < 8; ++i) {
+        const int x = 10 + 60 * i, w = 3 + i;
+        cv::rectangle(l, cv::Rect(x, 10, w, 60), 1, cv::FILLED);
+        cv::rectangle(l, cv::Rect(x + 30, 10, w, 60), 1, cv::FILLED);
+        cv::rectangle(l, cv::Rect(x, 69, 30 + w, 1), 1, cv::FILLED);
+    }
+    // W: three arms, two late merges on different lines.
+    for (int i = 0; i < 5; ++i) {
+        const int x = 10 + 100 * i;
+        for (int a = 0; a < 3; ++a) cv::rectangle(l, cv::Rect(x + 30 * a, 90, 4, 40 + 10 * a), 2, cv::FILLED);
+        cv::rectangle(l, cv::Rect(x, 129, 34, 2), 2, cv::FILLED);
+        cv::rectangle(l, cv::Rect(x + 30, 139, 34, 2), 2, cv::FILLED);
+    }
+    // Nested U's (a U inside a U joined at the very bottom) and an inverted U (split, no merge).
+    cv::rectangle(l, cv::Rect(520, 90, 4, 60), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(600, 90, 4, 60), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(540, 100, 4, 40), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(580, 100, 4, 40), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(540, 139, 44, 1), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(520, 149, 84, 1), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(560, 140, 4, 10), 3, cv::FILLED);
+    cv::rectangle(l, cv::Rect(10, 200, 100, 3), 4, cv::FILLED);
+    cv::rectangle(l, cv::Rect(10, 200, 3, 60), 4, cv::FILLED);
+    cv::rectangle(l, cv::Rect(107, 200, 3, 60), 4, cv::FILLED);
+    // Diagonal-only contacts (8-connectivity joins them).
+    for (int i = 0; i < 20; ++i) l(220 + i, 300 + i) = 1;
+    for (int i = 0; i < 20; ++i) l(220 + i, 360 - i) = 1;
+    check_all_modes(l);
+}
+
+TEST_CASE("combs (merge chains) up and down match OpenCV", "[fpga][exact]") {
+    cv::Mat1b l = blank();
+    // Teeth up: 60 labels open separately and merge one after another on the spine line.
+    for (int t = 0; t < 60; ++t) cv::rectangle(l, cv::Rect(10 + 6 * t, 10, 2, 50), 1, cv::FILLED);
+    cv::rectangle(l, cv::Rect(10, 59, 6 * 59 + 2, 2), 1, cv::FILLED);
+    // Teeth down: one label splits (no merge needed).
+    cv::rectangle(l, cv::Rect(10, 100, 6 * 59 + 2, 2), 2, cv::FILLED);
+    for (int t = 0; t < 60; ++t) cv::rectangle(l, cv::Rect(10 + 6 * t, 100, 2, 50), 2, cv::FILLED);
+    // Staircase chain: each step joins the previous one diagonally.
+    for (int s = 0; s < 40; ++s) cv::rectangle(l, cv::Rect(400 + 7 * s, 200 - 2 * s, 8, 2), 3, cv::FILLED);
+    // Two combs interleaved with opposite classes (adjacent runs of different classes never merge).
+    for (int t = 0; t < 30; ++t) cv::rectangle(l, cv::Rect(400 + 8 * t, 220, 4, 40), t % 2 ? 4 : 1, cv::FILLED);
+    cv::rectangle(l, cv::Rect(400, 262, 240, 2), 4, cv::FILLED);
+    check_all_modes(l);
+}
+
+TEST_CASE("checkerboards and random masks (percolation) match OpenCV", "[fpga][exact]") {
+    cv::Mat1b l = blank();
+    for (int y = 0; y < 100; ++y)
+        for (int x = 0; x < 200; ++x) l(y, x) = ((x + y) % 2) ? 1 : 0;  // one 8-connected blob
+    for (int y = 0; y < 100; ++y)
+        for (int x = 220; x < 420; ++x) l(y, x) = (((x / 2) + (y / 2)) % 2) ? 2 : 0;  // 2×2 squares, corners touch
+    for (int y = 0; y < 100; ++y)
+        for (int x = 440; x < 640; ++x) l(y, x) = (((x / 4) + (y / 3)) % 2) ? 3 : 4;  // two classes tiling
+    std::mt19937 rng(99);
+    std::bernoulli_distribution on(0.45);
+    for (int y = 120; y < 288; ++y)
+        for (int x = 0; x < 720; ++x) l(y, x) = on(rng) ? 1 : 0;
+    const Field f = field_from_labels(l);
+    check_exact(f, open_filters(1));
+    check_exact(f, open_filters(0));
+}
+
+TEST_CASE("blobs on every border and corner match OpenCV and carry border flags", "[fpga][exact]") {
+    cv::Mat1b l = blank();
+    cv::rectangle(l, cv::Rect(0, 0, 5, 4), 1, cv::FILLED);          // top-left corner
+    cv::rectangle(l, cv::Rect(715, 0, 5, 4), 2, cv::FILLED);        // top-right
+    cv::rectangle(l, cv::Rect(0, 284, 5, 4), 3, cv::FILLED);        // bottom-left
+    cv::rectangle(l, cv::Rect(715, 284, 5, 4), 4, cv::FILLED);      // bottom-right
+    cv::rectangle(l, cv::Rect(300, 0, 20, 3), 1, cv::FILLED);       // top edge
+    cv::rectangle(l, cv::Rect(300, 285, 20, 3), 1, cv::FILLED);     // bottom edge
+    cv::rectangle(l, cv::Rect(0, 140, 3, 10), 2, cv::FILLED);       // left edge
+    cv::rectangle(l, cv::Rect(717, 140, 3, 10), 2, cv::FILLED);     // right edge
+    cv::rectangle(l, cv::Rect(0, 200, 720, 2), 3, cv::FILLED);      // full-width line
+    cv::rectangle(l, cv::Rect(360, 0, 2, 288), 4, cv::FILLED);      // full-height column
+    check_all_modes(l);
+
+    Pipeline p(open_filters(1));
+    const std::vector<Blob> blobs = run_field(p, field_from_labels(l));
+    int left = 0, right = 0, top = 0, bottom = 0;
+    for (const Blob& b : blobs) {
+        CHECK(((b.flags & kBlobTouchesLeft) != 0) == (b.x_min == 0));
+        CHECK(((b.flags & kBlobTouchesRight) != 0) == (b.x_max == 719));
+        CHECK(((b.flags & kBlobTouchesTop) != 0) == (b.y_min == 0));
+        CHECK(((b.flags & kBlobTouchesBottom) != 0) == (b.y_max == 287));
+        left += (b.flags & kBlobTouchesLeft) != 0;
+        right += (b.flags & kBlobTouchesRight) != 0;
+        top += (b.flags & kBlobTouchesTop) != 0;
+        bottom += (b.flags & kBlobTouchesBottom) != 0;
+    }
+    CHECK(left == 4);
+    CHECK(right == 4);
+    CHECK(top == 4);
+    CHECK(bottom == 4);
+}
+
+TEST_CASE("anti-aliased noisy markers: exact sums, fast path on and off identical", "[fpga][exact]") {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> ux(5, 715), uy(3, 285), ur(2.0, 8.0);
+    std::uniform_int_distribution<int> uc(1, 4);
+    std::vector<Marker> ms;
+    for (int i = 0; i < 40; ++i) {
+        const double r = ur(rng);
+        ms.push_back({uc(rng), ux(rng), uy(rng), r, r / 2});
+    }
+    const Field f = render_markers(ms, 2.0, 11);
+    RegisterMap regs = open_filters(1);
+    check_exact(f, regs);
+    regs.write(reg::kWeightMode, 2);
+    check_exact(f, regs);
+
+    RegisterMap on = open_filters(1), off = open_filters(1);
+    REQUIRE(off.write(reg::kFastPath, 0) == RegWriteResult::kOk);
+    Pipeline pon(on), poff(off);
+    const auto a = run_field(pon, f), b = run_field(poff, f);
+    REQUIRE(pon.fast_path_half_width() > 0);
+    REQUIRE(poff.fast_path_half_width() == 0);
+    REQUIRE(pon.field_stats().fast_path_pixels > 100000);
+    REQUIRE(poff.field_stats().fast_path_pixels == 0);
+    REQUIRE(a.size() == b.size());
+    for (size_t i = 0; i < a.size(); ++i) {
+        CHECK(a[i].cx_q16 == b[i].cx_q16);
+        CHECK(a[i].cy_q16 == b[i].cy_q16);
+        CHECK(a[i].sum_wxy == b[i].sum_wxy);
+        CHECK(a[i].emit_cycle == b[i].emit_cycle);
+    }
+}
+
+TEST_CASE("more blobs than the table holds: overflow counted, every complete blob still exact", "[fpga][exact]") {
+    // 12 rows of 60 small squares: with 16 slots, the first line of each row needs 60 at once.
+    cv::Mat1b l = blank();
+    for (int r = 0; r < 12; ++r)
+        for (int i = 0; i < 60; ++i) cv::rectangle(l, cv::Rect(2 + 12 * i, 4 + 23 * r, 4 + (i % 3), 3), 1 + (i % 4),
+                                                   cv::FILLED);
+    // A long U whose second arm starts while the table is full: it must come out flagged incomplete or exact.
+    const Field f = field_from_labels(l);
+    PipelineConfig cfg;
+    cfg.blob_table_capacity = 16;
+    Pipeline p(open_filters(1), cfg);
+    const std::vector<Blob> got = run_field(p, f);
+    const std::vector<RefBlob> want = reference_blobs(p, f, classify_field(p, f));
+    REQUIRE(want.size() == 720);
+    CHECK(p.field_stats().table_overflows > 0);
+    CHECK(p.field_stats().max_table_occupancy == 16);
+    CHECK(got.size() == 16 * 12);  // the first 16 of each row get slots; the rest are dropped whole
+    for (const Blob& g : got) {
+        REQUIRE((g.flags & kBlobIncomplete) == 0);
+        const auto it = std::find_if(want.begin(), want.end(), [&](const RefBlob& w) {
+            return w.cls == g.class_id && w.x0 == g.x_min && w.y0 == g.y_min && w.x1 == g.x_max &&
+                   w.y1 == g.y_max && static_cast<uint32_t>(w.area) == g.area_px && w.sw == g.sum_w &&
+                   w.swxy == g.sum_wxy;
+        });
+        CHECK(it != want.end());
+    }
+    // The full-size table handles the same field exactly.
+    check_exact(f, open_filters(1));
+}
+
+TEST_CASE("full-field blob: accumulators stay within their documented widths", "[fpga][exact]") {
+    cv::Mat1b l(512, 720, uint8_t{1});
+    const Field f = field_from_labels(l);
+    RegisterMap regs = open_filters(2);
+    REQUIRE(regs.write(reg::kWeightBg, 0) == RegWriteResult::kOk);
+    REQUIRE(regs.write(reg::kMaxArea, (1u << 18) - 1) == RegWriteResult::kOutOfRange);  // beyond a 288-line field
+    Pipeline p(regs);
+    std::vector<Blob> blobs;
+    p.set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
+    REQUIRE(p.process_field(f.bytes.data(), 512, 0, 0) == PipelineStatus::kOk);
+    // The area filter (≤ 720·288) rejects it, so look at the stats instead; then lift the filter via a 288 field.
+    CHECK(p.field_stats().blobs_filtered == 1);
+    cv::Mat1b l2(288, 720, uint8_t{1});
+    const Field f2 = field_from_labels(l2);
+    blobs.clear();
+    REQUIRE(p.process_field(f2.bytes.data(), 288, 1, 0) == PipelineStatus::kOk);
+    REQUIRE(blobs.size() == 1);
+    const Blob& b = blobs[0];
+    CHECK(b.area_px == 720u * 288u);
+    auto fits = [](uint64_t v, int bits) { return (v >> bits) == 0; };
+    CHECK(fits(b.sum_w, kSumWBits));
+    CHECK(fits(b.sum_wx, kSumWxBits));
+    CHECK(fits(b.sum_wy, kSumWyBits));
+    CHECK(fits(b.sum_wxx, kSumWxxBits));
+    CHECK(fits(b.sum_wyy, kSumWyyBits));
+    CHECK(fits(b.sum_wxy, kSumWxyBits));
+    // Worst case for a 512-line field: weight 255 everywhere.
+    const uint64_t a = 720ull * 512ull, w = 255;
+    CHECK(fits(a * w, kSumWBits));
+    CHECK(fits(a * w * 719, kSumWxBits));
+    CHECK(fits(a * w * 511, kSumWyBits));
+    CHECK(fits(a * w * 719 * 719, kSumWxxBits));
+    CHECK(fits(a * w * 511 * 511, kSumWyyBits));
+    CHECK(fits(a * w * 719 * 511, kSumWxyBits));
+}
