@@ -91,6 +91,7 @@ StepStatus DeviceCore::step_cameras() noexcept {
                 break;
         }
     }
+    flush_low_latency();
     if (finished == kCameras) return StepStatus::finished;
     return any ? StepStatus::active : StepStatus::idle;
 }
@@ -103,6 +104,9 @@ void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcep
     cam.field_start_us = line.field_start_us;
     cam.part_index = 0;
     cam.blobs_dropped = false;
+    cam.low_latency = low_latency_;
+    cam.closed = false;
+    cam.sent = 0;
     cam.markers.clear();
     cam.pending.clear();
     cam.pipeline.begin_field(line.field, line.parity);
@@ -114,18 +118,12 @@ void DeviceCore::blob_sink(void* context, const fpga::Blob& blob) {
 }
 
 void DeviceCore::on_blob(std::size_t camera, const fpga::Blob& blob) noexcept {
+    if (!streaming_) return;
     Camera& cam = cams_[camera];
     const PendingBlob p{cycle_time_ns(cam.field_start_us, blob.last_pixel_cycle),
                         cycle_time_ns(cam.field_start_us, blob.emit_cycle), blob.index};
-    const protocol::Marker m = to_marker(blob, cam.field_start_us);
-    if (!streaming_) return;
-    if (low_latency_) {
-        // One frame per blob, queued the moment the soft core has handled it.
-        send_field_part(camera, &m, &p, 1, protocol::kFieldFlagLowLatency | protocol::kFieldFlagMoreFollows, 0,
-                        p.complete_ns);
-        return;
-    }
-    if (!cam.markers.push_back(m) || !cam.pending.push_back(p)) {
+    // The blob waits in the FPGA's output FIFO until the soft core takes it (flush_low_latency / end_field).
+    if (!cam.markers.push_back(to_marker(blob, cam.field_start_us)) || !cam.pending.push_back(p)) {
         cam.blobs_dropped = true;
         ++blobs_dropped_;
     }
@@ -147,15 +145,16 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
     // The field is over once its last active pixel is in and the last blob has left the pipeline.
     const std::uint32_t end_cycle =
         st.last_emit_cycle > st.last_active_line_end_cycle ? st.last_emit_cycle : st.last_active_line_end_cycle;
-    const std::uint64_t field_end_us = (cam.field_start_us * 1000u + fpga::cycles_to_ns(st.last_active_line_end_cycle)) / 1000u;
+    cam.field_end_us = (cycle_time_ns(cam.field_start_us, st.last_active_line_end_cycle)) / 1000u;
     const std::uint64_t ready_ns = cycle_time_ns(cam.field_start_us, end_cycle);
-    const std::uint8_t dropped = cam.blobs_dropped ? protocol::kFieldFlagBlobsDropped : 0;
-    if (low_latency_) {
-        // Closing part: no markers (each already left on its own), the field's end time, no more-follows.
-        send_field_part(camera, nullptr, nullptr, 0, protocol::kFieldFlagLowLatency | dropped, field_end_us, ready_ns);
+    if (cam.low_latency) {
+        cam.closed = true;
+        cam.close_ready_ns = ready_ns;
+        flush_low_latency();  // sends the closing part before the next field can begin
         return;
     }
     // One message train per field: parts of up to kMaxMarkersPerMessage, the last without more-follows.
+    const std::uint8_t dropped = cam.blobs_dropped ? protocol::kFieldFlagBlobsDropped : 0;
     const std::size_t n = cam.markers.size();
     std::size_t sent = 0;
     do {
@@ -163,9 +162,44 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
         const bool last = sent + k == n;
         send_field_part(camera, cam.markers.data() + sent, cam.pending.data() + sent, k,
                         static_cast<std::uint8_t>(dropped | (last ? 0 : protocol::kFieldFlagMoreFollows)),
-                        field_end_us, ready_ns);
+                        cam.field_end_us, ready_ns);
         sent += k;
     } while (sent < n);
+}
+
+void DeviceCore::flush_low_latency() noexcept {
+    // The soft core serves the three cameras' blob FIFOs in completion order. When it gets to a camera, every blob
+    // already waiting in that camera's FIFO goes into one frame (up to 14): bursts share one frame's overhead.
+    constexpr std::uint64_t kNever = ~std::uint64_t{0};
+    if (!streaming_) return;
+    for (;;) {
+        std::size_t pick = kCameras;
+        std::uint64_t key = kNever;
+        for (std::size_t c = 0; c < kCameras; ++c) {
+            const Camera& cam = cams_[c];
+            if (!cam.low_latency) continue;
+            std::uint64_t k = kNever;
+            if (cam.sent < cam.pending.size()) k = cam.pending[cam.sent].complete_ns;
+            else if (cam.closed) k = cam.close_ready_ns;
+            if (k < key) key = k, pick = c;
+        }
+        if (pick == kCameras) return;
+        Camera& cam = cams_[pick];
+        const std::uint64_t t = key > core_free_ns_ ? key : core_free_ns_;
+        std::size_t k = 0;
+        while (cam.sent + k < cam.pending.size() && k < protocol::kMaxMarkersPerMessage &&
+               cam.pending[cam.sent + k].complete_ns <= t)
+            ++k;
+        const bool last = cam.closed && cam.sent + k == cam.pending.size();
+        std::uint8_t flags = protocol::kFieldFlagLowLatency;
+        if (!last) flags |= protocol::kFieldFlagMoreFollows;
+        if (last && cam.blobs_dropped) flags |= protocol::kFieldFlagBlobsDropped;
+        const std::uint64_t ready = last && cam.close_ready_ns > t ? cam.close_ready_ns : t;
+        send_field_part(pick, cam.markers.data() + cam.sent, cam.pending.data() + cam.sent, k, flags,
+                        last ? cam.field_end_us : 0, ready);
+        cam.sent += k;
+        if (last) cam.closed = false, cam.low_latency = false;  // done with this field
+    }
 }
 
 void DeviceCore::send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
@@ -193,7 +227,7 @@ void DeviceCore::send_field_part(std::size_t camera, const protocol::Marker* mar
     for (std::size_t i = 0; i < count; ++i) {
         BlobLatency r;
         r.camera = static_cast<std::uint8_t>(camera);
-        r.low_latency = low_latency_ ? 1 : 0;
+        r.low_latency = (flags & protocol::kFieldFlagLowLatency) ? 1 : 0;
         r.blob_index = pending[i].index;
         r.field_counter = cam.field;
         r.last_pixel_ns = pending[i].last_pixel_ns;

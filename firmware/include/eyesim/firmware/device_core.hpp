@@ -85,7 +85,7 @@ public:
 
     /// True while FieldMarkers, PedalState and DeviceStatus are being sent.
     bool streaming() const noexcept { return streaming_; }
-    /// True in per-blob (low-latency) mode.
+    /// True in per-blob (low-latency) mode (applies from the next field on).
     bool low_latency() const noexcept { return low_latency_; }
     /// True when nothing is queued or half written.
     bool tx_idle() const noexcept { return queue_.empty() && tx_len_ == tx_off_; }
@@ -120,6 +120,11 @@ private:
         std::uint16_t part_index = 0;
         bool blobs_dropped = false;
         bool finished = false;
+        bool low_latency = false;        // mode sampled at begin_field (a mode change applies from the next field)
+        bool closed = false;             // low-latency: field ended, closing part not yet sent
+        std::uint64_t close_ready_ns = 0;
+        std::uint64_t field_end_us = 0;
+        std::size_t sent = 0;            // low-latency: blobs of `markers` already sent
         std::uint32_t fields_processed = 0;
         FixedVector<protocol::Marker, kMaxMarkersPerField> markers;
         FixedVector<PendingBlob, kMaxMarkersPerField> pending;
@@ -129,6 +134,7 @@ private:
     void on_blob(std::size_t camera, const fpga::Blob& blob) noexcept;
     void begin_field(std::size_t camera, const CameraLine& line) noexcept;
     void end_field(std::size_t camera) noexcept;
+    void flush_low_latency() noexcept;
     void send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
                          std::size_t count, std::uint8_t flags, std::uint64_t field_end_us,
                          std::uint64_t ready_ns) noexcept;

@@ -1,0 +1,87 @@
+#pragma once
+// A firmware core wired to fake hardware: three in-memory camera streams on a modelled clock, a memory sink and
+// a command source. Shared by the core tests and the benchmark.
+#include "eyesim/firmware/device_core.hpp"
+#include "eyesim/firmware/marker_conversion.hpp"
+#include "eyesim/firmware/pc/field_source.hpp"
+#include "eyesim/firmware/pc/latency_log.hpp"
+#include "eyesim/firmware/pc/modelled_clock.hpp"
+#include "eyesim/fpga/pipeline.hpp"
+
+#include "fake_hal.hpp"
+#include "field_gen.hpp"
+
+#include <cstring>
+#include <map>
+#include <memory>
+#include <utility>
+#include <vector>
+
+namespace eyesim::test {
+
+struct CoreRig {
+    std::array<std::vector<std::uint8_t>, 3> streams;
+    firmware::pc::ModelledClock clock;
+    std::vector<std::unique_ptr<firmware::pc::FieldSource>> cams;
+    MemorySink sink;
+    QueueSource source;
+    firmware::pc::LatencyLog latency{1u << 16};
+    std::unique_ptr<firmware::DeviceCore> core;
+
+    CoreRig(int fields, int markers, const firmware::CoreConfig& config = {}) {
+        for (int c = 0; c < 3; ++c) streams[c] = make_stream(c, fields, markers);
+        firmware::DeviceHal hal;
+        for (int c = 0; c < 3; ++c) {
+            const std::vector<std::uint8_t>* s = &streams[c];
+            cams.push_back(std::make_unique<firmware::pc::FieldSource>(
+                [s](std::uint64_t k, std::uint8_t* out, std::uint8_t& parity) {
+                    if ((k + 1) * kFieldBytes > s->size()) return false;
+                    std::memcpy(out, s->data() + k * kFieldBytes, kFieldBytes);
+                    parity = static_cast<std::uint8_t>(k % 2);
+                    return true;
+                },
+                &clock));
+            hal.cameras[c] = cams.back().get();
+        }
+        hal.sink = &sink;
+        hal.source = &source;
+        hal.clock = &clock;
+        hal.latency = &latency;
+        core = std::make_unique<firmware::DeviceCore>(hal, config);
+    }
+
+    void command(const protocol::Command& c) { source.push(command_frame(c)); }
+
+    /// Runs the streams to their end, servicing the host side after every line step, then drains.
+    void run() {
+        while (core->step_cameras() != firmware::StepStatus::finished) core->service();
+        for (int i = 0; i < 1000 && !core->tx_idle(); ++i) core->service();
+        core->service();
+    }
+};
+
+/// Markers of one camera field as the host assembles them from its parts.
+using FieldKey = std::pair<int, std::uint32_t>;
+using FieldMap = std::map<FieldKey, std::vector<protocol::Marker>>;
+
+/// The FPGA model run directly on the same streams, blobs converted with the shared conversion.
+inline FieldMap reference_markers(const std::array<std::vector<std::uint8_t>, 3>& streams,
+                                  const fpga::RegisterMap& regs = {}) {
+    FieldMap out;
+    for (int c = 0; c < 3; ++c) {
+        fpga::PipelineConfig pc;
+        pc.camera = static_cast<std::uint8_t>(c);
+        auto pipe = std::make_unique<fpga::Pipeline>(regs, pc);
+        const int fields = static_cast<int>(streams[c].size() / kFieldBytes);
+        for (int k = 0; k < fields; ++k) {
+            pipe->process_field(streams[c].data() + kFieldBytes * k, kH, static_cast<std::uint32_t>(k),
+                                static_cast<std::uint8_t>(k % 2));
+            auto& v = out[{c, static_cast<std::uint32_t>(k)}];
+            fpga::Blob b;
+            while (pipe->pop_blob(b)) v.push_back(firmware::to_marker(b, static_cast<std::uint64_t>(k) * 20000));
+        }
+    }
+    return out;
+}
+
+}  // namespace eyesim::test
