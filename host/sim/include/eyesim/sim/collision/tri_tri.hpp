@@ -1,0 +1,26 @@
+#pragma once
+/// \file
+/// Exact triangle–triangle intersection test (closed triangles, touching counts), used by the exact narrow
+/// phase: ZCOLL's fallback where the membrane is not π-convex, and the reference for recall/precision.
+
+#include "eyesim/sim/mesh.hpp"
+
+#include <array>
+#include <cstdint>
+#include <span>
+
+namespace eyesim::sim::collision {
+
+/// True when the closed triangles (a0, a1, a2) and (b0, b1, b2) share at least one point. Orientation
+/// predicates in double precision: a plane-side rejection (Möller), then, for crossing planes, an edge of one
+/// triangle piercing the other (the intersection segment of two non-coplanar triangles ends on an edge of
+/// one of them); coplanar pairs are decided in 2D by edge crossings and containment.
+bool triangles_intersect(const Vec3f& a0, const Vec3f& a1, const Vec3f& a2, const Vec3f& b0, const Vec3f& b1,
+                         const Vec3f& b2);
+
+/// True when point `p` is inside the closed, consistently oriented triangle range (ray parity along a fixed
+/// skew direction). `triangles` index `vertices_mm`.
+bool point_inside_closed_mesh(const Vec3f& p, std::span<const Vec3f> vertices_mm,
+                              std::span<const std::array<uint32_t, 3>> triangles);
+
+}  // namespace eyesim::sim::collision

@@ -1,0 +1,255 @@
+#include "eyesim/sim/collision/raster_backend.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+namespace eyesim::sim::collision {
+
+void RasterBuffers::resize(int r) {
+    resolution_px = r;
+    const size_t n = size_t(r) * size_t(r);
+    zm_mm.assign(n, kEmptyDepth);
+    zi_mm.assign(n, kEmptyDepth);
+    cm.assign(n, 0);
+    layers.assign(n, 0);
+    multi_layer_pixels = 0;
+}
+
+namespace {
+
+constexpr int kSubBits = 8;
+constexpr int32_t kSub = 1 << kSubBits;
+constexpr int32_t kHalf = kSub / 2;
+constexpr float kClampFx = float(1 << 22);
+
+struct Vtx {
+    int32_t x, y;
+    float q;
+};
+
+/// Rasterises one triangle with the top-left rule; calls frag(pixel index, depth, corner) for each covered
+/// sample inside [0,R)², where corner ∈ {0,1,2} is the original vertex with the largest barycentric weight.
+/// Returns true if frag asked to stop (by returning true).
+template <bool kCentral, typename Frag>
+inline bool raster_triangle(Vtx v0, Vtx v1, Vtx v2, int r, int bx0, int by0, int bx1, int by1, Frag&& frag) {
+    int64_t area = int64_t(v1.x - v0.x) * (v2.y - v0.y) - int64_t(v1.y - v0.y) * (v2.x - v0.x);
+    if (area == 0) return false;
+    int corner_of[3] = {0, 1, 2};
+    if (area < 0) {
+        std::swap(v1, v2);
+        std::swap(corner_of[1], corner_of[2]);
+        area = -area;
+    }
+    // Pixel bounds of the samples the triangle can cover.
+    const int32_t minx = std::min({v0.x, v1.x, v2.x}), maxx = std::max({v0.x, v1.x, v2.x});
+    const int32_t miny = std::min({v0.y, v1.y, v2.y}), maxy = std::max({v0.y, v1.y, v2.y});
+    int x0 = int((minx - kHalf + kSub - 1) >> kSubBits), x1 = int((maxx - kHalf) >> kSubBits);
+    int y0 = int((miny - kHalf + kSub - 1) >> kSubBits), y1 = int((maxy - kHalf) >> kSubBits);
+    x0 = std::max(x0, bx0);
+    y0 = std::max(y0, by0);
+    x1 = std::min(x1, bx1);
+    y1 = std::min(y1, by1);
+    if (x0 > x1 || y0 > y1) return false;
+    // Edge e_k is opposite vertex k: e0 = v1→v2, e1 = v2→v0, e2 = v0→v1. Inside: E > 0, or E = 0 on a
+    // top-left edge (counter-clockwise with y up: edges going down, or horizontal edges going left).
+    const Vtx* pv[3] = {&v0, &v1, &v2};
+    int64_t e_row[3], step_x[3], step_y[3];
+    int bias[3];
+    const int32_t sx = (x0 << kSubBits) + kHalf, sy = (y0 << kSubBits) + kHalf;
+    for (int k = 0; k < 3; ++k) {
+        const Vtx& a = *pv[(k + 1) % 3];
+        const Vtx& b = *pv[(k + 2) % 3];
+        const int64_t dx = int64_t(b.x) - a.x, dy = int64_t(b.y) - a.y;
+        e_row[k] = dx * (int64_t(sy) - a.y) - dy * (int64_t(sx) - a.x);
+        step_x[k] = -dy * kSub;
+        step_y[k] = dx * kSub;
+        bias[k] = (dy < 0 || (dy == 0 && dx < 0)) ? 0 : -1;
+    }
+    // Depth plane (interpolated quantity q) over the snapped positions, per pixel steps.
+    const float inv_area = 1.0f / float(area);
+    const float q_row0 = (float(e_row[0]) * v0.q + float(e_row[1]) * v1.q + float(e_row[2]) * v2.q) * inv_area;
+    const float dq_x = (float(step_x[0]) * v0.q + float(step_x[1]) * v1.q + float(step_x[2]) * v2.q) * inv_area;
+    const float dq_y = (float(step_y[0]) * v0.q + float(step_y[1]) * v1.q + float(step_y[2]) * v2.q) * inv_area;
+    float q_row = q_row0;
+    for (int y = y0; y <= y1; ++y) {
+        int64_t e0 = e_row[0], e1 = e_row[1], e2 = e_row[2];
+        float q = q_row;
+        for (int x = x0; x <= x1; ++x) {
+            if ((e0 + bias[0]) >= 0 && (e1 + bias[1]) >= 0 && (e2 + bias[2]) >= 0) {
+                const int c = (e0 >= e1 && e0 >= e2) ? 0 : (e1 >= e2 ? 1 : 2);
+                const float depth = kCentral ? 1.0f / q : q;
+                if (frag(size_t(y) * size_t(r) + size_t(x), depth, corner_of[c])) return true;
+            }
+            e0 += step_x[0];
+            e1 += step_x[1];
+            e2 += step_x[2];
+            q += dq_x;
+        }
+        e_row[0] += step_y[0];
+        e_row[1] += step_y[1];
+        e_row[2] += step_y[2];
+        q_row += dq_y;
+    }
+    return false;
+}
+
+inline int32_t to_fx(float w) { return int32_t(std::lrint(std::clamp(w * float(kSub), -kClampFx, kClampFx))); }
+
+}  // namespace
+
+CpuRasterBackend::CpuRasterBackend(size_t max_vertices) {
+    membrane_px_.reserve(max_vertices);
+    instrument_px_.reserve(max_vertices);
+}
+
+void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, std::vector<Projected>& out) {
+    // Combined mesh → camera transform, then to window coordinates.
+    const Eigen::Matrix3f ct = view.camera_to_eye.transpose();
+    const Eigen::Matrix3f m = ct * mesh.to_eye.linear();
+    const Vec3f t = ct * (mesh.to_eye.translation() - view.origin_eye_mm);
+    const float half_r = 0.5f * float(view.resolution_px);
+    out.resize(mesh.vertices_mm.size());
+    if (view.projection == Projection::Parallel) {
+        const float s = half_r / view.half_width_mm;
+        for (size_t i = 0; i < out.size(); ++i) {
+            const Vec3f c = m * mesh.vertices_mm[i] + t;
+            out[i] = {to_fx(c.x() * s + half_r), to_fx(c.y() * s + half_r), c.z(), true};
+        }
+    } else {
+        const float s = half_r / view.tan_half_angle;
+        for (size_t i = 0; i < out.size(); ++i) {
+            const Vec3f c = m * mesh.vertices_mm[i] + t;
+            const bool valid = c.z() >= view.near_mm;
+            const float iz = valid ? 1.0f / c.z() : 0.0f;
+            out[i] = {to_fx(c.x() * iz * s + half_r), to_fx(c.y() * iz * s + half_r), iz, valid};
+        }
+    }
+}
+
+void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView& view, const RasterRequest& req,
+                                       RasterBuffers& out) {
+    const int r = view.resolution_px;
+    if (out.resolution_px != r) out.resize(r);
+    std::fill(out.zm_mm.begin(), out.zm_mm.end(), kEmptyDepth);
+    std::fill(out.cm.begin(), out.cm.end(), 0u);
+    if (req.count_layers) std::fill(out.layers.begin(), out.layers.end(), uint8_t{0});
+    out.multi_layer_pixels = 0;
+    project(membrane, view, membrane_px_);
+    const bool central = view.projection == Projection::Central;
+    const int32_t lim = r << kSubBits;
+    const float znear = view.near_mm, zfar = view.far_mm;
+    float* zm = out.zm_mm.data();
+    uint32_t* cm = out.cm.data();
+    uint8_t* layers = out.layers.data();
+    const bool vertex_ids = req.ids == FeatureKind::Vertex;
+    mem_x0_ = r;
+    mem_y0_ = r;
+    mem_x1_ = -1;
+    mem_y1_ = -1;
+    mem_zmax_ = -kEmptyDepth;
+    for (size_t ti = 0; ti < membrane.triangles.size(); ++ti) {
+        const auto& tr = membrane.triangles[ti];
+        const Projected &a = membrane_px_[tr[0]], &b = membrane_px_[tr[1]], &c = membrane_px_[tr[2]];
+        // Trivial rejects: outside the viewport or the depth range of V.
+        if ((a.x < 0 && b.x < 0 && c.x < 0) || (a.x > lim && b.x > lim && c.x > lim)) continue;
+        if ((a.y < 0 && b.y < 0 && c.y < 0) || (a.y > lim && b.y > lim && c.y > lim)) continue;
+        if (central) {
+            if (!(a.valid && b.valid && c.valid)) continue;
+            if (a.q < 1.0f / zfar && b.q < 1.0f / zfar && c.q < 1.0f / zfar) continue;
+        } else {
+            if ((a.q < znear && b.q < znear && c.q < znear) || (a.q > zfar && b.q > zfar && c.q > zfar)) continue;
+        }
+        const uint32_t ids[3] = {tr[0], tr[1], tr[2]};
+        const uint32_t tid = uint32_t(ti);
+        auto frag = [&](size_t p, float z, int corner) {
+            if (z < znear || z > zfar) return false;
+            if (req.count_layers && layers[p] < 255) ++layers[p];
+            if (z < zm[p]) {
+                zm[p] = z;
+                cm[p] = (vertex_ids ? ids[corner] : tid) + 1u;
+            }
+            return false;
+        };
+        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        if (central) raster_triangle<true>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
+        else raster_triangle<false>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
+    }
+    // Bounds of the membrane image: the instrument can only collide inside them, in front of the deepest ZM.
+    for (int y = 0; y < r; ++y)
+        for (int x = 0; x < r; ++x) {
+            const size_t p = size_t(y) * size_t(r) + size_t(x);
+            if (cm[p] == 0) continue;
+            mem_x0_ = std::min(mem_x0_, x);
+            mem_x1_ = std::max(mem_x1_, x);
+            mem_y0_ = std::min(mem_y0_, y);
+            mem_y1_ = std::max(mem_y1_, y);
+            mem_zmax_ = std::max(mem_zmax_, zm[p]);
+            if (req.count_layers && layers[p] >= 2) ++out.multi_layer_pixels;
+        }
+}
+
+void CpuRasterBackend::render(const MeshRef& membrane, const MeshRef* instrument, const ZcollView& view,
+                              const RasterRequest& req, RasterBuffers& out) {
+    raster_membrane(membrane, view, req, out);
+    std::copy(out.zm_mm.begin(), out.zm_mm.end(), out.zi_mm.begin());
+    if (!req.instrument || instrument == nullptr || mem_x1_ < 0) return;
+    project(*instrument, view, instrument_px_);
+    const int r = view.resolution_px;
+    const int32_t bx0 = mem_x0_ << kSubBits, bx1 = (mem_x1_ + 1) << kSubBits;
+    const int32_t by0 = mem_y0_ << kSubBits, by1 = (mem_y1_ + 1) << kSubBits;
+    const float znear = view.near_mm, zmax = mem_zmax_;
+    float* zi = out.zi_mm.data();
+    const bool central = view.projection == Projection::Central;
+    for (const auto& tr : instrument->triangles) {
+        const Projected &a = instrument_px_[tr[0]], &b = instrument_px_[tr[1]], &c = instrument_px_[tr[2]];
+        if ((a.x < bx0 && b.x < bx0 && c.x < bx0) || (a.x > bx1 && b.x > bx1 && c.x > bx1)) continue;
+        if ((a.y < by0 && b.y < by0 && c.y < by0) || (a.y > by1 && b.y > by1 && c.y > by1)) continue;
+        if (central) {
+            if (!(a.valid && b.valid && c.valid)) continue;
+        } else if ((a.q >= zmax && b.q >= zmax && c.q >= zmax) || (a.q < znear && b.q < znear && c.q < znear)) {
+            continue;
+        }
+        auto frag = [&](size_t p, float z, int) {
+            if (z >= znear && z <= zi[p]) zi[p] = z;  // LEQUAL against the membrane depth
+            return false;
+        };
+        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        if (central) raster_triangle<true>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
+        else raster_triangle<false>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
+    }
+}
+
+bool CpuRasterBackend::any_penetration(const MeshRef& membrane, const MeshRef& instrument, const ZcollView& view) {
+    RasterRequest req;
+    req.instrument = false;
+    raster_membrane(membrane, view, req, scratch_);
+    if (mem_x1_ < 0) return false;
+    project(instrument, view, instrument_px_);
+    const int r = view.resolution_px;
+    const int32_t bx0 = mem_x0_ << kSubBits, bx1 = (mem_x1_ + 1) << kSubBits;
+    const int32_t by0 = mem_y0_ << kSubBits, by1 = (mem_y1_ + 1) << kSubBits;
+    const float znear = view.near_mm, zmax = mem_zmax_;
+    const float* zm = scratch_.zm_mm.data();
+    const uint32_t* cm = scratch_.cm.data();
+    const bool central = view.projection == Projection::Central;
+    for (const auto& tr : instrument.triangles) {
+        const Projected &a = instrument_px_[tr[0]], &b = instrument_px_[tr[1]], &c = instrument_px_[tr[2]];
+        if ((a.x < bx0 && b.x < bx0 && c.x < bx0) || (a.x > bx1 && b.x > bx1 && c.x > bx1)) continue;
+        if ((a.y < by0 && b.y < by0 && c.y < by0) || (a.y > by1 && b.y > by1 && c.y > by1)) continue;
+        if (central) {
+            if (!(a.valid && b.valid && c.valid)) continue;
+        } else if ((a.q >= zmax && b.q >= zmax && c.q >= zmax) || (a.q < znear && b.q < znear && c.q < znear)) {
+            continue;
+        }
+        // Early out on the first instrument sample in front of a membrane sample.
+        auto frag = [&](size_t p, float z, int) { return cm[p] != 0 && z >= znear && z < zm[p]; };
+        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        const bool hit = central ? raster_triangle<true>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag)
+                                 : raster_triangle<false>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
+        if (hit) return true;
+    }
+    return false;
+}
+
+}  // namespace eyesim::sim::collision
