@@ -1,0 +1,130 @@
+#pragma once
+/// \file
+/// The host tracker: FieldMarkers (from a transport or a capture) in, one TrackingFrame per reference-camera
+/// field out, with instrument poses in the eye frame, eye rotation, 3D markers with covariance, and timing.
+///
+/// Host frame loop:
+/// \code
+///   Tracker tracker(config);
+///   tracker.set_clock_offset_us(estimator.offset_us());     // device − host, from ping/pong
+///   on message: tracker.push(field_markers, host_now_us);     // or push(pedal_state, host_now_us)
+///   TrackingFrame frame;
+///   while (tracker.pop(frame, host_now_us)) use(frame);       // frame.instruments[i].tip_eye_mm, frame.eye ...
+///   at end of a capture: tracker.finish(); then pop the rest.
+/// \endcode
+/// Everything after construction is allocation-free.
+
+#include "eyesim/tracking/body_model.hpp"
+#include "eyesim/tracking/camera_geometry.hpp"
+#include "eyesim/tracking/correspondence.hpp"
+#include "eyesim/tracking/distortion.hpp"
+#include "eyesim/tracking/field_sync.hpp"
+#include "eyesim/tracking/pose.hpp"
+
+#include "eyesim/protocol/messages.hpp"
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace eyesim::tracking {
+
+/// Everything the tracker needs to know up front.
+struct TrackerConfig {
+    std::vector<CameraGeometry> cameras;   ///< one per camera id (≤ kMaxCameras)
+    std::vector<CameraTiming> timing;      ///< one per camera (field end → exposure mid), same order
+    BodySet bodies;                        ///< eye and instruments to fit
+    SyncOptions sync;                      ///< time alignment
+    CorrespondenceOptions correspondence;  ///< matching and triangulation
+    PoseOptions pose;                      ///< body fits
+    UndistortOptions undistort;            ///< inverse distortion
+    double centroid_sigma_px = 0.05;       ///< 1σ centroid noise assumed for covariance (frame pixels)
+    int opening_pedal_axis = 0;            ///< pedal axis that drives the instrument function (jaws, suction)
+};
+
+/// Bit flags of a tracking frame.
+enum FrameFlag : std::uint32_t {
+    kFrameOk = 0,
+    kFrameTwoView = 1u << 0,        ///< a camera was missing: every marker from two views at most
+    kFrameTooFewCameras = 1u << 1,  ///< fewer than two cameras: nothing triangulated, poses held
+    kFrameNonFinite = 1u << 2,      ///< non-finite input was refused
+};
+
+/// Host-side timing of one frame (host clock, µs). The chain is sample → field end → received → poses ready.
+struct FrameTiming {
+    double sample_host_us = 0;       ///< the frame's instant (reference exposure mid-time)
+    double field_end_host_us = 0;    ///< last pixel of the latest field the frame needed
+    double received_host_us = 0;     ///< the latest of those fields' last packets arrived
+    double poses_ready_host_us = 0;  ///< poses computed (`now_host_us` passed to pop, + compute time)
+    double compute_us = 0;           ///< wall time spent in the tracking stage for this frame
+};
+
+/// One tracking frame.
+struct TrackingFrame {
+    std::uint64_t index = 0;              ///< frames popped so far
+    std::uint32_t reference_field = 0;    ///< field counter of the reference camera
+    double time_device_us = 0;            ///< the frame's instant on the device clock
+    FrameTiming timing;                   ///< latency chain
+    std::uint32_t flags = kFrameOk;       ///< FrameFlag bits
+    int camera_count = 0;                 ///< cameras configured
+    int cameras_used = 0;                 ///< cameras that contributed images
+    std::array<AlignedCamera, kMaxCameras> cameras{};  ///< per camera: how it was aligned to the frame time
+    EyePose eye;                          ///< eye rotation about its fixed centre
+    int instrument_count = 0;             ///< valid entries in `instruments` (= bodies.instrument_count)
+    std::array<InstrumentPose, kMaxInstruments> instruments{};  ///< in BodySet order; rig and eye frames
+    CorrespondenceResult markers;         ///< triangulated markers with covariance
+    MarkerAssignment assignment;          ///< which body each marker was given to
+    int images_in = 0;                    ///< marker images entering correspondence
+    int images_dropped_sync = 0;          ///< images lost in time alignment (unpaired between fields)
+    int markers_unassigned = 0;           ///< triangulated markers no body claimed
+};
+
+/// The tracker (see the file comment).
+class Tracker {
+public:
+    /// Checks the configuration; throws std::invalid_argument naming the camera or value at fault.
+    explicit Tracker(TrackerConfig config);
+    Tracker(const Tracker&) = delete;             ///< holds views into its own camera array
+    Tracker& operator=(const Tracker&) = delete;  ///< holds views into its own camera array
+
+    /// Device − host clock offset (µs) from the transport's ping/pong estimator.
+    void set_clock_offset_us(double device_minus_host_us) { offset_us_ = device_minus_host_us; }
+    /// Adds one FieldMarkers message received at `received_host_us`.
+    void push(const protocol::FieldMarkers& msg, double received_host_us);
+    /// Adds a pedal state (sets the instruments' opening from `opening_pedal_axis`).
+    void push(const protocol::PedalState& pedal, double received_host_us);
+    /// End of stream: frames still waiting for later fields are built with what there is.
+    void finish() { sync_.finish(); }
+    /// Builds the next ready frame into `out`; `now_host_us` is the host time of the call (poses ready = now +
+    /// compute time). Returns false when no frame is ready.
+    bool pop(TrackingFrame& out, double now_host_us);
+
+    /// The tracking stage alone on already aligned images (frame pixels): undistort, correspond, triangulate,
+    /// fit. `out` keeps pose history across calls. Used by pop(), tests and benchmarks.
+    void track_images(std::span<const CameraField> images, std::span<const bool> present, TrackingFrame& out);
+
+    /// Cameras in use.
+    std::span<const CameraGeometry> cameras() const { return cameras_; }
+    /// The configuration.
+    const TrackerConfig& config() const { return config_; }
+    /// Images refused on input (bad class or coordinates).
+    int rejected_images() const;
+
+private:
+    TrackerConfig config_;
+    std::vector<CameraGeometry> cameras_;
+    Correspondence correspondence_;
+    FrameSync sync_;
+    std::array<FieldAssembler, kMaxCameras> assemblers_{};
+    double offset_us_ = 0.0;
+    double opening_ = 0.0;
+    std::uint64_t frames_ = 0;
+    EyePose last_eye_;
+    std::array<InstrumentPose, kMaxInstruments> last_instruments_{};
+    // Per-frame scratch (kept as members: no allocation, no large stack frames).
+    std::array<CameraField, kMaxCameras> aligned_{};
+    std::array<CameraObservations, kMaxCameras> views_{};
+    int rejected_non_finite_ = 0;
+};
+
+}  // namespace eyesim::tracking

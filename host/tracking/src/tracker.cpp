@@ -1,0 +1,130 @@
+#include "eyesim/tracking/tracker.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace eyesim::tracking {
+
+namespace {
+
+double steady_us() {
+    return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace
+
+Tracker::Tracker(TrackerConfig config)
+    : config_(std::move(config)),
+      cameras_(config_.cameras),
+      correspondence_(cameras_, config_.correspondence),
+      sync_(int(config_.cameras.size()), config_.sync) {
+    if (cameras_.size() < 2 || cameras_.size() > std::size_t(kMaxCameras))
+        throw std::invalid_argument("tracker: cameras: need 2.." + std::to_string(kMaxCameras) + ", got " +
+                                    std::to_string(cameras_.size()));
+    for (std::size_t i = 0; i < cameras_.size(); ++i)
+        if (!cameras_[i].valid())
+            throw std::invalid_argument("tracker: camera " + std::to_string(i) +
+                                        ": invalid intrinsics, distortion or rotation");
+    if (config_.timing.size() != cameras_.size())
+        config_.timing.resize(cameras_.size());  // PAL defaults
+    if (config_.sync.reference_camera < 0 || config_.sync.reference_camera >= int(cameras_.size()))
+        throw std::invalid_argument("tracker: sync.reference_camera: " +
+                                    std::to_string(config_.sync.reference_camera) + " is not a camera");
+    if (!(config_.centroid_sigma_px > 0.0) || !std::isfinite(config_.centroid_sigma_px))
+        throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
+    // correspondence_ holds a span over cameras_, which is never resized after construction.
+}
+
+int Tracker::rejected_images() const {
+    int n = rejected_non_finite_;
+    for (const FieldAssembler& a : assemblers_) n += a.rejected_images();
+    return n;
+}
+
+void Tracker::push(const protocol::FieldMarkers& msg, double received_host_us) {
+    if (msg.camera_id >= cameras_.size()) return;
+    FieldAssembler& as = assemblers_[msg.camera_id];
+    const int done = as.push(msg, received_host_us, config_.timing[msg.camera_id]);
+    for (int i = 0; i < done; ++i) sync_.add(as.completed(i));
+}
+
+void Tracker::push(const protocol::PedalState& pedal, double /*received_host_us*/) {
+    const int axis = config_.opening_pedal_axis;
+    if (axis >= 0 && axis < int(protocol::kPedalAxisCount)) opening_ = pedal.axes[std::size_t(axis)] / 65535.0;
+}
+
+bool Tracker::pop(TrackingFrame& out, double now_host_us) {
+    double T = 0, end_dev = 0, recv_host = 0;
+    std::uint32_t ref = 0;
+    if (!sync_.pop(T, ref, out.cameras, aligned_, end_dev, recv_host)) return false;
+    const double t0 = steady_us();
+    std::array<bool, kMaxCameras> present{};
+    for (int c = 0; c < int(cameras_.size()); ++c)
+        present[std::size_t(c)] = out.cameras[std::size_t(c)].state != CameraSyncState::Missing;
+    out.images_dropped_sync = 0;
+    for (int c = 0; c < int(cameras_.size()); ++c) out.images_dropped_sync += out.cameras[std::size_t(c)].dropped_images;
+    track_images(std::span<const CameraField>(aligned_.data(), cameras_.size()),
+                 std::span<const bool>(present.data(), cameras_.size()), out);
+    const double compute = steady_us() - t0;
+    out.reference_field = ref;
+    out.time_device_us = T;
+    out.timing.sample_host_us = T - offset_us_;
+    out.timing.field_end_host_us = end_dev - offset_us_;
+    out.timing.received_host_us = recv_host;
+    out.timing.compute_us = compute;
+    out.timing.poses_ready_host_us = now_host_us + compute;
+    return true;
+}
+
+void Tracker::track_images(std::span<const CameraField> images, std::span<const bool> present, TrackingFrame& out) {
+    const int ncam = int(std::min({images.size(), present.size(), cameras_.size()}));
+    out.index = frames_++;
+    out.flags = kFrameOk;
+    out.camera_count = int(cameras_.size());
+    out.cameras_used = 0;
+    out.images_in = 0;
+    // Undistort every image (Newton to tolerance); refuse non-finite ones.
+    for (int c = 0; c < int(cameras_.size()); ++c) {
+        CameraObservations& v = views_[std::size_t(c)];
+        v.present = c < ncam && present[std::size_t(c)];
+        v.count = 0;
+        if (!v.present) continue;
+        ++out.cameras_used;
+        const CameraField& f = images[std::size_t(c)];
+        for (int i = 0; i < f.count && v.count < kMaxMarkersPerCamera; ++i) {
+            const FieldImage& im = f.images[std::size_t(i)];
+            if (!im.frame_px.allFinite()) {
+                out.flags |= kFrameNonFinite;
+                ++rejected_non_finite_;
+                continue;
+            }
+            const Undistorted u = undistort_pixel(cameras_[std::size_t(c)], im.frame_px, config_.undistort);
+            if (!u.converged) continue;  // outside the invertible part of the lens model
+            ImagePoint& p = v.points[std::size_t(v.count++)];
+            p.colour_class = im.colour_class;
+            p.flags = im.flags;
+            p.px = im.frame_px;
+            p.xn = u.xn;
+            p.sigma_px = config_.centroid_sigma_px;
+        }
+        out.images_in += v.count;
+    }
+    if (out.cameras_used < int(cameras_.size())) out.flags |= kFrameTwoView;
+    if (out.cameras_used < 2) out.flags |= kFrameTooFewCameras;
+    correspondence_.solve(std::span<const CameraObservations>(views_.data(), cameras_.size()), out.markers);
+    // Poses: the previous frame's are the hold values; the pedal sets the opening.
+    out.instrument_count = config_.bodies.instrument_count;
+    for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
+    fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
+              std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
+              std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
+    last_eye_ = out.eye;
+    for (int b = 0; b < out.instrument_count; ++b) last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
+    out.markers_unassigned = 0;
+    for (int k = 0; k < out.markers.count; ++k)
+        if (out.assignment.body[std::size_t(k)] < 0) ++out.markers_unassigned;
+}
+
+}  // namespace eyesim::tracking
