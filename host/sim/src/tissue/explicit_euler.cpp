@@ -46,7 +46,7 @@ public:
         const float* w = s.w_per_mg.data();
         for (size_t i = 0; i < n; ++i) {
             if (w[i] == 0.0f) continue;
-            v[i] += (dt * w[i]) * f[i];
+            v[i] += dt * (w[i] * f[i]);
             x[i] += dt * v[i];
             detail::finish_node(x[i], v[i], p);
         }
