@@ -1,7 +1,6 @@
 // Firmware core: camera lines → pipelines → blobs → frames → bounded queue → sink; commands → replies.
 #include "eyesim/firmware/device_core.hpp"
 
-#include "eyesim/firmware/marker_conversion.hpp"
 #include "eyesim/firmware/registers.hpp"
 
 #include "eyesim/fpga/timing.hpp"
@@ -107,7 +106,7 @@ void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcep
     cam.low_latency = low_latency_;
     cam.closed = false;
     cam.sent = 0;
-    cam.markers.clear();
+    cam.blobs.clear();
     cam.pending.clear();
     cam.pipeline.begin_field(line.field, line.parity);
 }
@@ -123,7 +122,7 @@ void DeviceCore::on_blob(std::size_t camera, const fpga::Blob& blob) noexcept {
     const PendingBlob p{cycle_time_ns(cam.field_start_us, blob.last_pixel_cycle),
                         cycle_time_ns(cam.field_start_us, blob.emit_cycle), blob.index};
     // The blob waits in the FPGA's output FIFO until the soft core takes it (flush_low_latency / end_field).
-    if (!cam.markers.push_back(to_marker(blob, cam.field_start_us)) || !cam.pending.push_back(p)) {
+    if (!cam.blobs.push_back(blob) || !cam.pending.push_back(p)) {
         cam.blobs_dropped = true;
         ++blobs_dropped_;
     }
@@ -145,7 +144,8 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
     // The field is over once its last active pixel is in and the last blob has left the pipeline.
     const std::uint32_t end_cycle =
         st.last_emit_cycle > st.last_active_line_end_cycle ? st.last_emit_cycle : st.last_active_line_end_cycle;
-    cam.field_end_us = (cycle_time_ns(cam.field_start_us, st.last_active_line_end_cycle)) / 1000u;
+    cam.field_end_us = fpga::device_time_us(cam.field_start_us,
+                                            fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1));
     const std::uint64_t ready_ns = cycle_time_ns(cam.field_start_us, end_cycle);
     if (cam.low_latency) {
         cam.closed = true;
@@ -153,18 +153,15 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
         flush_low_latency();  // sends the closing part before the next field can begin
         return;
     }
-    // One message train per field: parts of up to kMaxMarkersPerMessage, the last without more-follows.
-    const std::uint8_t dropped = cam.blobs_dropped ? protocol::kFieldFlagBlobsDropped : 0;
-    const std::size_t n = cam.markers.size();
-    std::size_t sent = 0;
-    do {
-        const std::size_t k = n - sent < protocol::kMaxMarkersPerMessage ? n - sent : protocol::kMaxMarkersPerMessage;
-        const bool last = sent + k == n;
-        send_field_part(camera, cam.markers.data() + sent, cam.pending.data() + sent, k,
-                        static_cast<std::uint8_t>(dropped | (last ? 0 : protocol::kFieldFlagMoreFollows)),
-                        cam.field_end_us, ready_ns);
-        sent += k;
-    } while (sent < n);
+    // One message train per field, exactly as `eyesim fpga` writes it (shared conversion in fpga/wire.hpp).
+    fpga::FieldInfo info = fpga::field_info(st, static_cast<std::uint8_t>(camera), cam.parity, cam.field_start_us);
+    info.blobs_dropped = info.blobs_dropped || cam.blobs_dropped;
+    const std::size_t n = fpga::to_field_markers(cam.blobs.data(), cam.blobs.size(), info, parts_.data(), parts_.size());
+    std::size_t first = 0;
+    for (std::size_t p = 0; p < n; ++p) {
+        send_part(camera, parts_[p], cam.pending.data() + first, ready_ns);
+        first += parts_[p].marker_count;
+    }
 }
 
 void DeviceCore::flush_low_latency() noexcept {
@@ -191,30 +188,32 @@ void DeviceCore::flush_low_latency() noexcept {
                cam.pending[cam.sent + k].complete_ns <= t)
             ++k;
         const bool last = cam.closed && cam.sent + k == cam.pending.size();
-        std::uint8_t flags = protocol::kFieldFlagLowLatency;
-        if (!last) flags |= protocol::kFieldFlagMoreFollows;
-        if (last && cam.blobs_dropped) flags |= protocol::kFieldFlagBlobsDropped;
+        protocol::FieldMarkers& fm = parts_[0];
+        fm = protocol::FieldMarkers{};
+        fm.camera_id = static_cast<std::uint8_t>(pick);
+        fm.field_parity = cam.parity;
+        fm.field_counter = cam.field;
+        fm.flags = protocol::kFieldFlagLowLatency;
+        if (!last) fm.flags |= protocol::kFieldFlagMoreFollows;
+        const fpga::FieldStats& st = cam.pipeline.field_stats();
+        if (last && (cam.blobs_dropped || st.table_overflows != 0 || st.dropped_blobs != 0))
+            fm.flags |= protocol::kFieldFlagBlobsDropped;
+        fm.field_end_us = last ? cam.field_end_us : 0;
+        fm.marker_count = static_cast<std::uint8_t>(k);
+        for (std::size_t i = 0; i < k; ++i) fm.markers[i] = fpga::to_marker(cam.blobs[cam.sent + i], cam.field_start_us);
         const std::uint64_t ready = last && cam.close_ready_ns > t ? cam.close_ready_ns : t;
-        send_field_part(pick, cam.markers.data() + cam.sent, cam.pending.data() + cam.sent, k, flags,
-                        last ? cam.field_end_us : 0, ready);
+        send_part(pick, fm, cam.pending.data() + cam.sent, ready);
         cam.sent += k;
         if (last) cam.closed = false, cam.low_latency = false;  // done with this field
     }
 }
 
-void DeviceCore::send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
-                                 std::size_t count, std::uint8_t flags, std::uint64_t field_end_us,
-                                 std::uint64_t ready_ns) noexcept {
+void DeviceCore::send_part(std::size_t camera, protocol::FieldMarkers& fm, const PendingBlob* pending,
+                           std::uint64_t ready_ns) noexcept {
     Camera& cam = cams_[camera];
-    protocol::FieldMarkers fm;
-    fm.camera_id = static_cast<std::uint8_t>(camera);
-    fm.field_parity = cam.parity;
-    fm.flags = flags;
-    fm.marker_count = static_cast<std::uint8_t>(count);
-    fm.field_counter = cam.field;
-    fm.field_end_us = field_end_us;
     fm.part_index = cam.part_index++;
-    for (std::size_t i = 0; i < count; ++i) fm.markers[i] = markers[i];
+    const std::size_t count = fm.marker_count;
+    const std::uint8_t flags = fm.flags;
     const std::size_t bytes = queue_message(protocol::Message{fm}, static_cast<std::uint32_t>(count));
     if (bytes == 0) return;
     counters_.blobs_sent += count;

@@ -2,11 +2,11 @@
 // A firmware core wired to fake hardware: three in-memory camera streams on a modelled clock, a memory sink and
 // a command source. Shared by the core tests and the benchmark.
 #include "eyesim/firmware/device_core.hpp"
-#include "eyesim/firmware/marker_conversion.hpp"
 #include "eyesim/firmware/pc/field_source.hpp"
 #include "eyesim/firmware/pc/latency_log.hpp"
 #include "eyesim/firmware/pc/modelled_clock.hpp"
 #include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/wire.hpp"
 
 #include "fake_hal.hpp"
 #include "field_gen.hpp"
@@ -64,21 +64,34 @@ struct CoreRig {
 using FieldKey = std::pair<int, std::uint32_t>;
 using FieldMap = std::map<FieldKey, std::vector<protocol::Marker>>;
 
-/// The FPGA model run directly on the same streams, blobs converted with the shared conversion.
-inline FieldMap reference_markers(const std::array<std::vector<std::uint8_t>, 3>& streams,
+/// What `eyesim fpga --out` writes for the same streams: the FPGA model run directly, each field's blobs
+/// converted with the shared conversion (fpga/wire.hpp). Field k starts at device time k·20 000 µs.
+struct Reference {
+    FieldMap markers;                                // per (camera, field)
+    std::vector<protocol::FieldMarkers> messages;    // camera by camera, field by field
+};
+
+inline Reference reference_output(const std::array<std::vector<std::uint8_t>, 3>& streams,
                                   const fpga::RegisterMap& regs = {}) {
-    FieldMap out;
+    Reference out;
     for (int c = 0; c < 3; ++c) {
         fpga::PipelineConfig pc;
         pc.camera = static_cast<std::uint8_t>(c);
         auto pipe = std::make_unique<fpga::Pipeline>(regs, pc);
         const int fields = static_cast<int>(streams[c].size() / kFieldBytes);
         for (int k = 0; k < fields; ++k) {
-            pipe->process_field(streams[c].data() + kFieldBytes * k, kH, static_cast<std::uint32_t>(k),
-                                static_cast<std::uint8_t>(k % 2));
-            auto& v = out[{c, static_cast<std::uint32_t>(k)}];
+            const auto parity = static_cast<std::uint8_t>(k % 2);
+            const std::uint64_t start_us = static_cast<std::uint64_t>(k) * 20000;
+            pipe->process_field(streams[c].data() + kFieldBytes * k, kH, static_cast<std::uint32_t>(k), parity);
+            std::vector<fpga::Blob> blobs;
             fpga::Blob b;
-            while (pipe->pop_blob(b)) v.push_back(firmware::to_marker(b, static_cast<std::uint64_t>(k) * 20000));
+            while (pipe->pop_blob(b)) blobs.push_back(b);
+            auto& v = out.markers[{c, static_cast<std::uint32_t>(k)}];
+            for (const auto& blob : blobs) v.push_back(fpga::to_marker(blob, start_us));
+            std::vector<protocol::FieldMarkers> parts(fpga::field_markers_messages(blobs.size()));
+            const auto info = fpga::field_info(pipe->field_stats(), static_cast<std::uint8_t>(c), parity, start_us);
+            parts.resize(fpga::to_field_markers(blobs.data(), blobs.size(), info, parts.data(), parts.size()));
+            out.messages.insert(out.messages.end(), parts.begin(), parts.end());
         }
     }
     return out;

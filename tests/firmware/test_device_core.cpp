@@ -8,6 +8,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <set>
 #include <cstdlib>
@@ -75,7 +76,19 @@ TEST_CASE("core packets equal the FPGA model's markers, per field and per blob",
             REQUIRE(stats.errors() == 0);
             REQUIRE(stats.sequence_gaps == 0);
             const FieldMap got = assemble(frames, low_latency);
-            const FieldMap want = test::reference_markers(rig.streams);
+            const test::Reference ref = test::reference_output(rig.streams);
+            const FieldMap& want = ref.markers;
+            if (!low_latency) {
+                // Per-field mode sends exactly the messages `eyesim fpga --out` writes (order: by camera).
+                std::vector<protocol::FieldMarkers> sent;
+                for (const auto& f : frames)
+                    if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message)) sent.push_back(*fm);
+                std::stable_sort(sent.begin(), sent.end(), [](const auto& a, const auto& b) {
+                    return a.camera_id < b.camera_id;
+                });
+                REQUIRE(sent.size() == ref.messages.size());
+                for (std::size_t i = 0; i < sent.size(); ++i) REQUIRE(sent[i] == ref.messages[i]);
+            }
             REQUIRE(want.size() == 3 * fields);
             std::size_t total = 0;
             for (const auto& [key, markers] : want) {
@@ -103,8 +116,10 @@ TEST_CASE("field_end_us is the time of the field's last active pixel", "[firmwar
             (start_us * 1000 + fpga::cycles_to_ns(fpga::active_line_end_cycle(287))) / 1000;
         REQUIRE(fm->field_end_us == expect);
         for (int i = 0; i < fm->marker_count; ++i) {
-            REQUIRE(fm->markers[i].complete_us > start_us);
-            REQUIRE(fm->markers[i].complete_us <= fm->field_end_us);
+            // complete_us is the time of the blob's last pixel: on its last bbox row, before the field end.
+            const auto& m = fm->markers[i];
+            REQUIRE(m.complete_us >= start_us + fpga::cycles_to_ns(fpga::pixel_cycle(0, m.bbox_y1)) / 1000);
+            REQUIRE(m.complete_us <= start_us + fpga::cycles_to_ns(fpga::pixel_cycle(m.bbox_x1, m.bbox_y1)) / 1000);
         }
     }
 }
@@ -264,7 +279,7 @@ TEST_CASE("register writes take effect at the next field, never inside one", "[f
     REQUIRE(rig.core->registers(0).get(fpga::reg::kMinArea) != 1000);
     rig.run();
     const FieldMap got = assemble(test::decode_all(rig.sink.bytes), false);
-    const FieldMap want = test::reference_markers(rig.streams);
+    const FieldMap want = test::reference_output(rig.streams).markers;
     for (int c = 0; c < 3; ++c) {
         INFO("camera " << c);
         REQUIRE(got.at({c, 0}) == want.at({c, 0}));

@@ -19,6 +19,9 @@ inline constexpr std::size_t kTxQueueBytes = 32 * 1024;
 inline constexpr std::size_t kTxQueuePackets = 256;
 /// Markers kept per camera and field in per-field mode; more are dropped and flagged (kFieldFlagBlobsDropped).
 inline constexpr std::size_t kMaxMarkersPerField = 128;
+/// FieldMarkers messages of one camera field at most (kMaxMarkersPerField / 14, rounded up).
+inline constexpr std::size_t kMaxPartsPerField =
+    (kMaxMarkersPerField + protocol::kMaxMarkersPerMessage - 1) / protocol::kMaxMarkersPerMessage;
 /// Bytes read from the host per service call (commands are 33-byte frames).
 inline constexpr std::size_t kRxChunkBytes = 256;
 /// Commands executed per service call at most (bounds the time one call can take).

@@ -21,6 +21,7 @@
 
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/register_map.hpp"
+#include "eyesim/fpga/wire.hpp"
 #include "eyesim/protocol/messages.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
 
@@ -126,7 +127,7 @@ private:
         std::uint64_t field_end_us = 0;
         std::size_t sent = 0;            // low-latency: blobs of `markers` already sent
         std::uint32_t fields_processed = 0;
-        FixedVector<protocol::Marker, kMaxMarkersPerField> markers;
+        FixedVector<fpga::Blob, kMaxMarkersPerField> blobs;
         FixedVector<PendingBlob, kMaxMarkersPerField> pending;
     };
 
@@ -135,9 +136,8 @@ private:
     void begin_field(std::size_t camera, const CameraLine& line) noexcept;
     void end_field(std::size_t camera) noexcept;
     void flush_low_latency() noexcept;
-    void send_field_part(std::size_t camera, const protocol::Marker* markers, const PendingBlob* pending,
-                         std::size_t count, std::uint8_t flags, std::uint64_t field_end_us,
-                         std::uint64_t ready_ns) noexcept;
+    void send_part(std::size_t camera, protocol::FieldMarkers& part, const PendingBlob* pending,
+                   std::uint64_t ready_ns) noexcept;
     std::size_t queue_message(const protocol::Message& m, std::uint32_t blobs) noexcept;
     void handle_rx() noexcept;
     void send_periodic() noexcept;
@@ -162,6 +162,7 @@ private:
 
     TxQueue queue_;
     std::array<std::uint8_t, kMaxFrameBytes> frame_{};  // encode scratch
+    std::array<protocol::FieldMarkers, kMaxPartsPerField> parts_{};  // one field's messages (per-field mode)
     std::array<std::uint8_t, kMaxFrameBytes> tx_{};     // frame being written to the sink
     std::size_t tx_len_ = 0;
     std::size_t tx_off_ = 0;
