@@ -1,0 +1,198 @@
+// Register map: table, write validation, reset classification of the default colours, field-boundary semantics,
+// class enables and ROI windows.
+#include "field_gen.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <set>
+
+using namespace eyesim::fpga;
+using namespace eyesim::fpga::test;
+
+TEST_CASE("register table: unique aligned addresses, reset values valid", "[fpga][regs]") {
+    std::set<uint16_t> seen;
+    RegisterMap r;
+    for (const RegisterInfo& info : register_table()) {
+        INFO(info.name);
+        CHECK(info.address % 4 == 0);
+        CHECK(seen.insert(info.address).second);
+        CHECK((info.width_bits == 32 || (info.reset_value >> info.width_bits) == 0));
+        CHECK(r.get(info.address) == info.reset_value);
+        CHECK(find_register(info.address) == &info);
+        if (info.writable) CHECK(r.check_write(info.address, info.reset_value) == RegWriteResult::kOk);
+    }
+    CHECK(r.get(reg::kId) == 0x45594650u);
+}
+
+TEST_CASE("register writes are validated: address, alignment, width, read-only, range", "[fpga][regs]") {
+    RegisterMap r;
+    const uint32_t gen = r.generation();
+    CHECK(r.write(0x3FC, 1) == RegWriteResult::kUnknownAddress);
+    CHECK(r.write(reg::kMinArea + 2, 1) == RegWriteResult::kMisaligned);
+    CHECK(r.write(reg::kMinArea, 1, 2) == RegWriteResult::kBadWidth);
+    CHECK(r.write(reg::kId, 0) == RegWriteResult::kReadOnly);
+    CHECK(r.write(reg::kVersion, 0x0100) == RegWriteResult::kReadOnly);
+    CHECK(r.write(reg::kClassEnable, 0x1F) == RegWriteResult::kTooWide);
+    CHECK(r.write(reg::kEnable, 2) == RegWriteResult::kTooWide);
+    CHECK(r.write(reg::kWeightMode, 3) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::kWeightBits, 0) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::kWeightBits, 9) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::kMinArea, 0) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::kMaxArea, 720u * 288u + 1) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::kMaxAspectQ4, 15) == RegWriteResult::kOutOfRange);
+    CHECK(r.write(reg::roi_x(1), (100u << 16) | 200u) == RegWriteResult::kOutOfRange);   // x0 > x1
+    CHECK(r.write(reg::roi_x(1), (720u << 16) | 0u) == RegWriteResult::kOutOfRange);     // x1 > 719
+    CHECK(r.write(reg::roi_y(3), (10u << 16) | 20u) == RegWriteResult::kOutOfRange);     // y0 > y1
+    CHECK(r.write(reg::class_sat(2), (10u << 8) | 20u) == RegWriteResult::kOutOfRange);  // min > max
+    CHECK(r.write(reg::class_hue(4), 77u) == RegWriteResult::kOutOfRange);               // zero half-width
+    CHECK(r.generation() == gen);  // nothing accepted so far
+    for (const RegisterInfo& info : register_table()) CHECK(r.get(info.address) == info.reset_value);
+    CHECK(r.write(reg::kMinArea, 5) == RegWriteResult::kOk);
+    CHECK(r.get(reg::kMinArea) == 5);
+    CHECK(r.generation() != gen);
+    uint32_t v = 0;
+    CHECK_FALSE(r.read(0x3FC, v));
+    CHECK(r.read(reg::roi_y(0), v));
+    CHECK(v == (287u << 16));
+    CHECK(std::string(to_string(RegWriteResult::kOutOfRange)) == "out_of_range");
+    r.reset();
+    CHECK(r.get(reg::kMinArea) == find_register(reg::kMinArea)->reset_value);
+}
+
+TEST_CASE("reset values classify exactly the four default colours as classes 1..4", "[fpga][regs]") {
+    RegisterMap r;
+    Pipeline p(r);
+    for (int c = 1; c <= 4; ++c) {
+        for (double gain : {1.0, 0.75, 0.5}) {  // lit and shaded
+            const auto& rgb = kColours[static_cast<size_t>(c)];
+            const Ycc y = rgb_to_ycc(gain * rgb[0], gain * rgb[1], gain * rgb[2]);
+            INFO("class " << c << " gain " << gain);
+            CHECK(p.classify(to_byte(y.y), to_byte(y.cb), to_byte(y.cr)) == c);
+        }
+    }
+    // Neutral and other colours are background.
+    const std::vector<std::array<double, 3>> others{{0, 0, 0},       {255, 255, 255}, {128, 128, 128},
+                                                    {60, 60, 60},    {200, 40, 200},  {40, 200, 200},
+                                                    {230, 120, 40},  {120, 90, 80}};
+    for (const auto& o : others) {
+        const Ycc y = rgb_to_ycc(o[0], o[1], o[2]);
+        INFO(o[0] << "," << o[1] << "," << o[2]);
+        CHECK(p.classify(to_byte(y.y), to_byte(y.cb), to_byte(y.cr)) == 0);
+    }
+    // Every LUT cell holds a class 0..4, and each class owns cells.
+    std::array<int, 5> count{};
+    for (int cb = 0; cb < 256; cb += 4)
+        for (int cr = 0; cr < 256; cr += 4) ++count[p.lut_class(static_cast<uint8_t>(cb), static_cast<uint8_t>(cr))];
+    for (int c = 1; c <= 4; ++c) CHECK(count[static_cast<size_t>(c)] > 20);
+    CHECK(p.fast_path_half_width() >= 12);
+}
+
+TEST_CASE("register writes take effect at the next field boundary", "[fpga][regs]") {
+    std::vector<Marker> ms;
+    for (int i = 0; i < 8; ++i) ms.push_back({1 + i % 4, 40.0 + 80 * i, 40.0 + 25 * i, 6.0, 3.0});
+    const Field f = render_markers(ms, 1.0, 3);
+    RegisterMap regs;
+    Pipeline p(&regs);  // live map
+    auto count_class1 = [&](uint32_t counter, bool write_mid_field) {
+        std::vector<Blob> blobs;
+        p.set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
+        REQUIRE(p.begin_field(counter, 0) == PipelineStatus::kOk);
+        for (int y = 0; y < 288; ++y) {
+            if (write_mid_field && y == 10) REQUIRE(regs.write(reg::kClassEnable, 0xE) == RegWriteResult::kOk);
+            REQUIRE(p.push_line(f.line(y), y) == PipelineStatus::kOk);
+        }
+        REQUIRE(p.end_field() == PipelineStatus::kOk);
+        return std::count_if(blobs.begin(), blobs.end(), [](const Blob& b) { return b.class_id == 1; });
+    };
+    CHECK(count_class1(0, true) == 2);   // written before any class-1 marker, yet this field keeps class 1
+    CHECK(count_class1(1, false) == 0);  // next field: disabled
+    REQUIRE(regs.write(reg::kClassEnable, 0xF) == RegWriteResult::kOk);
+    CHECK(count_class1(2, false) == 2);
+
+    // A snapshot pipeline ignores later writes to the caller's map until set_registers.
+    RegisterMap mine;
+    Pipeline snap(mine);
+    mine.write(reg::kEnable, 0);
+    CHECK(run_field(snap, f).size() == 8);
+    snap.set_registers(mine);
+    CHECK(run_field(snap, f).empty());
+}
+
+TEST_CASE("per-class enables and area/shape filters", "[fpga][regs]") {
+    std::vector<Marker> ms{{1, 100, 50, 6, 3}, {2, 200, 50, 6, 3}, {3, 300, 50, 6, 3}, {4, 400, 50, 6, 3},
+                           {1, 500, 50, 1.2, 0.8}, {2, 600, 150, 40, 2}};
+    const Field f = render_markers(ms, 0.0, 1);
+    RegisterMap r;
+    r.write(reg::kMaxArea, 720u * 288u);
+    r.write(reg::kMinArea, 1);
+    {
+        Pipeline p(r);
+        CHECK(run_field(p, f).size() == 6);
+    }
+    r.write(reg::kClassEnable, 0x5);  // classes 1 and 3
+    {
+        Pipeline p(r);
+        const auto b = run_field(p, f);
+        CHECK(b.size() == 3);
+        for (const Blob& x : b) CHECK((x.class_id == 1 || x.class_id == 3));
+    }
+    r.write(reg::kClassEnable, 0xF);
+    r.write(reg::kMinArea, 8);  // drops the tiny marker
+    r.write(reg::kMaxAspectQ4, 6 * 16);  // drops the 80×4 bar (aspect 20) but keeps 12×6 ellipses
+    r.write(reg::kMinFillQ8, 128);  // ellipse fill ≈ π/4 passes
+    Pipeline p(r);
+    const auto b = run_field(p, f);
+    CHECK(b.size() == 4);
+    CHECK(p.field_stats().blobs_filtered == 2);
+}
+
+TEST_CASE("ROI windows: only pixels inside enabled windows count, clipped blobs flagged", "[fpga][regs][exact]") {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> ux(5, 715), uy(3, 285);
+    std::vector<Marker> ms;
+    for (int i = 0; i < 60; ++i) ms.push_back({1 + i % 4, ux(rng), uy(rng), 6.0, 3.0});
+    const Field f = render_markers(ms, 1.5, 9);
+    RegisterMap r;
+    r.write(reg::kMinArea, 1);
+    r.write(reg::roi_x(0), (300u << 16) | 100u);
+    r.write(reg::roi_y(0), (150u << 16) | 20u);
+    r.write(reg::roi_x(2), (719u << 16) | 250u);  // overlaps window 0 in x
+    r.write(reg::roi_y(2), (287u << 16) | 120u);
+    r.write(reg::kRoiEnable, 0x5);
+    Pipeline p(r);
+    const std::vector<Blob> got = run_field(p, f);
+    const cv::Mat1b cls = classify_field(p, f);
+    const std::vector<RefBlob> want = reference_blobs(p, f, cls);
+    REQUIRE(got.size() == want.size());
+    REQUIRE(got.size() > 10);
+    int clipped = 0;
+    for (size_t i = 0; i < got.size(); ++i) {
+        CHECK(got[i].area_px == static_cast<uint32_t>(want[i].area));
+        CHECK(got[i].x_min == want[i].x0);
+        CHECK(got[i].y_max == want[i].y1);
+        CHECK(got[i].sum_wx == want[i].swx);
+        clipped += (got[i].flags & kBlobClippedByRoi) != 0;
+    }
+    CHECK(clipped > 0);
+    // Fewer pixels examined than the whole field: the two windows cover 201×131 + 470×168 px.
+    Pipeline full{RegisterMap{}};
+    run_field(full, f);
+    CHECK(p.field_stats().runs < full.field_stats().runs);
+}
+
+TEST_CASE("pipeline call order is checked", "[fpga][regs]") {
+    Pipeline p{RegisterMap{}};
+    std::vector<uint8_t> line(kLineBytes, 128);
+    CHECK(p.push_line(line.data(), 0) == PipelineStatus::kNotInField);
+    CHECK(p.end_field() == PipelineStatus::kNotInField);
+    CHECK(p.begin_field(0, 0) == PipelineStatus::kOk);
+    CHECK(p.begin_field(0, 0) == PipelineStatus::kAlreadyInField);
+    CHECK(p.push_line(nullptr, 0) == PipelineStatus::kNullLine);
+    CHECK(p.push_line(line.data(), -1) == PipelineStatus::kLineOutOfRange);
+    CHECK(p.push_line(line.data(), kMaxFieldLines) == PipelineStatus::kLineOutOfRange);
+    CHECK(p.push_line(line.data(), 5) == PipelineStatus::kOk);
+    CHECK(p.push_line(line.data(), 5) == PipelineStatus::kLineOutOfOrder);
+    CHECK(p.push_line(line.data(), 4) == PipelineStatus::kLineOutOfOrder);
+    CHECK(p.end_field() == PipelineStatus::kOk);
+    CHECK_FALSE(p.in_field());
+}
