@@ -159,18 +159,14 @@ void get(const std::uint8_t* p, Reply& r) noexcept {
 }
 
 template <class T>
-DecodeError decode_as(std::span<const std::uint8_t> payload, Message& out) noexcept {
+DecodeError decode_as(MessageType type, std::span<const std::uint8_t> payload, Message& out) noexcept {
     // Emplace only the alternative; the FieldMarkers marker array is filled by get().
     T* held = std::get_if<T>(&out);
     T& m = held ? *held : out.emplace<T>();
+    if (!valid_payload_length(type, payload.size())) return DecodeError::BadLength;
     if constexpr (std::is_same_v<T, FieldMarkers>) {
-        if (payload.size() < kFieldMarkersHeaderBytes) return DecodeError::BadLength;
-        const std::size_t count = payload[3];
-        if (count > kMaxMarkersPerMessage ||
-            payload.size() != kFieldMarkersHeaderBytes + count * kMarkerRecordBytes)
-            return DecodeError::BadLength;
-    } else {
-        if (payload.size() != size_of(m)) return DecodeError::BadLength;
+        // The length is a valid FieldMarkers length; a marker_count that disagrees with it is a payload error.
+        if (payload.size() != kFieldMarkersHeaderBytes + payload[3] * kMarkerRecordBytes) return DecodeError::BadPayload;
     }
     get(payload.data(), m);
     return valid(m) ? DecodeError::None : DecodeError::BadPayload;
@@ -227,11 +223,11 @@ std::size_t encode_payload(const Message& m, std::span<std::uint8_t> out) noexce
 
 DecodeError decode_payload(MessageType type, std::span<const std::uint8_t> payload, Message& out) noexcept {
     switch (type) {
-        case MessageType::FieldMarkers: return decode_as<FieldMarkers>(payload, out);
-        case MessageType::PedalState: return decode_as<PedalState>(payload, out);
-        case MessageType::DeviceStatus: return decode_as<DeviceStatus>(payload, out);
-        case MessageType::Command: return decode_as<Command>(payload, out);
-        case MessageType::Reply: return decode_as<Reply>(payload, out);
+        case MessageType::FieldMarkers: return decode_as<FieldMarkers>(type, payload, out);
+        case MessageType::PedalState: return decode_as<PedalState>(type, payload, out);
+        case MessageType::DeviceStatus: return decode_as<DeviceStatus>(type, payload, out);
+        case MessageType::Command: return decode_as<Command>(type, payload, out);
+        case MessageType::Reply: return decode_as<Reply>(type, payload, out);
     }
     return DecodeError::UnknownType;
 }

@@ -158,12 +158,17 @@ TEST_CASE("the decoder reports each kind of bad frame", "[protocol][codec]") {
     Bytes frame(kMaxFrameBytes);
     frame.resize(encode_frame_raw(1, 0, payload, frame, schema_hash(MessageType::FieldMarkers)));
     CHECK(decode_frame(frame, out, used) == DecodeError::BadPayload);
-    // marker_count disagreeing with the length.
+    // marker_count disagreeing with a valid length: a payload error under a good CRC.
     payload[0] = 0;
     payload[3] = 1;
     frame.assign(kMaxFrameBytes, 0);
     frame.resize(encode_frame_raw(1, 0, payload, frame, schema_hash(MessageType::FieldMarkers)));
-    CHECK(decode_frame(frame, out, used) == DecodeError::BadLength);
+    CHECK(decode_frame(frame, out, used) == DecodeError::BadPayload);
+    CHECK(decode_payload(MessageType::FieldMarkers, payload, out.message) == DecodeError::BadPayload);
+    CHECK(decode_payload(MessageType::FieldMarkers, std::span(payload).first(17), out.message) ==
+          DecodeError::BadLength);
+    CHECK(decode_payload(MessageType::PedalState, std::span(payload).first(15), out.message) ==
+          DecodeError::BadLength);
     CHECK(std::string(decode_error_name(DecodeError::BadCrc)) == "bad_crc");
 }
 
