@@ -7,6 +7,8 @@
 #include "eyesim/protocol/crc32c.hpp"
 #include "eyesim/protocol/messages.hpp"
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <string_view>
 
@@ -43,10 +45,17 @@ constexpr std::string_view schema_string(MessageType t) noexcept {
     return {};
 }
 
-/// Schema hash of a message type: CRC-32C of its schema string (0 for an unknown type).
+namespace detail {
+/// Schema hashes by type code, computed at compile time (index 0 unused).
+inline constexpr std::array<std::uint32_t, kMessageTypeCount + 1> kSchemaHashes = {
+    0u, crc32c(kFieldMarkersSchema), crc32c(kPedalStateSchema), crc32c(kDeviceStatusSchema), crc32c(kCommandSchema),
+    crc32c(kReplySchema)};
+}  // namespace detail
+
+/// Schema hash of a message type: CRC-32C of its schema string (0 for an unknown type). A table look-up.
 constexpr std::uint32_t schema_hash(MessageType t) noexcept {
-    const std::string_view s = schema_string(t);
-    return s.empty() ? 0u : crc32c(s);
+    const auto i = static_cast<std::size_t>(t);
+    return i >= 1 && i <= kMessageTypeCount ? detail::kSchemaHashes[i] : 0u;
 }
 
 }  // namespace eyesim::protocol
