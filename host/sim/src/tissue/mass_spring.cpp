@@ -46,6 +46,7 @@ MassSpringSystem MassSpringSystem::from_mesh(const TriangleMesh& mesh, const Mat
     }
     s.inv_mass_per_mg.resize(n);
     for (size_t i = 0; i < n; ++i) s.inv_mass_per_mg[i] = mass[i] > 0.0f ? 1.0f / mass[i] : 0.0f;
+    s.mass_mg = mass;
     s.w_per_mg = s.inv_mass_per_mg;
     for (size_t i = 0; i < n; ++i)
         if (!s.node_had_triangles[i]) s.state[i] = NodeState::kRemoved, s.w_per_mg[i] = 0.0f;
@@ -113,6 +114,8 @@ MassSpringSystem MassSpringSystem::from_springs(std::span<const Vec3f> x_mm, std
     s.node_had_triangles.assign(n, 0);
     s.inv_mass_per_mg.resize(n);
     for (size_t i = 0; i < n; ++i) s.inv_mass_per_mg[i] = mass_mg[i] > 0.0f ? 1.0f / mass_mg[i] : 0.0f;
+    s.mass_mg.resize(n);
+    for (size_t i = 0; i < n; ++i) s.mass_mg[i] = mass_mg[i] > 0.0f ? mass_mg[i] : 0.0f;
     s.w_per_mg = s.inv_mass_per_mg;
     s.springs.assign(springs.begin(), springs.end());
     s.spring_info.assign(springs.size(), SpringInfo{});
@@ -150,10 +153,7 @@ void MassSpringSystem::compute_forces(const TissueParams& p) {
     const size_t n = node_count();
     const Vec3f g = p.gravity_mm_per_s2;
     const float drag = p.drag_per_s;
-    for (size_t i = 0; i < n; ++i) {
-        const float m = inv_mass_per_mg[i] > 0.0f ? 1.0f / inv_mass_per_mg[i] : 0.0f;
-        f_nN[i] = ext_nN[i] + m * (g - drag * v_mm_per_s[i]);
-    }
+    for (size_t i = 0; i < n; ++i) f_nN[i] = ext_nN[i] + mass_mg[i] * (g - drag * v_mm_per_s[i]);
     accumulate_spring_forces(springs, x_mm.data(), v_mm_per_s.data(), f_nN.data());
 }
 

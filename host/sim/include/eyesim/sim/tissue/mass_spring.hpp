@@ -38,6 +38,7 @@ struct MassSpringSystem {
     std::vector<Vec3f> ext_nN;        ///< constant external force (injection), nN
     std::vector<float> w_per_mg;      ///< effective inverse mass: 1/m for dynamic nodes, 0 for kinematic ones
     std::vector<float> inv_mass_per_mg;  ///< true inverse mass, used by the tearing rule for grabbed nodes too
+    std::vector<float> mass_mg;       ///< node mass (0 for massless nodes), for body forces without a division
     std::vector<NodeState> state;     ///< node states
 
     // ---- hot springs ----
