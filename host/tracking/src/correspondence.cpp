@@ -13,14 +13,7 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
     return S;
 }
 
-/// A candidate match: one image index per camera (−1 unused) and its triangulation.
-struct Hypothesis {
-    std::array<std::int8_t, kMaxCameras> idx{};
-    TriangulatedPoint point;
-    int views = 0;
-};
 
-constexpr int kMaxHypotheses = 256;
 
 }  // namespace
 
@@ -54,124 +47,126 @@ void Correspondence::solve(std::span<const CameraObservations> views, Correspond
     out.rejected_hypotheses = 0;
     const int ncam = int(std::min(views.size(), cams_.size()));
     std::array<std::array<bool, kMaxMarkersPerCamera>, kMaxCameras> used{};
-    std::array<Hypothesis, kMaxHypotheses> hyp;
     std::array<Observation, kMaxCameras> obs;
+    // Per class and camera: indices of that class's images.
+    std::array<std::array<std::int8_t, kMaxImagesPerClass>, kMaxCameras> members{};
+    std::array<int, kMaxCameras> nm{};
+    // Epipolar distance between member i of camera a and member j of camera b (a < b).
+    std::array<std::array<std::array<float, kMaxImagesPerClass * kMaxImagesPerClass>, kMaxCameras>, kMaxCameras> dist;
+    struct Hyp {
+        float score;
+        std::array<std::int8_t, kMaxCameras> idx;
+    };
+    constexpr int kMaxHyp = 512;
+    std::array<Hyp, kMaxHyp> hyp;
 
-    auto build_obs = [&](const std::array<std::int8_t, kMaxCameras>& idx) {
+    auto try_accept = [&](const Hyp& h, std::uint8_t cls) {
         int n = 0;
         for (int c = 0; c < ncam; ++c) {
-            if (idx[std::size_t(c)] < 0) continue;
-            const ImagePoint& p = views[std::size_t(c)].points[std::size_t(idx[std::size_t(c)])];
-            obs[std::size_t(n)] = Observation{c, p.px, p.xn, p.sigma_px};
-            ++n;
+            const int i = h.idx[std::size_t(c)];
+            if (i < 0) continue;
+            if (used[std::size_t(c)][std::size_t(i)]) return;
+            const ImagePoint& p = views[std::size_t(c)].points[std::size_t(i)];
+            obs[std::size_t(n++)] = Observation{c, p.px, p.xn, p.sigma_px};
         }
-        return n;
+        const TriangulatedPoint tp =
+            triangulate(cams_, std::span<const Observation>(obs.data(), std::size_t(n)), opt_.triangulation);
+        bool ok = tp.usable() && tp.rms_px <= opt_.max_rms_px;
+        const ClassRegion& reg = opt_.region[cls];
+        if (ok && reg.enabled)
+            ok = std::abs((tp.X_rig_mm - reg.centre_rig_mm).norm() - reg.radius_mm) <= reg.tolerance_mm;
+        if (!ok) {
+            ++out.rejected_hypotheses;
+            return;
+        }
+        if (out.count >= kMaxMarkersPerFrame) return;
+        MatchedMarker& m = out.markers[std::size_t(out.count++)];
+        m.colour_class = cls;
+        m.point = tp;
+        m.image_index = h.idx;
+        for (int c = 0; c < ncam; ++c)
+            if (h.idx[std::size_t(c)] >= 0) used[std::size_t(c)][std::size_t(h.idx[std::size_t(c)])] = true;
     };
 
     for (std::uint8_t cls = 1; cls <= 4; ++cls) {
-        // Hypotheses are generated from consistent pairs, extended by a third camera when it agrees.
-        int nh = 0;
-        for (int a = 0; a < ncam; ++a) {
-            const CameraObservations& va = views[std::size_t(a)];
-            if (!va.present) continue;
+        int present = 0;
+        for (int c = 0; c < ncam; ++c) {
+            nm[std::size_t(c)] = 0;
+            const CameraObservations& v = views[std::size_t(c)];
+            if (!v.present) continue;
+            for (int i = 0; i < v.count && nm[std::size_t(c)] < kMaxImagesPerClass; ++i) {
+                const ImagePoint& p = v.points[std::size_t(i)];
+                if (p.colour_class == cls && p.xn.allFinite())
+                    members[std::size_t(c)][std::size_t(nm[std::size_t(c)]++)] = std::int8_t(i);
+            }
+            if (nm[std::size_t(c)] > 0) ++present;
+        }
+        if (present < 2) continue;
+        // Pairwise epipolar distances: the epipolar line of each image of a in b, then point-line distances.
+        for (int a = 0; a < ncam; ++a)
             for (int b = a + 1; b < ncam; ++b) {
-                const CameraObservations& vb = views[std::size_t(b)];
-                if (!vb.present) continue;
-                for (int i = 0; i < va.count; ++i) {
-                    const ImagePoint& pa = va.points[std::size_t(i)];
-                    if (pa.colour_class != cls || !pa.xn.allFinite()) continue;
-                    for (int j = 0; j < vb.count; ++j) {
-                        const ImagePoint& pb = vb.points[std::size_t(j)];
-                        if (pb.colour_class != cls || !pb.xn.allFinite()) continue;
-                        if (epipolar_distance_px(a, b, pa.xn, pb.xn) > opt_.epipolar_gate_px) continue;
-                        // Pair hypothesis.
-                        if (nh < kMaxHypotheses) {
-                            Hypothesis& h = hyp[std::size_t(nh++)];
-                            h.idx.fill(-1);
-                            h.idx[std::size_t(a)] = std::int8_t(i);
-                            h.idx[std::size_t(b)] = std::int8_t(j);
-                            h.views = 2;
-                        }
-                        // Three-view extensions: a third camera c > b whose image lies on both epipolar lines
-                        // (epipolar transfer). Only generated from the lowest pair so each triple appears once.
-                        for (int c = b + 1; c < ncam; ++c) {
-                            const CameraObservations& vc = views[std::size_t(c)];
-                            if (!vc.present) continue;
-                            for (int k = 0; k < vc.count; ++k) {
-                                const ImagePoint& pc = vc.points[std::size_t(k)];
-                                if (pc.colour_class != cls || !pc.xn.allFinite()) continue;
-                                if (epipolar_distance_px(a, c, pa.xn, pc.xn) > opt_.epipolar_gate_px) continue;
-                                if (epipolar_distance_px(b, c, pb.xn, pc.xn) > opt_.epipolar_gate_px) continue;
-                                if (nh < kMaxHypotheses) {
-                                    Hypothesis& h = hyp[std::size_t(nh++)];
-                                    h.idx.fill(-1);
-                                    h.idx[std::size_t(a)] = std::int8_t(i);
-                                    h.idx[std::size_t(b)] = std::int8_t(j);
-                                    h.idx[std::size_t(c)] = std::int8_t(k);
-                                    h.views = 3;
-                                }
-                            }
-                        }
+                const Eigen::Matrix3d& E = E_[std::size_t(a)][std::size_t(b)];
+                const double fa = cams_[std::size_t(a)].mean_focal_px(), fb = cams_[std::size_t(b)].mean_focal_px();
+                for (int i = 0; i < nm[std::size_t(a)]; ++i) {
+                    const Eigen::Vector2d& xa = views[std::size_t(a)].points[std::size_t(members[std::size_t(a)][std::size_t(i)])].xn;
+                    const Eigen::Vector3d lb = E * Eigen::Vector3d(xa.x(), xa.y(), 1.0);
+                    const double inv_lb = fb / std::sqrt(lb.x() * lb.x() + lb.y() * lb.y() + 1e-300);
+                    for (int j = 0; j < nm[std::size_t(b)]; ++j) {
+                        const Eigen::Vector2d& xb = views[std::size_t(b)].points[std::size_t(members[std::size_t(b)][std::size_t(j)])].xn;
+                        const Eigen::Vector3d la = E.transpose() * Eigen::Vector3d(xb.x(), xb.y(), 1.0);
+                        const double e = std::abs(xb.x() * lb.x() + xb.y() * lb.y() + lb.z());
+                        const double da = e * fa / std::sqrt(la.x() * la.x() + la.y() * la.y() + 1e-300);
+                        dist[std::size_t(a)][std::size_t(b)][std::size_t(i * kMaxImagesPerClass + j)] =
+                            float(0.5 * (da + e * inv_lb));
                     }
                 }
             }
-        }
-        if (nh == 0) continue;
-        // Order: more views first; triangulate lazily so that a clean three-view match costs one solve.
-        std::sort(hyp.begin(), hyp.begin() + nh, [](const Hypothesis& x, const Hypothesis& y) {
-            return x.views > y.views;
-        });
-        for (int h = 0; h < nh; ++h) {
-            Hypothesis& H = hyp[std::size_t(h)];
-            H.point.flags = kTriTooFewViews;  // marks "not yet triangulated / unusable"
-        }
-        // Greedy acceptance within each view-count tier, best residual first.
-        int tier_begin = 0;
-        while (tier_begin < nh) {
-            const int views_here = hyp[std::size_t(tier_begin)].views;
-            int tier_end = tier_begin;
-            while (tier_end < nh && hyp[std::size_t(tier_end)].views == views_here) ++tier_end;
-            for (int h = tier_begin; h < tier_end; ++h) {
-                Hypothesis& H = hyp[std::size_t(h)];
-                bool free = true;
-                for (int c = 0; c < ncam; ++c)
-                    if (H.idx[std::size_t(c)] >= 0 && used[std::size_t(c)][std::size_t(H.idx[std::size_t(c)])])
-                        free = false;
-                if (!free) continue;
-                const int n = build_obs(H.idx);
-                H.point = triangulate(cams_, std::span<const Observation>(obs.data(), std::size_t(n)),
-                                      opt_.triangulation);
-                if (!H.point.usable() || H.point.rms_px > opt_.max_rms_px) {
-                    ++out.rejected_hypotheses;
-                    H.point.flags |= kTriHighResidual;
+        const float gate = float(opt_.epipolar_gate_px);
+        auto d = [&](int a, int i, int b, int j) {
+            return dist[std::size_t(a)][std::size_t(b)][std::size_t(i * kMaxImagesPerClass + j)];
+        };
+        // Three-view candidates (epipolar transfer: the third image lies on both other images' lines).
+        int nh = 0;
+        for (int a = 0; a < ncam; ++a)
+            for (int b = a + 1; b < ncam; ++b)
+                for (int c = b + 1; c < ncam; ++c)
+                    for (int i = 0; i < nm[std::size_t(a)]; ++i)
+                        for (int j = 0; j < nm[std::size_t(b)]; ++j) {
+                            const float dab = d(a, i, b, j);
+                            if (dab > gate) continue;
+                            for (int k = 0; k < nm[std::size_t(c)]; ++k) {
+                                const float dac = d(a, i, c, k), dbc = d(b, j, c, k);
+                                if (dac > gate || dbc > gate || nh == kMaxHyp) continue;
+                                Hyp& h = hyp[std::size_t(nh++)];
+                                h.score = dab + dac + dbc;
+                                h.idx.fill(-1);
+                                h.idx[std::size_t(a)] = members[std::size_t(a)][std::size_t(i)];
+                                h.idx[std::size_t(b)] = members[std::size_t(b)][std::size_t(j)];
+                                h.idx[std::size_t(c)] = members[std::size_t(c)][std::size_t(k)];
+                            }
+                        }
+        auto by_score = [](const Hyp& x, const Hyp& y) { return x.score < y.score; };
+        std::sort(hyp.begin(), hyp.begin() + nh, by_score);
+        for (int h = 0; h < nh; ++h) try_accept(hyp[std::size_t(h)], cls);
+        // Two-view candidates among the images still free.
+        nh = 0;
+        for (int a = 0; a < ncam; ++a)
+            for (int b = a + 1; b < ncam; ++b)
+                for (int i = 0; i < nm[std::size_t(a)]; ++i) {
+                    const int ia = members[std::size_t(a)][std::size_t(i)];
+                    if (used[std::size_t(a)][std::size_t(ia)]) continue;
+                    for (int j = 0; j < nm[std::size_t(b)]; ++j) {
+                        const int jb = members[std::size_t(b)][std::size_t(j)];
+                        if (used[std::size_t(b)][std::size_t(jb)] || d(a, i, b, j) > gate || nh == kMaxHyp) continue;
+                        Hyp& h = hyp[std::size_t(nh++)];
+                        h.score = d(a, i, b, j);
+                        h.idx.fill(-1);
+                        h.idx[std::size_t(a)] = std::int8_t(ia);
+                        h.idx[std::size_t(b)] = std::int8_t(jb);
+                    }
                 }
-            }
-            // Accept in residual order among usable hypotheses of this tier.
-            while (true) {
-                int best = -1;
-                for (int h = tier_begin; h < tier_end; ++h) {
-                    const Hypothesis& H = hyp[std::size_t(h)];
-                    if (!H.point.usable() || H.point.rms_px > opt_.max_rms_px) continue;
-                    bool free = true;
-                    for (int c = 0; c < ncam; ++c)
-                        if (H.idx[std::size_t(c)] >= 0 && used[std::size_t(c)][std::size_t(H.idx[std::size_t(c)])])
-                            free = false;
-                    if (!free) continue;
-                    if (best < 0 || H.point.rms_px < hyp[std::size_t(best)].point.rms_px) best = h;
-                }
-                if (best < 0 || out.count >= kMaxMarkersPerFrame) break;
-                const Hypothesis& B = hyp[std::size_t(best)];
-                MatchedMarker& m = out.markers[std::size_t(out.count++)];
-                m.colour_class = cls;
-                m.point = B.point;
-                m.image_index.fill(-1);
-                for (int c = 0; c < ncam; ++c) {
-                    m.image_index[std::size_t(c)] = B.idx[std::size_t(c)];
-                    if (B.idx[std::size_t(c)] >= 0) used[std::size_t(c)][std::size_t(B.idx[std::size_t(c)])] = true;
-                }
-            }
-            tier_begin = tier_end;
-        }
+        std::sort(hyp.begin(), hyp.begin() + nh, by_score);
+        for (int h = 0; h < nh; ++h) try_accept(hyp[std::size_t(h)], cls);
     }
     for (int c = 0; c < ncam; ++c) {
         if (!views[std::size_t(c)].present) continue;

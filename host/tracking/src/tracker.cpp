@@ -15,8 +15,38 @@ double steady_us() {
 
 }  // namespace
 
+namespace {
+
+/// Classes whose every body marker is on the eye get a spherical-shell region (see ClassRegion).
+TrackerConfig with_eye_regions(TrackerConfig cfg) {
+    const EyeModel& eye = cfg.bodies.eye;
+    for (int cls = 1; cls <= 4; ++cls) {
+        bool on_instrument = false;
+        for (int b = 0; b < cfg.bodies.instrument_count; ++b)
+            for (int k = 0; k < cfg.bodies.instruments[std::size_t(b)].marker_count; ++k)
+                if (cfg.bodies.instruments[std::size_t(b)].markers[std::size_t(k)].colour_class == cls)
+                    on_instrument = true;
+        double rmin = 1e300, rmax = -1e300;
+        for (int k = 0; k < eye.marker_count; ++k)
+            if (eye.markers[std::size_t(k)].colour_class == cls) {
+                const double r = eye.markers[std::size_t(k)].pos_body_mm.norm();
+                rmin = std::min(rmin, r);
+                rmax = std::max(rmax, r);
+            }
+        ClassRegion& reg = cfg.correspondence.region[std::size_t(cls)];
+        if (on_instrument || rmax < rmin || reg.enabled) continue;
+        reg.enabled = true;
+        reg.centre_rig_mm = eye.centre_rig_mm;
+        reg.radius_mm = 0.5 * (rmin + rmax);
+        reg.tolerance_mm = 0.5 * (rmax - rmin) + cfg.pose.eye_radius_tol_mm;
+    }
+    return cfg;
+}
+
+}  // namespace
+
 Tracker::Tracker(TrackerConfig config)
-    : config_(std::move(config)),
+    : config_(with_eye_regions(std::move(config))),
       cameras_(config_.cameras),
       correspondence_(cameras_, config_.correspondence),
       sync_(int(config_.cameras.size()), config_.sync) {

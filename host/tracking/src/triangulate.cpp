@@ -3,7 +3,7 @@
 #include "eyesim/tracking/distortion.hpp"
 
 #include <Eigen/Cholesky>
-#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 
 #include <cmath>
 
@@ -103,48 +103,51 @@ TriangulatedPoint triangulate(std::span<const CameraGeometry> cams, std::span<co
         return out;
     }
     if (opt.refine) {
-        // Levenberg–Marquardt with Marquardt's diagonal scaling; 3 unknowns so each step is a 3×3 solve.
-        double lambda = 1e-6;
+        // Levenberg–Marquardt with Marquardt's diagonal scaling; 3 unknowns so each step is a 3×3 solve and one
+        // evaluation. From the DLT start it is Gauss–Newton in practice (λ tiny): 1–3 evaluations.
+        double lambda = 1e-9;
         bool converged = false;
         int it = 0;
-        for (; it < opt.max_iterations && !converged; ++it) {
-            bool accepted = false;
-            for (int tries = 0; tries < 12 && !accepted; ++tries) {
-                Eigen::Matrix3d A = H;
-                A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
-                const Eigen::Vector3d dx = A.ldlt().solve(g);
-                if (!dx.allFinite()) { lambda *= 10.0; continue; }
-                const Eigen::Vector3d Xt = X + dx;
-                Eigen::Matrix3d Ht;
-                Eigen::Vector3d gt;
-                double ct = 0.0, st = 0.0;
-                if (normal_equations(cams, u, Xt, Ht, gt, ct, st) && ct <= cost) {
-                    X = Xt; H = Ht; g = gt; cost = ct; ssq = st;
-                    lambda = std::max(lambda * 0.1, 1e-12);
-                    accepted = true;
-                    if (dx.norm() < opt.step_tolerance_mm) converged = true;
-                } else {
-                    lambda *= 10.0;
-                }
+        while (it < opt.max_iterations && !converged) {
+            ++it;
+            Eigen::Matrix3d A = H;
+            A.diagonal() += lambda * H.diagonal();
+            const Eigen::Vector3d dx = A.ldlt().solve(g);
+            if (!dx.allFinite()) break;
+            if (dx.norm() < opt.step_tolerance_mm) {
+                converged = true;  // the next step would not move the point: at the minimum
+                break;
             }
-            if (!accepted) converged = true;  // no decrease possible: at the minimum to machine precision
+            const Eigen::Vector3d Xt = X + dx;
+            Eigen::Matrix3d Ht;
+            Eigen::Vector3d gt;
+            double ct = 0.0, st = 0.0;
+            if (normal_equations(cams, u, Xt, Ht, gt, ct, st) && ct <= cost) {
+                const double decrease = cost - ct;
+                X = Xt; H = Ht; g = gt; cost = ct; ssq = st;
+                lambda = std::max(lambda * 0.1, 1e-12);
+                if (decrease <= 1e-14 * (1.0 + cost)) converged = true;
+            } else {
+                lambda *= 100.0;
+                if (lambda > 1e8) converged = true;  // no decrease in any direction: at the minimum
+            }
         }
         out.iterations = it;
         if (!converged) out.flags |= kTriNotConverged;
     }
     out.X_rig_mm = X;
     out.rms_px = std::sqrt(ssq / double(n));
-    // Covariance of the estimate: (JᵀWJ)⁻¹ with W = 1/σ². Its largest axis tells how well the rays intersect.
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(H);
-    const double min_ev = es.eigenvalues()(0);
-    if (!(min_ev > 0.0) || !std::isfinite(min_ev) || 1.0 / std::sqrt(min_ev) > opt.max_sigma_mm) {
+    // Covariance of the estimate: (JᵀWJ)⁻¹ with W = 1/σ² (closed-form 3×3 inverse). Its trace bounds the
+    // largest axis from above, which tells how well the rays intersect.
+    const double det = H.determinant();
+    const Eigen::Matrix3d cov = H.inverse();
+    const double tr = cov.trace();
+    if (!(det > 0.0) || !std::isfinite(tr) || !(tr > 0.0) || tr > opt.max_sigma_mm * opt.max_sigma_mm) {
         out.flags |= kTriDegenerate;
         out.cov_mm2.setZero();
-        if (!(min_ev > 0.0)) return out;
+        if (!(det > 0.0) || !std::isfinite(tr)) return out;
     } else {
-        out.cov_mm2 = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() *
-                      es.eigenvectors().transpose();
+        out.cov_mm2 = cov;
     }
     if (out.rms_px > opt.max_rms_px) out.flags |= kTriHighResidual;
     return out;

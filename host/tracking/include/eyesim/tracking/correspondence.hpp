@@ -51,12 +51,25 @@ struct CorrespondenceResult {
     int rejected_hypotheses = 0;   ///< candidate matches that failed the residual test
 };
 
+/// A region a colour class's markers must lie in: a spherical shell (all eye markers sit on the eye) — rejects
+/// two-view "ghost" intersections of same-coloured markers, which are epipolar-consistent by construction.
+struct ClassRegion {
+    bool enabled = false;                                    ///< false: any position is plausible
+    Eigen::Vector3d centre_rig_mm = Eigen::Vector3d::Zero(); ///< shell centre
+    double radius_mm = 0.0;                                  ///< shell radius
+    double tolerance_mm = 0.5;                               ///< accepted |distance − radius|
+};
+
 /// Options of the correspondence search.
 struct CorrespondenceOptions {
     double epipolar_gate_px = 2.0;   ///< max distance of an image from the partner's epipolar line (pixels)
     double max_rms_px = 0.6;         ///< max reprojection RMS of an accepted match (pixels)
     TriangulationOptions triangulation;  ///< passed to `triangulate`
+    std::array<ClassRegion, 5> region{};  ///< per colour class 1..4 (index 0 unused)
 };
+
+/// Same-coloured images per camera the search considers (more are left unmatched and counted).
+inline constexpr int kMaxImagesPerClass = 16;
 
 /// Finds, per colour class, which images in different cameras show the same marker, and triangulates them.
 class Correspondence {
@@ -64,9 +77,11 @@ public:
     /// Precomputes the essential matrices of every camera pair. `cams` must outlive this object.
     Correspondence(std::span<const CameraGeometry> cams, const CorrespondenceOptions& opt = {});
 
-    /// Matches `views` (one entry per camera, same order as the cameras) into `out`. Prefers three-view
-    /// matches; a three-view hypothesis that fails the residual test falls back to its best two-view subset,
-    /// which rejects one outlier image. Greedy by (views, residual); an image is used at most once.
+    /// Matches `views` (one entry per camera, same order as the cameras) into `out`. Per colour class, candidate
+    /// triples (every pair on its epipolar line) and pairs are ranked by summed epipolar distance; they are
+    /// triangulated lazily in that order, triples first, and accepted when the reprojection RMS and the class
+    /// region agree; an image is used at most once. An outlier image makes its triple fail, and the marker is
+    /// then kept from the remaining consistent pair.
     void solve(std::span<const CameraObservations> views, CorrespondenceResult& out) const;
 
     /// Symmetric epipolar distance (pixels) between image `xa` in camera a and `xb` in camera b.

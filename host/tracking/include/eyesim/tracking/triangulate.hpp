@@ -25,7 +25,7 @@ enum TriangulationFlag : std::uint32_t {
     kTriOk = 0,
     kTriTooFewViews = 1u << 0,       ///< fewer than two views: depth unobservable
     kTriNonFinite = 1u << 1,         ///< NaN/Inf in an observation or camera
-    kTriDegenerate = 1u << 2,        ///< rays (nearly) parallel: covariance beyond `max_sigma_mm`
+    kTriDegenerate = 1u << 2,        ///< rays (nearly) parallel: √trace(covariance) beyond `max_sigma_mm`
     kTriBehindCamera = 1u << 3,      ///< solution not in front of every camera that saw it
     kTriNotConverged = 1u << 4,      ///< LM hit its iteration limit without settling
     kTriHighResidual = 1u << 5,      ///< reprojection RMS above `max_rms_px` (likely a wrong match)
@@ -34,8 +34,8 @@ enum TriangulationFlag : std::uint32_t {
 /// Options of `triangulate`.
 struct TriangulationOptions {
     int max_iterations = 20;        ///< LM iteration bound (2–4 are typical from the DLT start)
-    double step_tolerance_mm = 1e-10;  ///< stop when the update is smaller than this
-    double max_sigma_mm = 1.0;      ///< largest acceptable 1σ axis of the covariance (else kTriDegenerate)
+    double step_tolerance_mm = 1e-6;   ///< stop when the next update would be smaller than this (1 nm)
+    double max_sigma_mm = 1.0;      ///< largest acceptable √trace of the covariance (else kTriDegenerate)
     double max_rms_px = 1.0;        ///< largest acceptable reprojection RMS (else kTriHighResidual)
     bool refine = true;             ///< false: linear DLT only (for comparisons)
 };
