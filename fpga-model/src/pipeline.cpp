@@ -140,6 +140,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     field_counter_ = field_counter;
     parity_ = parity;
     last_line_ = -1;
+    prev_line_ = nullptr;
     next_index_ = 0;
     next_emit_free_cycle_ = 0;
     n_runs_ = {0, 0};
@@ -148,7 +149,9 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     return PipelineStatus::kOk;
 }
 
-PipelineStatus Pipeline::push_line(const uint8_t* uyvy_line, int y) {
+PipelineStatus Pipeline::push_line(const uint8_t* uyvy_line, int y) { return push_line_impl(uyvy_line, y, false); }
+
+PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool stable) {
     if (!in_field_) return PipelineStatus::kNotInField;
     if (y < 0 || y >= kMaxFieldLines) return PipelineStatus::kLineOutOfRange;
     if (y <= last_line_) return PipelineStatus::kLineOutOfOrder;
@@ -162,14 +165,26 @@ PipelineStatus Pipeline::push_line(const uint8_t* uyvy_line, int y) {
     if (last_line_ >= 0 && y > last_line_ + 1) {
         cur_buf_ ^= 1;
         n_runs_[cur_buf_] = 0;
-        label_line(last_line_ + 1, false);
+        occupied_[cur_buf_] = {};
+        label_line(last_line_ + 1, false, nullptr);
+        prev_line_ = nullptr;
     }
     cur_buf_ ^= 1;
+    occupied_[cur_buf_] = {};
+    claimed_[cur_buf_] = {};
     if (config_.float_reference)
         classify_line<true>(uyvy_line, y);
     else
         classify_line<false>(uyvy_line, y);
-    label_line(y, false);
+    label_line(y, false, uyvy_line);
+    // The hardware keeps the previous line in a line buffer for the ring above new blobs; callers of push_line
+    // may reuse their buffer, so it is copied unless the whole field is in memory (process_field).
+    if (params_.edge_ring && !stable) {
+        std::memcpy(prev_line_copy_.data(), uyvy_line, kLineBytes);
+        prev_line_ = prev_line_copy_.data();
+    } else {
+        prev_line_ = uyvy_line;
+    }
     last_line_ = y;
     ++stats_.lines;
     return PipelineStatus::kOk;
@@ -180,8 +195,9 @@ PipelineStatus Pipeline::end_field() {
     if (params_.enable && last_line_ >= 0) {
         cur_buf_ ^= 1;
         n_runs_[cur_buf_] = 0;
-        label_line(last_line_, true);
+        label_line(last_line_, true, nullptr);
     }
+    prev_line_ = nullptr;
     stats_.last_active_line_end_cycle = active_line_end_cycle(static_cast<uint32_t>(std::max(last_line_, 0)));
     stats_.last_blob_latency_cycles = stats_.last_emit_cycle > stats_.last_active_line_end_cycle
                                           ? stats_.last_emit_cycle - stats_.last_active_line_end_cycle
@@ -199,7 +215,7 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
         return PipelineStatus::kNullLine;
     }
     for (int y = 0; y < lines; ++y) {
-        s = push_line(uyvy_field + static_cast<size_t>(y) * stride_bytes, y);
+        s = push_line_impl(uyvy_field + static_cast<size_t>(y) * stride_bytes, y, true);
         if (s != PipelineStatus::kOk) {
             end_field();
             return s;
@@ -289,6 +305,13 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
                 r.ref_w = rw;
                 r.ref_wx = rwx;
                 r.ref_wxx = rwxx;
+                uint64_t* occ = occupied_[cur_buf_].data();
+                for (int xx = x_open; xx <= x_end;) {  // mark [x_open, x_end] word by word
+                    const int wi = xx >> 6, b0 = xx & 63, b1 = std::min(63, b0 + (x_end - xx));
+                    const uint64_t bits = (b1 - b0 == 63) ? ~0ull : (((1ull << (b1 - b0 + 1)) - 1) << b0);
+                    occ[wi] |= bits;
+                    xx += b1 - b0 + 1;
+                }
             }
             cls_open = 0;
         };
@@ -353,6 +376,51 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
     stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
 }
 
+bool Pipeline::in_roi(int x, int y) const {
+    if (params_.roi_enable == 0) return true;
+    for (int w = 0; w < kNumRoiWindows; ++w)
+        if ((params_.roi_enable & (1u << w)) && x >= params_.roi_x0[w] && x <= params_.roi_x1[w] &&
+            y >= params_.roi_y0[w] && y <= params_.roi_y1[w])
+            return true;
+    return false;
+}
+
+// Adds background pixel (x, y) of `line` to blob `root` unless it is classified, already claimed or outside the
+// ROI. Uses the line masks of buffer cur_buf_ (the caller selects the line).
+void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) {
+    const uint64_t bit = 1ull << (x & 63);
+    uint64_t& claimed = claimed_[cur_buf_][static_cast<size_t>(x >> 6)];
+    if ((occupied_[cur_buf_][static_cast<size_t>(x >> 6)] & bit) || (claimed & bit) || !in_roi(x, y)) return;
+    claimed |= bit;
+    Slot& s = slots_[root];
+    const int k = x >> 1;
+    const uint8_t* q = line + 4 * k;
+    int cb = q[0], cr = q[2];
+    const int luma = q[1 + 2 * (x & 1)];
+    double cbd = cb, crd = cr;
+    if ((x & 1) && k < kPairs - 1) {
+        cbd = 0.5 * (cb + q[4]);
+        crd = 0.5 * (cr + q[6]);
+        cb = (cb + q[4] + 1) >> 1;
+        cr = (cr + q[6] + 1) >> 1;
+    }
+    const uint64_t w = weight(s.cls, static_cast<uint8_t>(luma), static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+    const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
+    s.sw += w;
+    s.swx += w * ux;
+    s.swy += w * uy;
+    s.swxx += w * ux * ux;
+    s.swyy += w * uy * uy;
+    s.swxy += w * ux * uy;
+    if (config_.float_reference) {
+        const double wr = weight_reference(s.cls, luma, cbd, crd);
+        s.rw += wr;
+        s.rwx += wr * x;
+        s.rwy += wr * y;
+    }
+    ++stats_.ring_pixels;
+}
+
 uint16_t Pipeline::find_root(uint16_t s) {
     while (slots_[s].parent != s) {
         slots_[s].parent = slots_[slots_[s].parent].parent;  // path halving
@@ -406,7 +474,7 @@ void Pipeline::merge_into(uint16_t dst, uint16_t src) {
 
 // Connects the current line's runs (line y) to the previous line's, then completes every blob of the previous
 // line that no run continued. With end_of_field the current line is empty and y is the field's last line.
-void Pipeline::label_line(int y, bool end_of_field) {
+void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
     Run* cur = runs_[cur_buf_].data();
     const int n_cur = n_runs_[cur_buf_];
     Run* prev = runs_[cur_buf_ ^ 1].data();
@@ -474,6 +542,35 @@ void Pipeline::label_line(int y, bool end_of_field) {
             s.last_line_x_max = std::max(s.last_line_x_max, r.x1);
         }
         r.label = label;
+    }
+
+    // Edge ring: background pixels 8-adjacent to a blob add their weights to its moments (first claim wins):
+    // on this line below the previous line's runs and beside this line's runs, and on the previous line above
+    // this line's runs. The previous line's ring below is thereby complete before its blobs are.
+    if (params_.edge_ring && params_.weight_mode != 0 && line != nullptr) {
+        const int xmax = static_cast<int>(kActivePixelsPerLine) - 1;
+        for (int k = 0; k < n_prev; ++k) {
+            if (prev[k].label == kNoLabel) continue;
+            const uint16_t root = find_root(prev[k].label);
+            for (int x = std::max(0, prev[k].x0 - 1); x <= std::min(xmax, prev[k].x1 + 1); ++x)
+                add_ring_pixel(root, line, x, y);
+        }
+        for (int i = 0; i < n_cur; ++i) {
+            if (cur[i].label == kNoLabel) continue;
+            const uint16_t root = find_root(cur[i].label);
+            if (cur[i].x0 > 0) add_ring_pixel(root, line, cur[i].x0 - 1, y);
+            if (cur[i].x1 < xmax) add_ring_pixel(root, line, cur[i].x1 + 1, y);
+        }
+        if (prev_line_ != nullptr && y > 0) {
+            cur_buf_ ^= 1;  // the previous line's masks
+            for (int i = 0; i < n_cur; ++i) {
+                if (cur[i].label == kNoLabel) continue;
+                const uint16_t root = find_root(cur[i].label);
+                for (int x = std::max(0, cur[i].x0 - 1); x <= std::min(xmax, cur[i].x1 + 1); ++x)
+                    add_ring_pixel(root, prev_line_, x, y - 1);
+            }
+            cur_buf_ ^= 1;
+        }
     }
 
     // Blobs of the previous line that got no run on this line are complete.

@@ -9,7 +9,7 @@ constexpr uint32_t pack2(uint32_t lo, uint32_t hi, int shift) { return lo | (hi 
 // red 108.7° → 77, green 237.9° → 169, blue 337.8° → 240, yellow 164.9° → 117.
 constexpr std::array<uint8_t, kNumClasses> kResetHue{77, 169, 240, 117};
 constexpr uint8_t kResetHueHalfWidth = 16;  // ±22.5°: the closest pair (red, yellow) is 40 units apart
-constexpr uint8_t kResetSatMin = 24, kResetSatMax = 255;
+constexpr uint8_t kResetSatMin = 12, kResetSatMax = 255;  // neutral backgrounds + noise stay below 12
 constexpr uint8_t kResetLumaMin = 24, kResetLumaMax = 255;
 
 constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
@@ -20,7 +20,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
-    t[i++] = {reg::kWeightBg, 8, true, 20u, "WEIGHT_BG"};
+    t[i++] = {reg::kWeightBg, 8, true, 0u, "WEIGHT_BG"};
     t[i++] = {reg::kWeightBits, 4, true, 8u, "WEIGHT_BITS"};
     t[i++] = {reg::kMinArea, 18, true, 2u, "MIN_AREA"};
     t[i++] = {reg::kMaxArea, 18, true, 4096u, "MAX_AREA"};
@@ -28,6 +28,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     t[i++] = {reg::kMaxAspectQ4, 8, true, 0u, "MAX_ASPECT_Q4"};
     t[i++] = {reg::kRoiEnable, 4, true, 0u, "ROI_ENABLE"};
     t[i++] = {reg::kFastPath, 1, true, 1u, "FAST_PATH"};
+    t[i++] = {reg::kEdgeRing, 1, true, 1u, "EDGE_RING"};
     const char* roi_names[2 * kNumRoiWindows] = {"ROI0_X", "ROI0_Y", "ROI1_X", "ROI1_Y",
                                                  "ROI2_X", "ROI2_Y", "ROI3_X", "ROI3_Y"};
     for (int w = 0; w < kNumRoiWindows; ++w) {
@@ -158,6 +159,7 @@ PipelineParams decode(const RegisterMap& m) {
     p.max_aspect_q4 = static_cast<uint8_t>(m.get(reg::kMaxAspectQ4));
     p.roi_enable = static_cast<uint8_t>(m.get(reg::kRoiEnable));
     p.fast_path = m.get(reg::kFastPath) != 0;
+    p.edge_ring = m.get(reg::kEdgeRing) != 0;
     for (int w = 0; w < kNumRoiWindows; ++w) {
         const uint32_t x = m.get(reg::roi_x(w)), y = m.get(reg::roi_y(w));
         p.roi_x0[w] = static_cast<uint16_t>(x & 0x3FFu);

@@ -95,19 +95,58 @@ struct RefBlob {
     int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
     uint64_t sw = 0, swx = 0, swy = 0, swxx = 0, swyy = 0, swxy = 0;
     double rw = 0, rwx = 0, rwy = 0;
+    int ring_pixels = 0;
+    bool ring_shared = false;  ///< a ring pixel also touches another blob: the first claim decides, sums skipped
     bool operator<(const RefBlob& o) const {
         return std::tie(cls, y0, x0, area, x1, y1) < std::tie(o.cls, o.y0, o.x0, o.area, o.x1, o.y1);
     }
 };
 
-/// OpenCV connectedComponentsWithStats (8-connected) per class on the classified mask, plus weighted sums.
+/// True when pixel (x, y) is processed under the pipeline's ROI registers.
+inline bool roi_contains(const PipelineParams& par, int x, int y) {
+    if (par.roi_enable == 0) return true;
+    for (int w = 0; w < kNumRoiWindows; ++w)
+        if (((par.roi_enable >> w) & 1) && x >= par.roi_x0[w] && x <= par.roi_x1[w] && y >= par.roi_y0[w] &&
+            y <= par.roi_y1[w])
+            return true;
+    return false;
+}
+
+/// Adds pixel (x, y) with the weight of class c to b (fixed and floating reference weights).
+inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, RefBlob& b) {
+    const auto [yy, cb, cr] = pixel_ycc(f.line(y), x);
+    const uint64_t w = p.weight(static_cast<uint8_t>(c), static_cast<uint8_t>(yy), static_cast<uint8_t>(cb),
+                                static_cast<uint8_t>(cr));
+    const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
+    b.sw += w;
+    b.swx += w * ux;
+    b.swy += w * uy;
+    b.swxx += w * ux * ux;
+    b.swyy += w * uy * uy;
+    b.swxy += w * ux * uy;
+    // Floating reference: exact mean of the neighbouring chroma pairs.
+    const uint8_t* q = f.line(y) + 4 * (x >> 1);
+    double cbd = q[0], crd = q[2];
+    if ((x & 1) && (x >> 1) < W / 2 - 1) {
+        cbd = 0.5 * (q[0] + q[4]);
+        crd = 0.5 * (q[2] + q[6]);
+    }
+    const double wr = p.weight_reference(static_cast<uint8_t>(c), yy, cbd, crd);
+    b.rw += wr;
+    b.rwx += wr * x;
+    b.rwy += wr * y;
+}
+
+/// OpenCV connectedComponentsWithStats (8-connected) per class on the classified mask, plus weighted sums over
+/// each component and, with EDGE_RING in a weighted mode, its ring of background pixels.
 inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, const cv::Mat1b& cls_mask) {
     std::vector<RefBlob> out;
+    cv::Mat1i comp(f.height, W, -1);
     for (int c = 1; c <= kNumClasses; ++c) {
         cv::Mat1b mask = (cls_mask == c) / 255;
         cv::Mat labels, stats, centroids;
         const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
-        const size_t base = out.size();
+        const int base = static_cast<int>(out.size());
         for (int i = 1; i < n; ++i) {
             RefBlob b;
             b.cls = c;
@@ -118,34 +157,35 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
             b.y1 = b.y0 + stats.at<int>(i, cv::CC_STAT_HEIGHT) - 1;
             out.push_back(b);
         }
-        for (int y = 0; y < f.height; ++y) {
+        for (int y = 0; y < f.height; ++y)
             for (int x = 0; x < W; ++x) {
                 const int l = labels.at<int>(y, x);
                 if (l == 0) continue;
-                RefBlob& b = out[base + static_cast<size_t>(l - 1)];
-                const auto [yy, cb, cr] = pixel_ycc(f.line(y), x);
-                const uint64_t w = p.weight(static_cast<uint8_t>(c), static_cast<uint8_t>(yy),
-                                            static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
-                const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
-                b.sw += w;
-                b.swx += w * ux;
-                b.swy += w * uy;
-                b.swxx += w * ux * ux;
-                b.swyy += w * uy * uy;
-                b.swxy += w * ux * uy;
-                // Floating reference: exact mean of the neighbouring chroma pairs.
-                const uint8_t* q = f.line(y) + 4 * (x >> 1);
-                double cbd = q[0], crd = q[2];
-                if ((x & 1) && (x >> 1) < W / 2 - 1) {
-                    cbd = 0.5 * (q[0] + q[4]);
-                    crd = 0.5 * (q[2] + q[6]);
-                }
-                const double wr = p.weight_reference(static_cast<uint8_t>(c), yy, cbd, crd);
-                b.rw += wr;
-                b.rwx += wr * x;
-                b.rwy += wr * y;
+                comp(y, x) = base + l - 1;
+                add_pixel(p, f, c, x, y, out[static_cast<size_t>(base + l - 1)]);
             }
-        }
+    }
+    const PipelineParams& par = p.params();
+    if (par.edge_ring && par.weight_mode != 0) {
+        for (int y = 0; y < f.height; ++y)
+            for (int x = 0; x < W; ++x) {
+                if (cls_mask(y, x) != 0 || !roi_contains(par, x, y)) continue;
+                int ids[9], n = 0;
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dx = -1; dx <= 1; ++dx) {
+                        const int yy = y + dy, xx = x + dx;
+                        if (yy < 0 || yy >= f.height || xx < 0 || xx >= W || comp(yy, xx) < 0) continue;
+                        const int id = comp(yy, xx);
+                        if (std::find(ids, ids + n, id) == ids + n) ids[n++] = id;
+                    }
+                if (n == 1) {
+                    RefBlob& b = out[static_cast<size_t>(ids[0])];
+                    add_pixel(p, f, b.cls, x, y, b);
+                    ++b.ring_pixels;
+                } else {
+                    for (int i = 0; i < n; ++i) out[static_cast<size_t>(ids[i])].ring_shared = true;
+                }
+            }
     }
     std::sort(out.begin(), out.end());
     return out;
@@ -174,8 +214,12 @@ struct Marker {
 
 /// Renders markers over a uniform background with `ss`×`ss` supersampling per pixel, mixes colours in sRGB,
 /// filters chroma [1 2 1]/4 co-sited (as BT.656 sources do), adds Gaussian noise (σ in 8-bit codes).
+/// `truth` (optional) receives each marker's coverage-weighted centroid over pixel centres, the rig's definition
+/// of the truth centroid (luma contribution over the pixel apertures, before noise).
 inline Field render_markers(const std::vector<Marker>& markers, double noise_sigma, uint32_t seed, int height = 288,
-                            int ss = 8, const std::array<double, 3>& bg = {60, 60, 60}) {
+                            int ss = 8, const std::array<double, 3>& bg = {14, 14, 18},
+                            std::vector<std::array<double, 2>>* truth = nullptr) {
+    if (truth) truth->clear();
     std::vector<double> Y(static_cast<size_t>(height) * W), CB(Y.size()), CR(Y.size());
     const Ycc bgc = rgb_to_ycc(bg[0], bg[1], bg[2]);
     std::fill(Y.begin(), Y.end(), bgc.y);
@@ -188,6 +232,7 @@ inline Field render_markers(const std::vector<Marker>& markers, double noise_sig
         const int x1 = std::min(W - 1, static_cast<int>(std::ceil(m.cx + m.rx + 1)));
         const int y0 = std::max(0, static_cast<int>(std::floor(m.cy - m.ry - 1)));
         const int y1 = std::min(height - 1, static_cast<int>(std::ceil(m.cy + m.ry + 1)));
+        double sa = 0, sax = 0, say = 0;
         for (int y = y0; y <= y1; ++y) {
             for (int x = x0; x <= x1; ++x) {
                 int hits = 0;
@@ -199,12 +244,16 @@ inline Field render_markers(const std::vector<Marker>& markers, double noise_sig
                     }
                 if (hits == 0) continue;
                 const double a = static_cast<double>(hits) / (ss * ss);
+                sa += a;
+                sax += a * x;
+                say += a * y;
                 const size_t i = static_cast<size_t>(y) * W + static_cast<size_t>(x);
                 Y[i] = (1 - a) * Y[i] + a * mc.y;
                 CB[i] = (1 - a) * CB[i] + a * mc.cb;
                 CR[i] = (1 - a) * CR[i] + a * mc.cr;
             }
         }
+        if (truth) truth->push_back({sa > 0 ? sax / sa : m.cx, sa > 0 ? say / sa : m.cy});
     }
     std::mt19937 rng(seed);
     std::normal_distribution<double> noise(0.0, noise_sigma);

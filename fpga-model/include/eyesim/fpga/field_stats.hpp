@@ -19,6 +19,7 @@ struct FieldStats {
     uint32_t max_table_occupancy = 0;    ///< high-water mark of live blob-table slots
     uint32_t max_runs_per_line = 0;      ///< high-water mark of runs on one line
     uint32_t fast_path_pixels = 0;       ///< pixels skipped by the background fast path
+    uint32_t ring_pixels = 0;            ///< background pixels added to blobs by the edge ring
     uint32_t last_active_line_end_cycle = 0;  ///< cycle after the last pushed line's last active pixel
     uint32_t last_emit_cycle = 0;        ///< emission cycle of the field's last blob (0: none)
     uint32_t last_blob_latency_cycles = 0;    ///< last_emit_cycle - last_active_line_end_cycle (0 if earlier)

@@ -170,7 +170,10 @@ private:
     void compile();
     template <bool kRef>
     void classify_line(const uint8_t* line, int y);
-    void label_line(int y, bool end_of_field);
+    void label_line(int y, bool end_of_field, const uint8_t* line);
+    PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
+    void add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y);
+    bool in_roi(int x, int y) const;
     uint16_t find_root(uint16_t s);
     uint16_t alloc_slot();
     void merge_into(uint16_t dst, uint16_t src);
@@ -194,6 +197,11 @@ private:
     std::array<std::array<Run, kMaxRunsPerLine>, 2> runs_{};  // [cur_buf_] current line, other: previous
     std::array<int, 2> n_runs_{};
     int cur_buf_ = 0;
+    static constexpr int kMaskWords = (kActivePixelsPerLine + 63) / 64;
+    std::array<std::array<uint64_t, kMaskWords>, 2> occupied_{};  // pixels of any class, per line buffer
+    std::array<std::array<uint64_t, kMaskWords>, 2> claimed_{};   // ring pixels already given to a blob
+    std::array<uint8_t, kLineBytes + 4> prev_line_copy_{};        // previous line's pixels (edge ring)
+    const uint8_t* prev_line_ = nullptr;                          // previous pushed line, or null
     std::array<int16_t, kNumClasses + 1> luma_min_{}, luma_max_{};
     std::array<double, kNumClasses + 1> dir_cb_ref_{}, dir_cr_ref_{};
 

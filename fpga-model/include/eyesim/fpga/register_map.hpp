@@ -37,6 +37,9 @@ inline constexpr uint16_t kMinFillQ8 = 0x024;     ///< RW 8: min area/(bbox area
 inline constexpr uint16_t kMaxAspectQ4 = 0x028;   ///< RW 8: max long/short bbox side, Q4.4; 0 disables
 inline constexpr uint16_t kRoiEnable = 0x02C;     ///< RW 4: bit i enables ROI window i; 0 = whole field
 inline constexpr uint16_t kFastPath = 0x030;      ///< RW 1: skip provably-background spans (bit-exact)
+inline constexpr uint16_t kEdgeRing = 0x034;      ///< RW 1: add the weights of the 1-px ring of background
+                                                  ///<      pixels around each blob to its moments
+                                                  ///<      (weighted modes only)
 /// ROI window i, X: bits [9:0] x0, [25:16] x1 (inclusive, x0 ≤ x1 ≤ 719).
 constexpr uint16_t roi_x(int i) { return static_cast<uint16_t>(0x040 + 8 * i); }
 /// ROI window i, Y: bits [8:0] y0, [24:16] y1 (inclusive active field lines, y0 ≤ y1 ≤ 511).
@@ -73,7 +76,7 @@ struct RegisterInfo {
 };
 
 /// Number of registers in the map.
-inline constexpr int kNumRegisters = 13 + 2 * kNumRoiWindows + 3 * kNumClasses;
+inline constexpr int kNumRegisters = 14 + 2 * kNumRoiWindows + 3 * kNumClasses;
 
 /// The register table (address order), for documentation, host tools and tests.
 const std::array<RegisterInfo, kNumRegisters>& register_table();
@@ -123,6 +126,7 @@ struct PipelineParams {
     uint8_t max_aspect_q4 = 0;                           ///< shape filter: bbox aspect
     uint8_t roi_enable = 0;                              ///< enabled ROI windows
     bool fast_path = true;                               ///< background skipping
+    bool edge_ring = true;                               ///< ring pixels add to the moments
     std::array<uint16_t, kNumRoiWindows> roi_x0{}, roi_x1{}, roi_y0{}, roi_y1{};  ///< inclusive bounds
     std::array<uint8_t, kNumClasses> hue_centre{}, hue_half_width{};               ///< 1/256 turn
     std::array<uint8_t, kNumClasses> sat_min{}, sat_max{};                         ///< chroma radius
