@@ -43,7 +43,10 @@ void Pipeline::init(const PipelineConfig& config) {
     compile();
 }
 
-void Pipeline::set_registers(const RegisterMap& snapshot) { own_ = snapshot; }
+void Pipeline::set_registers(const RegisterMap& snapshot) {
+    own_ = snapshot;
+    snapshot_dirty_ = true;
+}
 
 void Pipeline::set_sink(BlobSink sink, void* context) {
     sink_ = sink;
@@ -53,7 +56,9 @@ void Pipeline::set_sink(BlobSink sink, void* context) {
 // Compiles the register map into the datapath tables: class LUT, weight directions, luma bands, fast-path box.
 void Pipeline::compile() {
     const RegisterMap& m = live_ ? *live_ : own_;
-    if (compiled_once_ && m.generation() == compiled_generation_ && live_) return;
+    // Live map: recompile when its write counter moved. Snapshot: when set_registers replaced it.
+    if (compiled_once_ && (live_ ? m.generation() == compiled_generation_ : !snapshot_dirty_)) return;
+    snapshot_dirty_ = false;
     compiled_generation_ = m.generation();
     compiled_once_ = true;
     params_ = decode(m);
@@ -262,25 +267,36 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
     }
 
     const int T = fast_half_width_;
+    // Box test per byte: (c - lo) mod 256 ≤ range. Chroma lanes (even bytes): lo = 128-T, range = 2T; luma lanes
+    // (odd bytes) always pass (lo = 0, range = 255).
 #if defined(__SSE2__)
-    const __m128i lo = _mm_set1_epi16(static_cast<short>(128 - T));  // chroma bytes even, luma bytes odd: 0
-    const __m128i hi = _mm_set1_epi16(static_cast<short>(0xFF00 | (128 + T)));
-#endif
+    const __m128i lo = _mm_set1_epi16(static_cast<short>(128 - T));
+    const __m128i range = _mm_set1_epi16(static_cast<short>(0xFF00 | (2 * T)));
+    const __m128i zero = _mm_setzero_si128();
+    auto outside = [&](const uint8_t* p) {  // nonzero lanes: out of the box
+        return _mm_subs_epu8(_mm_sub_epi8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)), lo), range);
+    };
+    // True when the 4 pairs starting at pixel x (even) are all inside the grey box.
+    auto chunk_in_box = [&](int x) { return _mm_movemask_epi8(_mm_cmpeq_epi8(outside(line + 2 * x), zero)) == 0xFFFF; };
+    // Same for 16 pairs (32 pixels).
+    auto chunk4_in_box = [&](int x) {
+        const uint8_t* p = line + 2 * x;
+        const __m128i e = _mm_or_si128(_mm_or_si128(outside(p), outside(p + 16)), _mm_or_si128(outside(p + 32), outside(p + 48)));
+        return _mm_movemask_epi8(_mm_cmpeq_epi8(e, zero)) == 0xFFFF;
+    };
+#else
     auto pair_in_box = [&](int k) {
         const uint8_t* q = line + 4 * k;
         return std::abs(q[0] - 128) <= T && std::abs(q[2] - 128) <= T;
     };
-    // True when the 4 pairs starting at pixel x (even) are all inside the grey box.
     auto chunk_in_box = [&](int x) {
-#if defined(__SSE2__)
-        const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(line + 2 * x));
-        const __m128i ok = _mm_and_si128(_mm_cmpeq_epi8(_mm_max_epu8(v, lo), v), _mm_cmpeq_epi8(_mm_min_epu8(v, hi), v));
-        return _mm_movemask_epi8(ok) == 0xFFFF;
-#else
         const int k = x >> 1;
         return pair_in_box(k) && pair_in_box(k + 1) && pair_in_box(k + 2) && pair_in_box(k + 3);
-#endif
     };
+    auto chunk4_in_box = [&](int x) {
+        return chunk_in_box(x) && chunk_in_box(x + 8) && chunk_in_box(x + 16) && chunk_in_box(x + 24);
+    };
+#endif
 
     const int last_pair = kPairs - 1;
     for (int s = 0; s < n_spans; ++s) {
@@ -358,13 +374,18 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
         // Scalar head up to an even pixel.
         if (x & 1) pixel(x++);
         while (x <= xe) {
-            if (T > 0 && x + 7 <= xe && chunk_in_box(x) && (x + 8 >= static_cast<int>(kActivePixelsPerLine) ||
-                                                            pair_in_box((x + 8) >> 1))) {
-                // 8 background pixels (the 8th's interpolated chroma is the mean of two in-box pairs).
-                close(x - 1);
-                stats_.fast_path_pixels += 8;
-                x += 8;
-                continue;
+            if (T > 0) {
+                // Fast path: skip whole chunks of in-box pairs. Their pixels are background, except possibly the
+                // last (odd) one, whose interpolated chroma also depends on the next pair: it is re-examined.
+                const int xs = x;
+                while (x + 31 <= xe && chunk4_in_box(x)) x += 32;
+                while (x + 7 <= xe && chunk_in_box(x)) x += 8;
+                if (x != xs) {
+                    close(xs - 1);
+                    stats_.fast_path_pixels += static_cast<uint32_t>(x - xs - 1);
+                    pixel(x - 1);
+                    continue;
+                }
             }
             const int stop = std::min(x + 7, xe);
             for (; x <= stop; ++x) pixel(x);

@@ -185,6 +185,7 @@ private:
     RegisterMap own_;
     uint32_t compiled_generation_ = 0xFFFFFFFFu;
     bool compiled_once_ = false;
+    bool snapshot_dirty_ = true;
     PipelineParams params_{};
     PipelineConfig config_{};
 

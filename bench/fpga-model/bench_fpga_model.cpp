@@ -1,0 +1,293 @@
+// Benchmark of the FPGA pipeline model: fields/s on one core and centroid error against rendered truth, beside
+// an OpenCV pipeline (cvtColor → inRange → connectedComponentsWithStats → moments) on the same fields in the
+// same run. Fields: 720×288, dark background with a white "eye" disc, 8–20 markers of 6–10 px (frame px; half
+// as tall in a field), BT.601 studio swing, [1 2 1] co-sited chroma, Gaussian noise.
+//
+// Usage: bench_fpga_model [fields=64] [repeats=7] [noise_sigma=1.0]
+#include "field_gen.hpp"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <functional>
+#include <string>
+
+using namespace eyesim::fpga;
+using namespace eyesim::fpga::test;
+
+namespace {
+
+struct Detection {
+    int cls;
+    double x, y;
+};
+
+struct Scene {
+    Field field;
+    std::vector<Marker> markers;
+    std::vector<std::array<double, 2>> truth;
+};
+
+// The white eye disc: centre and radius in frame pixels (field y doubled).
+constexpr double kEyeX = 360, kEyeY = 144, kEyeR = 120;
+
+// Dark background, white eye disc (markers on it and beside it).
+Scene make_scene(uint32_t seed, double noise, double diam_min, double diam_max) {
+    std::mt19937 rng(seed);
+    std::uniform_int_distribution<int> count(8, 20), cls(1, 4);
+    std::uniform_real_distribution<double> ux(12, 708), uy(6, 282), ud(diam_min, diam_max);
+    Scene s;
+    const int n = count(rng);
+    while (static_cast<int>(s.markers.size()) < n) {
+        const double d = ud(rng);
+        Marker m{cls(rng), ux(rng), uy(rng), d / 2, d / 4};
+        bool clear = true;  // keep markers apart (their rings must not touch) and off the eye's outline
+        for (const Marker& o : s.markers) clear = clear && std::hypot(o.cx - m.cx, 2 * (o.cy - m.cy)) > 16;
+        clear = clear && std::fabs(std::hypot(m.cx - kEyeX, 2 * (m.cy - kEyeY)) - kEyeR) > 12;
+        if (clear) s.markers.push_back(m);
+    }
+    s.field = render_markers(s.markers, noise, seed * 7 + 1, 288, 8, {14, 14, 18}, &s.truth);
+    // Paint the eye (a white disc) under the markers: re-render with the eye as background inside the disc.
+    std::vector<Marker> on_eye, off_eye;
+    std::vector<std::array<double, 2>> t_on, t_off;
+    const double ex = kEyeX, ey = kEyeY, er = kEyeR;
+    for (size_t i = 0; i < s.markers.size(); ++i) {
+        const Marker& m = s.markers[i];
+        if (std::hypot(m.cx - ex, 2 * (m.cy - ey)) < er) on_eye.push_back(m);
+    }
+    if (!on_eye.empty()) {
+        const Field eye = render_markers(on_eye, noise, seed * 7 + 2, 288, 8, {236, 234, 226}, &t_on);
+        for (int y = 0; y < 288; ++y)
+            for (int k = 0; k < 360; ++k) {
+                const double x = 2 * k + 0.5;
+                if (std::hypot(x - ex, 2 * (y - ey)) < er) std::memcpy(s.field.line(y) + 4 * k, eye.line(y) + 4 * k, 4);
+            }
+    }
+    return s;
+}
+
+// Matches detections to truth markers by class and nearest centre (≤ 3 px); accumulates squared error.
+struct ErrorStats {
+    double se = 0;
+    int matched = 0, missed = 0, extra = 0;
+    double rms() const { return matched ? std::sqrt(se / matched) : 0.0; }
+};
+
+void score(const Scene& s, const std::vector<Detection>& det, ErrorStats& e) {
+    std::vector<bool> used(det.size(), false);
+    for (size_t i = 0; i < s.markers.size(); ++i) {
+        int best = -1;
+        double bd = 3.0;
+        for (size_t j = 0; j < det.size(); ++j) {
+            if (used[j] || det[j].cls != s.markers[i].cls) continue;
+            const double d = std::hypot(det[j].x - s.truth[i][0], det[j].y - s.truth[i][1]);
+            if (d < bd) {
+                bd = d;
+                best = static_cast<int>(j);
+            }
+        }
+        if (best < 0) {
+            ++e.missed;
+            continue;
+        }
+        used[static_cast<size_t>(best)] = true;
+        e.se += bd * bd;
+        ++e.matched;
+    }
+    for (bool u : used) e.extra += !u;
+}
+
+// The OpenCV baseline: UYVY → BGR → HSV, inRange per class, connected components, moments.
+struct OpenCvPipeline {
+    cv::Mat bgr, hsv, mask, mask2, labels, stats, centroids;
+    bool weighted = true;
+    std::vector<Detection> run(const Field& f) {
+        std::vector<Detection> out;
+        const cv::Mat uyvy(f.height, W, CV_8UC2, const_cast<uint8_t*>(f.bytes.data()));
+        cv::cvtColor(uyvy, bgr, cv::COLOR_YUV2BGR_UYVY);
+        cv::cvtColor(bgr, hsv, cv::COLOR_BGR2HSV);
+        // Hue (OpenCV 0..180): red 0, yellow 27, green 64, blue 113; saturation ≥ 40 (edges included), V ≥ 30.
+        static const int lo[5] = {0, 172, 52, 100, 18}, hi[5] = {0, 8, 76, 126, 36};
+        for (int c = 1; c <= 4; ++c) {
+            if (c == 1) {
+                cv::inRange(hsv, cv::Scalar(0, 40, 30), cv::Scalar(hi[1], 255, 255), mask);
+                cv::inRange(hsv, cv::Scalar(lo[1], 40, 30), cv::Scalar(180, 255, 255), mask2);
+                mask |= mask2;
+            } else {
+                cv::inRange(hsv, cv::Scalar(lo[c], 40, 30), cv::Scalar(hi[c], 255, 255), mask);
+            }
+            const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
+            for (int i = 1; i < n; ++i) {
+                if (stats.at<int>(i, cv::CC_STAT_AREA) < 2) continue;
+                if (!weighted) {
+                    out.push_back({c, centroids.at<double>(i, 0), centroids.at<double>(i, 1)});
+                    continue;
+                }
+                // Saturation-weighted moments over the component's box (threshold + moments).
+                const cv::Rect r(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
+                                 stats.at<int>(i, cv::CC_STAT_WIDTH), stats.at<int>(i, cv::CC_STAT_HEIGHT));
+                cv::Mat1b sat(r.height, r.width);
+                for (int y = 0; y < r.height; ++y)
+                    for (int x = 0; x < r.width; ++x)
+                        sat(y, x) = labels.at<int>(r.y + y, r.x + x) == i ? hsv.at<cv::Vec3b>(r.y + y, r.x + x)[1] : 0;
+                const cv::Moments m = cv::moments(sat, false);
+                if (m.m00 > 0) out.push_back({c, r.x + m.m10 / m.m00, r.y + m.m01 / m.m00});
+            }
+        }
+        return out;
+    }
+};
+
+double median(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+}
+
+struct Row {
+    std::string name;
+    double fields_per_s;
+    ErrorStats err;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    const int n_fields = argc > 1 ? std::atoi(argv[1]) : 64;
+    const int repeats = argc > 2 ? std::atoi(argv[2]) : 7;
+    const double noise = argc > 3 ? std::atof(argv[3]) : 1.0;
+    if (n_fields < 1 || repeats < 1 || !(noise >= 0)) {
+        std::fprintf(stderr, "usage: bench_fpga_model [fields>=1] [repeats>=1] [noise_sigma>=0]\n");
+        return 2;
+    }
+    cv::setNumThreads(1);  // per-core comparison
+
+    std::vector<Scene> scenes;
+    for (int i = 0; i < n_fields; ++i) scenes.push_back(make_scene(1000 + static_cast<uint32_t>(i), noise, 6.0, 10.0));
+    int markers = 0;
+    for (const Scene& s : scenes) markers += static_cast<int>(s.markers.size());
+
+    auto time_it = [&](const std::function<void(const Scene&)>& fn) {
+        std::vector<double> fps;
+        for (int r = 0; r < repeats; ++r) {
+            const auto t0 = std::chrono::steady_clock::now();
+            for (const Scene& s : scenes) fn(s);
+            const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            fps.push_back(n_fields / dt);
+        }
+        return median(fps);
+    };
+
+    std::vector<Row> rows;
+    auto model_row = [&](const std::string& name, const std::function<void(RegisterMap&)>& setup, bool roi) {
+        RegisterMap regs;
+        setup(regs);
+        Pipeline p(regs);
+        std::vector<Blob> blobs;
+        blobs.reserve(64);
+        p.set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
+        // ROI: one window per marker around its true position (as a tracker predicting from the last field would).
+        auto set_roi = [&](const Scene& s) {
+            RegisterMap r2 = regs;
+            int w = 0;
+            for (size_t i = 0; i < s.markers.size() && w < kNumRoiWindows; ++i, ++w) {
+                const int x0 = std::max(0, static_cast<int>(s.markers[i].cx) - 12);
+                const int x1 = std::min(719, static_cast<int>(s.markers[i].cx) + 12);
+                const int y0 = std::max(0, static_cast<int>(s.markers[i].cy) - 6);
+                const int y1 = std::min(287, static_cast<int>(s.markers[i].cy) + 6);
+                r2.write(reg::roi_x(w), static_cast<uint32_t>(x1 << 16 | x0));
+                r2.write(reg::roi_y(w), static_cast<uint32_t>(y1 << 16 | y0));
+            }
+            r2.write(reg::kRoiEnable, (1u << w) - 1);
+            p.set_registers(r2);
+        };
+        Row row{name, 0, {}};
+        for (const Scene& s : scenes) {  // accuracy pass
+            if (roi) set_roi(s);
+            blobs.clear();
+            p.process_field(s.field.bytes.data(), 288, 0, 0);
+            std::vector<Detection> det;
+            for (const Blob& b : blobs) det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+            if (roi) {  // only the first four markers were asked for
+                Scene sub = s;
+                sub.markers.resize(std::min<size_t>(4, s.markers.size()));
+                sub.truth.resize(sub.markers.size());
+                score(sub, det, row.err);
+            } else {
+                score(s, det, row.err);
+            }
+        }
+        if (roi) {
+            // Timing with a fixed 4-window ROI (register changes are outside the timed loop).
+            set_roi(scenes[0]);
+        }
+        row.fields_per_s = time_it([&](const Scene& s) {
+            blobs.clear();
+            p.process_field(s.field.bytes.data(), 288, 0, 0);
+        });
+        rows.push_back(row);
+    };
+
+    model_row("model: chroma weight 8 bit, edge ring (reset)", [](RegisterMap&) {}, false);
+    model_row("model: chroma weight 4 bit, edge ring", [](RegisterMap& r) { r.write(reg::kWeightBits, 4); }, false);
+    model_row("model: chroma weight 2 bit, edge ring", [](RegisterMap& r) { r.write(reg::kWeightBits, 2); }, false);
+    model_row("model: chroma weight 8 bit, no ring", [](RegisterMap& r) { r.write(reg::kEdgeRing, 0); }, false);
+    model_row("model: luma weight 8 bit (bg 30), edge ring", [](RegisterMap& r) {
+        r.write(reg::kWeightMode, 2);
+        r.write(reg::kWeightBg, 30);
+    }, false);
+    model_row("model: binary centroid", [](RegisterMap& r) { r.write(reg::kWeightMode, 0); }, false);
+    model_row("model: reset, fast path off", [](RegisterMap& r) { r.write(reg::kFastPath, 0); }, false);
+    model_row("model: reset, ROI 4 windows 25x13 (first 4 markers)", [](RegisterMap&) {}, true);
+
+    OpenCvPipeline cvp;
+    for (bool weighted : {true, false}) {
+        cvp.weighted = weighted;
+        Row row{weighted ? "OpenCV: HSV inRange + CC + saturation-weighted moments"
+                         : "OpenCV: HSV inRange + CC, binary centroid",
+                0, {}};
+        for (const Scene& s : scenes) score(s, cvp.run(s.field), row.err);
+        row.fields_per_s = time_it([&](const Scene& s) { cvp.run(s.field); });
+        rows.push_back(row);
+    }
+
+    const double ocv = rows[rows.size() - 2].fields_per_s;
+    std::printf("fields: %d (720x288, %d markers, 6-10 px), noise sigma %.2f, repeats %d (median), 1 thread\n\n",
+                n_fields, markers, noise, repeats);
+    std::printf("| pipeline | fields/s | x OpenCV (weighted) | centroid RMS px | matched | missed | extra |\n");
+    std::printf("|---|---:|---:|---:|---:|---:|---:|\n");
+    for (const Row& r : rows)
+        std::printf("| %s | %.0f | %.1f | %.4f | %d | %d | %d |\n", r.name.c_str(), r.fields_per_s,
+                    r.fields_per_s / ocv, r.err.rms(), r.err.matched, r.err.missed, r.err.extra);
+
+    // Accuracy per marker size (reset registers) beside the OpenCV baselines.
+    std::printf("\nCentroid RMS (px) by marker diameter (frame px), noise sigma %.2f, %d fields each\n\n", noise,
+                n_fields);
+    std::printf("| diameter px | model (reset) | model binary | OpenCV weighted | OpenCV binary |\n|---:|---:|---:|---:|---:|\n");
+    for (double d : {4.0, 6.0, 8.0, 10.0, 14.0}) {
+        ErrorStats em, eb, ew, ec;
+        RegisterMap reset, bin;
+        bin.write(reg::kWeightMode, 0);
+        Pipeline pm(reset), pb(bin);
+        for (int i = 0; i < n_fields; ++i) {
+            const Scene s = make_scene(5000 + static_cast<uint32_t>(i), noise, d, d);
+            for (Pipeline* p : {&pm, &pb}) {
+                std::vector<Blob> blobs;
+                p->set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
+                p->process_field(s.field.bytes.data(), 288, 0, 0);
+                std::vector<Detection> det;
+                for (const Blob& b : blobs) det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+                score(s, det, p == &pm ? em : eb);
+            }
+            cvp.weighted = true;
+            score(s, cvp.run(s.field), ew);
+            cvp.weighted = false;
+            score(s, cvp.run(s.field), ec);
+        }
+        std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), eb.rms(), ew.rms(), ec.rms());
+    }
+    return 0;
+}
