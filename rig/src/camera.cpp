@@ -124,7 +124,7 @@ std::vector<CameraModel> default_rig() {
         const double a = az_deg[i] * pi / 180.0;
         const double horiz = 62.0, z = -48.0;
         const Eigen::Vector3d center(horiz * std::cos(a), horiz * std::sin(a), z);
-        CameraModel c = look_at(fmt::format("cam{}", i), center, Eigen::Vector3d(0, 0, 6.0), roll[i]);
+        CameraModel c = look_at(fmt::format("cam{}", i), center, Eigen::Vector3d(0, 0, 10.0), roll[i]);
         c.fx = fx[i];
         c.fy = fy[i];
         c.cx = ccx[i];

@@ -1,0 +1,311 @@
+#include "eyesim/rig/recording.hpp"
+
+#include "eyesim/rig/error.hpp"
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/core/utils/logger.hpp>
+#include <opencv2/videoio.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+namespace eyesim::rig {
+
+namespace fs = std::filesystem;
+
+void bgr_to_uyvy(const uint8_t* bgr, int bgr_stride, int width, int rows, uint8_t* uyvy, int uyvy_stride) {
+    const float ky = 219.f / 255.f, kc = 224.f / 255.f;
+    for (int r = 0; r < rows; ++r) {
+        const uint8_t* in = bgr + static_cast<ptrdiff_t>(r) * bgr_stride;
+        uint8_t* o = uyvy + static_cast<ptrdiff_t>(r) * uyvy_stride;
+        for (int x = 0; x + 1 < width; x += 2) {
+            const uint8_t* p0 = in + x * 3;
+            const uint8_t* p1 = p0 + 3;
+            const uint8_t* pm = x > 0 ? p0 - 3 : p0;
+            // BGR order in memory.
+            const float l0 = 0.299f * p0[2] + 0.587f * p0[1] + 0.114f * p0[0];
+            const float l1 = 0.299f * p1[2] + 0.587f * p1[1] + 0.114f * p1[0];
+            const float fr = 0.25f * (pm[2] + 2.f * p0[2] + p1[2]);
+            const float fg = 0.25f * (pm[1] + 2.f * p0[1] + p1[1]);
+            const float fb = 0.25f * (pm[0] + 2.f * p0[0] + p1[0]);
+            const float lf = 0.299f * fr + 0.587f * fg + 0.114f * fb;
+            o[x * 2 + 0] = static_cast<uint8_t>(std::clamp(std::lrint(128.f + kc * (fb - lf) / 1.772f), 16l, 240l));
+            o[x * 2 + 1] = static_cast<uint8_t>(std::clamp(std::lrint(16.f + ky * l0), 16l, 235l));
+            o[x * 2 + 2] = static_cast<uint8_t>(std::clamp(std::lrint(128.f + kc * (fr - lf) / 1.402f), 16l, 240l));
+            o[x * 2 + 3] = static_cast<uint8_t>(std::clamp(std::lrint(16.f + ky * l1), 16l, 235l));
+        }
+    }
+}
+
+void uyvy_to_bgr(const uint8_t* uyvy, int uyvy_stride, int width, int rows, uint8_t* bgr, int bgr_stride) {
+    const float iy = 255.f / 219.f, ic = 255.f / 224.f;
+    for (int r = 0; r < rows; ++r) {
+        const uint8_t* in = uyvy + static_cast<ptrdiff_t>(r) * uyvy_stride;
+        uint8_t* o = bgr + static_cast<ptrdiff_t>(r) * bgr_stride;
+        for (int x = 0; x < width; ++x) {
+            const int pair = x / 2;
+            const float Y = (in[x * 2 + 1] - 16.f) * iy;
+            float cb = in[pair * 4] - 128.f, cr = in[pair * 4 + 2] - 128.f;
+            if ((x & 1) && pair + 1 < width / 2) {
+                cb = 0.5f * (cb + in[(pair + 1) * 4] - 128.f);
+                cr = 0.5f * (cr + in[(pair + 1) * 4 + 2] - 128.f);
+            }
+            const float R = Y + 1.402f * cr * ic;
+            const float B = Y + 1.772f * cb * ic;
+            const float G = (Y - 0.299f * R - 0.114f * B) / 0.587f;
+            o[x * 3 + 0] = static_cast<uint8_t>(std::clamp(std::lrint(B), 0l, 255l));
+            o[x * 3 + 1] = static_cast<uint8_t>(std::clamp(std::lrint(G), 0l, 255l));
+            o[x * 3 + 2] = static_cast<uint8_t>(std::clamp(std::lrint(R), 0l, 255l));
+        }
+    }
+}
+
+struct Recording::Impl {
+    std::string dir;
+    std::vector<CameraModel> cams;
+    std::vector<std::string> warnings;
+    struct Stream {
+        std::string path;
+        StreamFormat format = StreamFormat::kRawUyvy;
+        int64_t fields = 0;
+        std::ifstream raw;
+        cv::VideoCapture cap;
+        bool progressive = false;
+        int64_t frames = 0;
+        int64_t next_frame = 0;     // index of the frame the capture delivers next
+        int64_t cached_frame = -1;  // frame held in `frame`
+        cv::Mat frame;
+    };
+    std::vector<Stream> streams;
+
+    [[noreturn]] void fail(const std::string& file, const std::string& key, const std::string& why) const {
+        throw RigError(fmt::format("{}: {}: {}", (fs::path(dir) / file).string(), key, why));
+    }
+    void open_video(Stream& s);
+    void video_frame(Stream& s, int64_t n);
+};
+
+void Recording::Impl::open_video(Stream& s) {
+    s.cap.release();
+    bool ok = false;
+    try {
+        ok = s.cap.open(s.path);
+    } catch (const cv::Exception&) {
+        ok = false;
+    }
+    if (!ok) fail(fs::path(s.path).filename().string(), "file", "cannot be opened as video");
+    s.next_frame = 0;
+}
+
+void Recording::Impl::video_frame(Stream& s, int64_t n) {
+    if (s.cached_frame == n) return;
+    if (n < s.next_frame) open_video(s);
+    while (s.next_frame < n) {
+        if (!s.cap.grab()) fail(fs::path(s.path).filename().string(), "frame", fmt::format("cannot seek to frame {}", n));
+        ++s.next_frame;
+    }
+    if (!s.cap.read(s.frame) || s.frame.empty())
+        fail(fs::path(s.path).filename().string(), "frame", fmt::format("cannot decode frame {}", n));
+    ++s.next_frame;
+    if (s.frame.cols != kFrameWidth || s.frame.rows != kFrameHeight || s.frame.type() != CV_8UC3)
+        fail(fs::path(s.path).filename().string(), "frame size",
+             fmt::format("frame {} is {}x{}, expected 720x576 BGR", n, s.frame.cols, s.frame.rows));
+    s.cached_frame = n;
+}
+
+Recording::Recording(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Recording::Recording(Recording&&) noexcept = default;
+Recording& Recording::operator=(Recording&&) noexcept = default;
+Recording::~Recording() = default;
+
+Recording Recording::open(const std::string& dir) {
+    auto d = std::make_unique<Impl>();
+    d->dir = dir;
+    if (!fs::is_directory(dir)) throw RigError(fmt::format("{}: directory: missing", dir));
+    d->cams = load_rig_yaml((fs::path(dir) / "rig.yaml").string());
+    cv::utils::logging::setLogLevel(cv::utils::logging::LOG_LEVEL_ERROR);
+    d->streams.resize(d->cams.size());
+    for (size_t c = 0; c < d->cams.size(); ++c) {
+        Impl::Stream& s = d->streams[c];
+        const std::string stem = d->cams[c].name;
+        const char* exts[] = {".uyvy", ".avi", ".mkv", ".mp4"};
+        for (const char* e : exts) {
+            const fs::path p = fs::path(dir) / (stem + e);
+            if (fs::exists(p)) {
+                s.path = p.string();
+                s.format = std::string(e) == ".uyvy" ? StreamFormat::kRawUyvy : StreamFormat::kVideo;
+                break;
+            }
+        }
+        if (s.path.empty())
+            d->fail(stem + ".uyvy", "file", fmt::format("missing (nor {0}.avi, {0}.mkv, {0}.mp4)", stem));
+        const std::string fname = fs::path(s.path).filename().string();
+        if (s.format == StreamFormat::kRawUyvy) {
+            std::error_code ec;
+            const auto size = fs::file_size(s.path, ec);
+            if (ec) d->fail(fname, "file", "size unreadable");
+            if (size == 0) d->fail(fname, "size", "empty file (0 fields)");
+            if (size % kFieldBytes != 0)
+                d->fail(fname, "size",
+                        fmt::format("{} bytes is not a whole number of 720x288 UYVY fields ({} bytes each): "
+                                    "truncated or wrong field size ({} whole fields + {} bytes)",
+                                    size, kFieldBytes, size / kFieldBytes, size % kFieldBytes));
+            s.fields = static_cast<int64_t>(size / kFieldBytes);
+            s.raw.open(s.path, std::ios::binary);
+            if (!s.raw) d->fail(fname, "file", "cannot be opened");
+        } else {
+            d->open_video(s);
+            const double fps = s.cap.get(cv::CAP_PROP_FPS);
+            int64_t n = 0;
+            cv::Mat f;
+            while (s.cap.read(f)) {
+                if (f.cols != kFrameWidth || f.rows != kFrameHeight)
+                    d->fail(fname, "frame size", fmt::format("{}x{}, expected 720x576", f.cols, f.rows));
+                ++n;
+            }
+            if (n == 0) d->fail(fname, "frames", "no decodable frames");
+            s.frames = n;
+            s.progressive = std::abs(fps - 50.0) < 2.0;
+            if (s.progressive)
+                d->warnings.push_back(fmt::format("{}: {:.3g} frames/s: taken as progressive, one field per frame",
+                                                  s.path, fps));
+            else if (std::abs(fps - 25.0) > 1.0)
+                d->warnings.push_back(
+                    fmt::format("{}: {:.3g} frames/s (PAL is 25): taken as interlaced, two fields per frame", s.path, fps));
+            s.fields = s.progressive ? n : 2 * n;
+            d->open_video(s);
+        }
+    }
+    // Optional manifest: checked against the files when present.
+    const fs::path mpath = fs::path(dir) / "manifest.json";
+    if (fs::exists(mpath)) {
+        std::ifstream in(mpath);
+        nlohmann::json j;
+        try {
+            j = nlohmann::json::parse(in);
+        } catch (const nlohmann::json::parse_error& e) {
+            d->fail("manifest.json", "file", fmt::format("malformed JSON at byte {}", e.byte));
+        }
+        auto num = [&](const char* key, double expect) {
+            if (!j.contains(key)) return;
+            if (!j[key].is_number()) d->fail("manifest.json", key, "not a number");
+            if (j[key].get<double>() != expect)
+                d->fail("manifest.json", key, fmt::format("is {}, expected {}", j[key].dump(), expect));
+        };
+        num("field_width", kFieldWidth);
+        num("field_height", kFieldHeight);
+        num("field_rate_hz", kFieldRateHz);
+        if (j.contains("cameras")) {
+            const auto& cj = j["cameras"];
+            if (!cj.is_array() || cj.size() != d->cams.size())
+                d->fail("manifest.json", "cameras",
+                        fmt::format("must list {} cameras (rig.yaml camera_count)", d->cams.size()));
+            for (size_t c = 0; c < cj.size(); ++c) {
+                if (cj[c].contains("fields")) {
+                    if (!cj[c]["fields"].is_number_integer())
+                        d->fail("manifest.json", fmt::format("cameras[{}].fields", c), "not an integer");
+                    const int64_t f = cj[c]["fields"].get<int64_t>();
+                    if (f != d->streams[c].fields)
+                        d->fail("manifest.json", fmt::format("cameras[{}].fields", c),
+                                fmt::format("says {}, {} holds {}", f, fs::path(d->streams[c].path).filename().string(),
+                                            d->streams[c].fields));
+                }
+            }
+        }
+    }
+    return Recording(std::move(d));
+}
+
+int Recording::camera_count() const noexcept { return static_cast<int>(impl_->cams.size()); }
+const std::vector<CameraModel>& Recording::cameras() const noexcept { return impl_->cams; }
+const std::string& Recording::dir() const noexcept { return impl_->dir; }
+const std::vector<std::string>& Recording::warnings() const noexcept { return impl_->warnings; }
+
+namespace {
+void check_cam_index(const std::string& dir, size_t count, int cam) {
+    if (cam < 0 || cam >= static_cast<int>(count))
+        throw RigError(fmt::format("{}: camera: index {} out of range 0..{}", dir, cam, count - 1));
+}
+}  // namespace
+
+int64_t Recording::field_count(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->streams[cam].fields;
+}
+
+int64_t Recording::common_field_count() const {
+    int64_t n = INT64_MAX;
+    for (const auto& s : impl_->streams) n = std::min(n, s.fields);
+    return impl_->streams.empty() ? 0 : n;
+}
+
+StreamFormat Recording::format(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->streams[cam].format;
+}
+
+const std::string& Recording::stream_path(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->streams[cam].path;
+}
+
+int Recording::field_parity(int cam, int64_t index) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->cams[cam].field_parity(index);
+}
+
+FieldTiming Recording::field_timing(int cam, int64_t index) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->cams[cam].field_timing(index);
+}
+
+std::string Recording::truth_path() const {
+    const fs::path p = fs::path(impl_->dir) / "truth.jsonl";
+    return fs::exists(p) ? p.string() : std::string();
+}
+
+void Recording::read_field(int cam, int64_t index, uint8_t* uyvy_out) {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    Impl::Stream& s = impl_->streams[cam];
+    const std::string fname = fs::path(s.path).filename().string();
+    if (index < 0 || index >= s.fields)
+        impl_->fail(fname, "field", fmt::format("index {} out of range 0..{}", index, s.fields - 1));
+    if (s.format == StreamFormat::kRawUyvy) {
+        s.raw.clear();
+        s.raw.seekg(static_cast<std::streamoff>(index) * kFieldBytes);
+        s.raw.read(reinterpret_cast<char*>(uyvy_out), kFieldBytes);
+        if (s.raw.gcount() != kFieldBytes) impl_->fail(fname, "field", fmt::format("field {} could not be read", index));
+        return;
+    }
+    const int parity = impl_->cams[cam].field_parity(index);
+    const int64_t frame = s.progressive ? index : index / 2;
+    impl_->video_frame(s, frame);
+    for (int y = 0; y < kFieldHeight; ++y)
+        bgr_to_uyvy(s.frame.ptr(2 * y + parity), 0, kFieldWidth, 1, uyvy_out + static_cast<size_t>(y) * kFieldWidth * 2, 0);
+}
+
+void write_manifest(const std::string& dir, const Manifest& m) {
+    nlohmann::json j;
+    j["format"] = m.format;
+    j["field_width"] = m.field_width;
+    j["field_height"] = m.field_height;
+    j["field_rate_hz"] = m.field_rate_hz;
+    j["field_bytes"] = kFieldBytes;
+    j["pixel_format"] = "UYVY (Cb Y0 Cr Y1), BT.601 studio swing, first field top";
+    nlohmann::json cams = nlohmann::json::array();
+    for (size_t c = 0; c < m.files.size(); ++c)
+        cams.push_back({{"name", fmt::format("cam{}", c)}, {"file", m.files[c]},
+                        {"fields", c < m.fields.size() ? m.fields[c] : 0}});
+    j["cameras"] = cams;
+    if (!m.scenario.empty()) j["scenario"] = m.scenario;
+    j["seed"] = m.seed;
+    const fs::path p = fs::path(dir) / "manifest.json";
+    std::ofstream out(p);
+    out << j.dump(2) << '\n';
+    if (!out) throw RigError(fmt::format("{}: file: cannot be written", p.string()));
+}
+
+}  // namespace eyesim::rig
