@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Geometry>
+
 namespace eyesim::sim::collision {
 
 ExactNarrowPhase::ExactNarrowPhase(size_t membrane_triangles, size_t instrument_triangles) {
@@ -41,9 +43,12 @@ std::span<const uint32_t> ExactNarrowPhase::colliding_triangles(const MeshRef& m
     // Grid over the instrument bounds (a few cells per axis; the instrument is long and thin).
     const Vec3f ext = (hi - lo).cwiseMax(Vec3f::Constant(1e-4f));
     const float cell = std::max(ext.maxCoeff() / 48.0f, std::cbrt(ext.prod() / float(nit)) * 1.5f);
-    int dims[3];
+    int* dims = dims_;
     for (int k = 0; k < 3; ++k) dims[k] = std::clamp(int(std::ceil(ext[k] / cell)), 1, 48);
     const Vec3f inv_cell{float(dims[0]) / ext.x(), float(dims[1]) / ext.y(), float(dims[2]) / ext.z()};
+    grid_lo_ = lo;
+    grid_ext_ = ext;
+    inv_cell_ = inv_cell;
     auto cell_of = [&](const Vec3f& p, int k) {
         return std::clamp(int((p[k] - lo[k]) * inv_cell[k]), 0, dims[k] - 1);
     };
@@ -64,6 +69,12 @@ std::span<const uint32_t> ExactNarrowPhase::colliding_triangles(const MeshRef& m
         for_cells(tri_lo_[t], tri_hi_[t], [&](size_t c) { cell_items_[cell_fill_[c]++] = uint32_t(t); });
     if (stamp_.size() < nit) stamp_.assign(nit, 0);
 
+    auto next_query = [&]() {
+        if (++query_ == 0) {  // stamp wrap-around
+            std::fill(stamp_.begin(), stamp_.end(), 0u);
+            query_ = 1;
+        }
+    };
     // Per-part bounds for the containment test.
     const size_t nparts = part_triangle_begin.size() > 1 ? part_triangle_begin.size() - 1 : 0;
     part_lo_.resize(nparts);
@@ -76,17 +87,16 @@ std::span<const uint32_t> ExactNarrowPhase::colliding_triangles(const MeshRef& m
             part_hi_[p] = part_hi_[p].cwiseMax(tri_hi_[t]);
         }
     }
-    for (size_t mt = 0; mt < membrane.triangles.size(); ++mt) {
+    const size_t nmt = membrane.triangles.size();
+    if (mem_stamp_.size() < nmt) mem_stamp_.assign(nmt, 0);
+    const uint32_t mem_query = ++mem_query_;
+    const bool flood = options.include_contained && !options.vertex_triangle_begin.empty();
+    for (size_t mt = 0; mt < nmt; ++mt) {
+        if (!candidate(membrane, uint32_t(mt), lo, hi, options)) continue;
         const auto& tr = membrane.triangles[mt];
         const Vec3f &a = membrane.vertices_mm[tr[0]], &b = membrane.vertices_mm[tr[1]], &c = membrane.vertices_mm[tr[2]];
         const Vec3f mlo = a.cwiseMin(b).cwiseMin(c), mhi = a.cwiseMax(b).cwiseMax(c);
-        if ((mhi.array() < lo.array()).any() || (mlo.array() > hi.array()).any()) continue;
-        if (options.within && !box_overlaps_aabb(*options.within, mlo, mhi)) continue;
-        ++query_;
-        if (query_ == 0) {  // stamp wrap-around
-            std::fill(stamp_.begin(), stamp_.end(), 0);
-            query_ = 1;
-        }
+        next_query();
         bool hit = false;
         for_cells(mlo, mhi, [&](size_t cidx) {
             if (hit) return;
@@ -100,16 +110,101 @@ std::span<const uint32_t> ExactNarrowPhase::colliding_triangles(const MeshRef& m
                 hit = triangles_intersect(a, b, c, inst_eye_[q[0]], inst_eye_[q[1]], inst_eye_[q[2]]);
             }
         });
-        if (!hit && options.include_contained) {
+        if (!hit && options.include_contained && !flood) {
             for (size_t p = 0; p < nparts && !hit; ++p) {
-                const uint32_t t0 = part_triangle_begin[p], t1 = part_triangle_begin[p + 1];
                 if ((mlo.array() < part_lo_[p].array()).any() || (mhi.array() > part_hi_[p].array()).any()) continue;
-                hit = point_inside_closed_mesh(a, inst_eye_, instrument.triangles.subspan(t0, t1 - t0));
+                hit = inside_part(a, instrument, part_triangle_begin[p], part_triangle_begin[p + 1]);
             }
         }
-        if (hit) out_.push_back(uint32_t(mt));
+        if (hit) {
+            out_.push_back(uint32_t(mt));
+            mem_stamp_[mt] = mem_query;
+        }
+    }
+    if (flood) {
+        // A triangle inside the instrument that touches no instrument triangle shares vertices with a hit or
+        // another contained triangle: grow from the hits, testing one vertex per reached triangle.
+        queue_.assign(out_.begin(), out_.end());
+        for (size_t qi = 0; qi < queue_.size(); ++qi) {
+            for (uint32_t v : membrane.triangles[queue_[qi]]) {
+                for (uint32_t k = options.vertex_triangle_begin[v]; k < options.vertex_triangle_begin[v + 1]; ++k) {
+                    const uint32_t t = options.vertex_triangles[k];
+                    if (mem_stamp_[t] == mem_query) continue;
+                    mem_stamp_[t] = mem_query;
+                    if (!candidate(membrane, t, lo, hi, options)) continue;
+                    const auto& tr = membrane.triangles[t];
+                    const Vec3f &a = membrane.vertices_mm[tr[0]], &b = membrane.vertices_mm[tr[1]],
+                                &c = membrane.vertices_mm[tr[2]];
+                    const Vec3f mlo = a.cwiseMin(b).cwiseMin(c), mhi = a.cwiseMax(b).cwiseMax(c);
+                    bool inside = false;
+                    for (size_t p = 0; p < nparts && !inside; ++p) {
+                        if ((mlo.array() < part_lo_[p].array()).any() || (mhi.array() > part_hi_[p].array()).any())
+                            continue;
+                        inside = inside_part(a, instrument, part_triangle_begin[p], part_triangle_begin[p + 1]);
+                    }
+                    if (inside) {
+                        out_.push_back(t);
+                        queue_.push_back(t);
+                    }
+                }
+            }
+        }
+        std::sort(out_.begin(), out_.end());
     }
     return out_;
+}
+
+bool ExactNarrowPhase::candidate(const MeshRef& membrane, uint32_t t, const Vec3f& lo, const Vec3f& hi,
+                                 const ExactOptions& o) const {
+    const auto& tr = membrane.triangles[t];
+    const Vec3f &a = membrane.vertices_mm[tr[0]], &b = membrane.vertices_mm[tr[1]], &c = membrane.vertices_mm[tr[2]];
+    const Vec3f mlo = a.cwiseMin(b).cwiseMin(c), mhi = a.cwiseMax(b).cwiseMax(c);
+    if ((mhi.array() < lo.array()).any() || (mlo.array() > hi.array()).any()) return false;
+    return o.within == nullptr || box_overlaps_aabb(*o.within, mlo, mhi);
+}
+
+bool ExactNarrowPhase::inside_part(const Vec3f& p, const MeshRef& instrument, uint32_t t0, uint32_t t1) {
+    // Ray parity along an almost axis-aligned direction (+x with a tiny skew against hits on the edges of
+    // regular meshes). The ray stays within one or two grid rows, so only those cells are visited.
+    const double sy = 1.37e-4, sz = 0.71e-4;
+    const Eigen::Vector3d dir(1.0, sy, sz);
+    const Eigen::Vector3d o = p.cast<double>();
+    auto cell = [&](float x, int k) { return std::clamp(int((x - grid_lo_[k]) * inv_cell_[k]), 0, dims_[k] - 1); };
+    if ((p.array() < grid_lo_.array()).any() || (p.array() > (grid_lo_ + grid_ext_).array()).any()) return false;
+    const float run = grid_lo_.x() + grid_ext_.x() - p.x();
+    const int x0 = cell(p.x(), 0);
+    const int y0 = cell(p.y(), 1), y1 = cell(p.y() + float(sy) * run, 1);
+    const int z0 = cell(p.z(), 2), z1 = cell(p.z() + float(sz) * run, 2);
+    if (++query_ == 0) {
+        std::fill(stamp_.begin(), stamp_.end(), 0u);
+        query_ = 1;
+    }
+    int crossings = 0;
+    for (int z = z0; z <= z1; ++z)
+        for (int y = y0; y <= y1; ++y)
+            for (int x = x0; x < dims_[0]; ++x) {
+                const size_t c = size_t(z) * size_t(dims_[1]) * size_t(dims_[0]) + size_t(y) * size_t(dims_[0]) + size_t(x);
+                for (uint32_t k = cell_begin_[c]; k < cell_begin_[c + 1]; ++k) {
+                    const uint32_t it = cell_items_[k];
+                    if (it < t0 || it >= t1 || stamp_[it] == query_) continue;
+                    stamp_[it] = query_;
+                    if (tri_hi_[it].x() < p.x()) continue;
+                    const auto& t = instrument.triangles[it];
+                    const Eigen::Vector3d v0 = inst_eye_[t[0]].cast<double>();
+                    const Eigen::Vector3d e1 = inst_eye_[t[1]].cast<double>() - v0, e2 = inst_eye_[t[2]].cast<double>() - v0;
+                    const Eigen::Vector3d h = dir.cross(e2);
+                    const double det = e1.dot(h);
+                    if (std::fabs(det) < 1e-18) continue;
+                    const Eigen::Vector3d s = o - v0;
+                    const double u = s.dot(h) / det;
+                    if (u < 0 || u > 1) continue;
+                    const Eigen::Vector3d q = s.cross(e1);
+                    const double w = dir.dot(q) / det;
+                    if (w < 0 || u + w > 1) continue;
+                    if (e2.dot(q) / det > 0) ++crossings;
+                }
+            }
+    return (crossings & 1) != 0;
 }
 
 }  // namespace eyesim::sim::collision

@@ -94,7 +94,11 @@ inline bool raster_triangle(Vtx v0, Vtx v1, Vtx v2, int r, int bx0, int by0, int
     return false;
 }
 
-inline int32_t to_fx(float w) { return int32_t(std::lrint(std::clamp(w * float(kSub), -kClampFx, kClampFx))); }
+/// Window coordinate → 1/256 pixel, rounded half away from zero (inline; no libm call).
+inline int32_t to_fx(float w) {
+    const float f = std::clamp(w * float(kSub), -kClampFx, kClampFx);
+    return int32_t(f + (f >= 0.0f ? 0.5f : -0.5f));
+}
 
 }  // namespace
 
@@ -111,10 +115,23 @@ void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, std::
     const float half_r = 0.5f * float(view.resolution_px);
     out.resize(mesh.vertices_mm.size());
     if (view.projection == Projection::Parallel) {
+        // Scale folded into the matrix; outcodes (outside left/right/bottom/top/near/far) let whole
+        // triangles be rejected with one AND.
         const float s = half_r / view.half_width_mm;
-        for (size_t i = 0; i < out.size(); ++i) {
-            const Vec3f c = m * mesh.vertices_mm[i] + t;
-            out[i] = {to_fx(c.x() * s + half_r), to_fx(c.y() * s + half_r), c.z(), true};
+        const float m00 = m(0, 0) * s, m01 = m(0, 1) * s, m02 = m(0, 2) * s, t0 = t.x() * s + half_r;
+        const float m10 = m(1, 0) * s, m11 = m(1, 1) * s, m12 = m(1, 2) * s, t1 = t.y() * s + half_r;
+        const float m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2), t2 = t.z();
+        const float r = 2.0f * half_r, zn = view.near_mm, zf = view.far_mm;
+        const Vec3f* v = mesh.vertices_mm.data();
+        Projected* o = out.data();
+        for (size_t i = 0, n = out.size(); i < n; ++i) {
+            const float x = v[i].x(), y = v[i].y(), z = v[i].z();
+            const float wx = m00 * x + m01 * y + m02 * z + t0;
+            const float wy = m10 * x + m11 * y + m12 * z + t1;
+            const float wz = m20 * x + m21 * y + m22 * z + t2;
+            const uint8_t code = uint8_t((wx < 0.0f) | ((wx > r) << 1) | ((wy < 0.0f) << 2) | ((wy > r) << 3) |
+                                         ((wz < zn) << 4) | ((wz > zf) << 5));
+            o[i] = {to_fx(wx), to_fx(wy), wz, true, code};
         }
     } else {
         const float s = half_r / view.tan_half_angle;
@@ -122,7 +139,10 @@ void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, std::
             const Vec3f c = m * mesh.vertices_mm[i] + t;
             const bool valid = c.z() >= view.near_mm;
             const float iz = valid ? 1.0f / c.z() : 0.0f;
-            out[i] = {to_fx(c.x() * iz * s + half_r), to_fx(c.y() * iz * s + half_r), iz, valid};
+            const float wx = c.x() * iz * s + half_r, wy = c.y() * iz * s + half_r, r = 2.0f * half_r;
+            const uint8_t code = uint8_t((wx < 0.0f) | ((wx > r) << 1) | ((wy < 0.0f) << 2) | ((wy > r) << 3) |
+                                         ((c.z() > view.far_mm) << 5));
+            out[i] = {to_fx(wx), to_fx(wy), iz, valid, code};
         }
     }
 }
@@ -137,7 +157,6 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
     out.multi_layer_pixels = 0;
     project(membrane, view, membrane_px_);
     const bool central = view.projection == Projection::Central;
-    const int32_t lim = r << kSubBits;
     const float znear = view.near_mm, zfar = view.far_mm;
     float* zm = out.zm_mm.data();
     uint32_t* cm = out.cm.data();
@@ -151,15 +170,9 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
     for (size_t ti = 0; ti < membrane.triangles.size(); ++ti) {
         const auto& tr = membrane.triangles[ti];
         const Projected &a = membrane_px_[tr[0]], &b = membrane_px_[tr[1]], &c = membrane_px_[tr[2]];
-        // Trivial rejects: outside the viewport or the depth range of V.
-        if ((a.x < 0 && b.x < 0 && c.x < 0) || (a.x > lim && b.x > lim && c.x > lim)) continue;
-        if ((a.y < 0 && b.y < 0 && c.y < 0) || (a.y > lim && b.y > lim && c.y > lim)) continue;
-        if (central) {
-            if (!(a.valid && b.valid && c.valid)) continue;
-            if (a.q < 1.0f / zfar && b.q < 1.0f / zfar && c.q < 1.0f / zfar) continue;
-        } else {
-            if ((a.q < znear && b.q < znear && c.q < znear) || (a.q > zfar && b.q > zfar && c.q > zfar)) continue;
-        }
+        // Trivial reject: all three vertices outside the same side of V.
+        if (a.outcode & b.outcode & c.outcode) continue;
+        if (central && !(a.valid && b.valid && c.valid)) continue;
         const uint32_t ids[3] = {tr[0], tr[1], tr[2]};
         const uint32_t tid = uint32_t(ti);
         auto frag = [&](size_t p, float z, int corner) {

@@ -23,6 +23,25 @@ ZcollView make_tip_view(const Eigen::Isometry3f& instrument_to_eye, float half_w
     return v;
 }
 
+ZcollView make_tip_view_along(const Vec3f& tip_eye_mm, const Vec3f& pi_eye, const Vec3f& up_hint,
+                              float half_width_mm, float ahead_mm, float behind_mm, int resolution_px) {
+    ZcollView v;
+    v.projection = Projection::Parallel;
+    const Vec3f pi = pi_eye.normalized();
+    Vec3f up = up_hint - pi * pi.dot(up_hint);
+    if (up.squaredNorm() < 1e-12f) up = std::fabs(pi.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
+    up = (up - pi * pi.dot(up)).normalized();
+    v.origin_eye_mm = tip_eye_mm - pi * ahead_mm;
+    v.camera_to_eye.col(0) = up.cross(pi);
+    v.camera_to_eye.col(1) = up;
+    v.camera_to_eye.col(2) = pi;
+    v.half_width_mm = half_width_mm;
+    v.near_mm = 0.0f;
+    v.far_mm = ahead_mm + behind_mm;
+    v.resolution_px = resolution_px;
+    return v;
+}
+
 ZcollView make_suction_view(const Eigen::Isometry3f& instrument_to_eye, const Instrument& vitrector,
                             float half_angle_deg, float length_mm, int resolution_px) {
     ZcollView v;

@@ -193,6 +193,8 @@ const ZcollResult& ZcollEngine::push(std::span<const Vec3f> membrane_vertices_ey
         const OrientedBox box = view_volume(view);
         ExactOptions opt;
         opt.within = &box;
+        opt.vertex_triangle_begin = topology_->vertex_triangle_begin;
+        opt.vertex_triangles = topology_->vertex_triangles;
         const auto exact = exact_.colliding_triangles(membrane, tool, instrument.instrument().part_triangle_begin, opt);
         triangles_.assign(exact.begin(), exact.end());
         result_.fallback_used = true;

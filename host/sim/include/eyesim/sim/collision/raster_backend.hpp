@@ -83,11 +83,13 @@ public:
 
 private:
     /// Per vertex: window position in 1/256 pixel, interpolated depth quantity (parallel: depth in mm,
-    /// central: 1/depth), and whether it lies in front of the near plane.
+    /// central: 1/depth), whether it lies in front of the near plane, and its outcode (bits: outside
+    /// left, right, bottom, top, near, far of V).
     struct Projected {
         int32_t x, y;
         float q;
         bool valid;
+        uint8_t outcode;
     };
     void project(const MeshRef& mesh, const ZcollView& view, std::vector<Projected>& out);
     void raster_membrane(const MeshRef& membrane, const ZcollView& view, const RasterRequest& req,

@@ -50,6 +50,14 @@ struct OrientedBox {
 ZcollView make_tip_view(const Eigen::Isometry3f& instrument_to_eye, float half_width_mm, float ahead_mm,
                         float behind_mm, int resolution_px);
 
+/// Push/boolean view with a chosen direction π (eye frame, unit): V is centred laterally on the tip and spans
+/// from `ahead_mm` before the tip to `behind_mm` behind it along π; the camera sits `ahead_mm` before the tip
+/// on −π. For membrane interaction choose π along the membrane normal at the contact, pointing from the side
+/// the instrument pierces into towards the side it comes from: the membrane is then a height field in V
+/// (π-convex) even when the instrument approaches at a grazing angle. `up_hint` orients the image.
+ZcollView make_tip_view_along(const Vec3f& tip_eye_mm, const Vec3f& pi_eye, const Vec3f& up_hint,
+                              float half_width_mm, float ahead_mm, float behind_mm, int resolution_px);
+
 /// Suction view of a vitrector: central projection from the side opening along its outward normal, the
 /// frustum approximating the suction cone of half angle `half_angle_deg` and length `length_mm`.
 ZcollView make_suction_view(const Eigen::Isometry3f& instrument_to_eye, const Instrument& vitrector,
