@@ -88,6 +88,10 @@ GLuint link(const char* vs_src, const char* fs_src, std::string& error) {
     return p;
 }
 
+/// The baked fundus texture: texels, and the half extent it covers on the eye-frame x and y axes.
+constexpr int kFundusTexturePx = 1024;
+constexpr float kFundusHalf_mm = 13.0f;
+
 /// A draw range in the per-frame index buffer.
 struct Range {
     GLsizei first = 0;
@@ -104,6 +108,7 @@ Eigen::Vector3f RenderConfig::view_position_eye_mm(int view) const {
 /// GL objects and per-frame staging buffers.
 struct SceneRenderer::Gl {
     GLuint scene_prog = 0, shadow_prog = 0;
+    GLuint fundus_tex = 0;
     GLuint sphere_vao = 0, sphere_vbo = 0, sphere_ibo = 0;
     GLsizei sphere_index_count = 0;
     GLuint dyn_vao = 0, dyn_vbo = 0, dyn_ibo = 0;
@@ -123,6 +128,7 @@ struct SceneRenderer::Gl {
         const GLuint bufs[] = {sphere_vbo, sphere_ibo, dyn_vbo, dyn_ibo};
         glDeleteBuffers(4, bufs);
         glDeleteTextures(2, shadow_tex);
+        glDeleteTextures(1, &fundus_tex);
         const GLuint fbos[] = {shadow_fbo[0], shadow_fbo[1], msaa_fbo, resolve_fbo};
         glDeleteFramebuffers(4, fbos);
         const GLuint rbs[] = {msaa_color, msaa_depth, resolve_color};
@@ -206,6 +212,46 @@ std::unique_ptr<SceneRenderer> SceneRenderer::create(int width, int height, cons
     if (!g.scene_prog) return nullptr;
     g.shadow_prog = link(sh::kShadowVertex, sh::kShadowFragment, error);
     if (!g.shadow_prog) return nullptr;
+
+    // Bake the procedural fundus albedo once into a mipmapped texture over the eye-frame x, y plane.
+    {
+        const GLuint bake = link(sh::kBakeVertex, sh::kBakeFragment, error);
+        if (!bake) return nullptr;
+        glGenTextures(1, &g.fundus_tex);
+        glBindTexture(GL_TEXTURE_2D, g.fundus_tex);
+        glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, kFundusTexturePx, kFundusTexturePx, 0, GL_RGBA, GL_UNSIGNED_BYTE,
+                     nullptr);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        GLuint fbo = 0, vao = 0;
+        glGenFramebuffers(1, &fbo);
+        glBindFramebuffer(GL_FRAMEBUFFER, fbo);
+        glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, g.fundus_tex, 0);
+        const bool complete = glCheckFramebufferStatus(GL_FRAMEBUFFER) == GL_FRAMEBUFFER_COMPLETE;
+        if (complete) {
+            glGenVertexArrays(1, &vao);
+            glBindVertexArray(vao);
+            glViewport(0, 0, kFundusTexturePx, kFundusTexturePx);
+            glDisable(GL_DEPTH_TEST);
+            glDisable(GL_BLEND);
+            glUseProgram(bake);
+            glUniform1f(glGetUniformLocation(bake, "u_fundus_half_mm"), kFundusHalf_mm);
+            glDrawArrays(GL_TRIANGLES, 0, 3);
+            glBindVertexArray(0);
+            glDeleteVertexArrays(1, &vao);
+        }
+        glBindFramebuffer(GL_FRAMEBUFFER, 0);
+        glDeleteFramebuffers(1, &fbo);
+        glDeleteProgram(bake);
+        if (!complete) {
+            error = "scene renderer: fundus texture framebuffer incomplete";
+            return nullptr;
+        }
+        glBindTexture(GL_TEXTURE_2D, g.fundus_tex);
+        glGenerateMipmap(GL_TEXTURE_2D);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    }
 
     // Unit eye sphere, triangles counter-clockwise seen from the centre, normals inwards.
     {
@@ -421,6 +467,10 @@ void SceneRenderer::render(const SceneFrame& frame, StereoImages& out) {
     glBindTexture(GL_TEXTURE_2D, g.shadow_tex[1]);
     glUniform1i(g.loc(prog, "u_shadow_opaque"), 0);
     glUniform1i(g.loc(prog, "u_shadow_tissue"), 1);
+    glActiveTexture(GL_TEXTURE2);
+    glBindTexture(GL_TEXTURE_2D, g.fundus_tex);
+    glUniform1i(g.loc(prog, "u_fundus"), 2);
+    glUniform1f(g.loc(prog, "u_fundus_half_mm"), kFundusHalf_mm);
     glUniformMatrix4fv(g.loc(prog, "u_light_view_proj"), 1, GL_FALSE, light_vp.data());
     glUniform1f(g.loc(prog, "u_shadow_texel"), 1.0f / static_cast<float>(c.shadow_map_px));
     glUniform1f(g.loc(prog, "u_eye_radius"), radius);

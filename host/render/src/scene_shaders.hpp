@@ -22,6 +22,63 @@ uniform float u_clip_radius;
 void main() { if (dot(v_pos, v_pos) > u_clip_radius * u_clip_radius) discard; }
 )";
 
+/// Fundus bake: a full-screen triangle; each texel gets the procedural albedo of its eye-frame (x, y), stored
+/// sqrt-encoded so that the dark reds keep their precision in 8 bits. Done once at start-up.
+inline constexpr const char* kBakeVertex = R"(#version 300 es
+out vec2 v_uv;
+void main() {
+    vec2 p = vec2(float((gl_VertexID & 1) * 4 - 1), float((gl_VertexID & 2) * 2 - 1));
+    v_uv = p * 0.5 + 0.5;
+    gl_Position = vec4(p, 0.0, 1.0);
+}
+)";
+
+inline constexpr const char* kBakeFragment = R"(#version 300 es
+precision highp float;
+in vec2 v_uv;
+out vec4 o_color;
+uniform float u_fundus_half_mm;
+// Procedural fundus albedo over the eye-frame x, y plane (mm): orange-red choroid, vessels from the optic disc
+// arching around the macula, a pale disc, a darker macula.
+vec3 fundus_albedo(vec2 q) {
+    vec3 base = vec3(0.75, 0.13, 0.03);
+    // Choroidal mottling (smooth, deterministic).
+    float mottle = 0.5 + 0.25 * sin(q.x * 5.3 + sin(q.y * 3.1)) * sin(q.y * 4.7 + sin(q.x * 2.3));
+    base *= 0.88 + 0.24 * mottle;
+    // Macula: darker towards the posterior pole's centre.
+    float rm = length(q);
+    base *= mix(0.62, 1.0, smoothstep(0.3, 2.2, rm));
+    // Vessels: branches leave the disc and bend around the macula.
+    vec2 disc = vec2(3.6, 0.4);
+    vec2 d = q - disc;
+    float r = length(d);
+    float a = atan(d.y, d.x);
+    float vessel = 0.0;
+    for (int k = 0; k < 8; ++k) {
+        float fk = float(k);
+        float side = (k % 2 == 0) ? 1.0 : -1.0;
+        float a0 = (k < 4) ? 3.14159 - side * (0.45 + 0.12 * fk) : side * (0.9 + 0.25 * (fk - 4.0));
+        float bend = (k < 4) ? side * (0.10 + 0.02 * fk) : side * 0.05;
+        float target = a0 + bend * r;
+        float da = a - target;
+        da = da - 6.28318 * floor((da + 3.14159) / 6.28318);
+        float dist = abs(da) * r;
+        float len = (k < 4) ? 11.0 : 6.0;
+        float width = mix(0.16, 0.04, clamp(r / len, 0.0, 1.0)) * ((k < 2) ? 1.2 : 1.0);
+        float v = (1.0 - smoothstep(width * 0.5, width, dist)) * (1.0 - smoothstep(len * 0.8, len, r));
+        vessel = max(vessel, v);
+    }
+    base = mix(base, vec3(0.34, 0.02, 0.02), 0.85 * vessel * smoothstep(0.6, 1.0, r));
+    // Optic disc with a pale cup.
+    float disc_mask = 1.0 - smoothstep(0.7, 0.85, r);
+    base = mix(base, vec3(0.95, 0.72, 0.48), disc_mask);
+    base = mix(base, vec3(1.0, 0.9, 0.75), 1.0 - smoothstep(0.2, 0.35, r));
+    return base;
+}
+
+void main() { o_color = vec4(sqrt(fundus_albedo((v_uv * 2.0 - 1.0) * u_fundus_half_mm)), 1.0); }
+)";
+
 /// Scene pass: eye-frame positions and normals through the view's view-projection.
 inline constexpr const char* kSceneVertex = R"(#version 300 es
 layout(location = 0) in vec3 a_pos;
@@ -65,62 +122,28 @@ uniform sampler2DShadow u_shadow_opaque;
 uniform sampler2DShadow u_shadow_tissue;
 uniform float u_tissue_shadow;    // fraction of light the membrane blocks where it shadows
 uniform float u_shadow_texel;
+uniform sampler2D u_fundus;      // baked fundus albedo over the eye-frame x, y plane
+uniform float u_fundus_half_mm;
 uniform vec2 u_centre_px;
 uniform float u_stop_radius_px;   // <= 0: no field stop
 
-// 3x3 percentage-closer filtering of one shadow map; 1 = fully lit.
+// Percentage-closer filtering of one shadow map: 2x2 taps half a texel apart, each a bilinear hardware comparison
+// (a 3x3 texel footprint); 1 = fully lit.
 float lit_fraction(sampler2DShadow map, vec3 p) {
     vec4 c = u_light_view_proj * vec4(p, 1.0);
     if (c.w <= 1e-4) return 1.0;
     vec3 s = c.xyz / c.w * 0.5 + 0.5;
     if (s.x < 0.0 || s.x > 1.0 || s.y < 0.0 || s.y > 1.0 || s.z > 1.0) return 1.0;
-    float sum = 0.0;
-    for (int j = -1; j <= 1; ++j)
-        for (int i = -1; i <= 1; ++i)
-            sum += texture(map, vec3(s.xy + vec2(float(i), float(j)) * u_shadow_texel, s.z));
-    return sum / 9.0;
+    float h = 0.5 * u_shadow_texel;
+    return 0.25 * (textureLod(map, vec3(s.xy + vec2(-h, -h), s.z), 0.0) + textureLod(map, vec3(s.xy + vec2(h, -h), s.z), 0.0) +
+                   textureLod(map, vec3(s.xy + vec2(-h, h), s.z), 0.0) + textureLod(map, vec3(s.xy + vec2(h, h), s.z), 0.0));
 }
 
-// Procedural fundus albedo: orange-red choroid, vessels from the optic disc arching around the macula, a pale
-// disc, a darker macula, darker towards the periphery.
+// Fundus albedo from the baked texture (sqrt-encoded), darker towards the periphery.
 vec3 fundus_albedo(vec3 p) {
-    vec3 base = vec3(0.75, 0.13, 0.03);
-    vec2 q = p.xy;
-    // Choroidal mottling (smooth, deterministic).
-    float mottle = 0.5 + 0.25 * sin(q.x * 5.3 + sin(q.y * 3.1)) * sin(q.y * 4.7 + sin(q.x * 2.3));
-    base *= 0.88 + 0.24 * mottle;
-    // Macula: darker towards the posterior pole's centre.
-    float rm = length(q);
-    base *= mix(0.62, 1.0, smoothstep(0.3, 2.2, rm));
-    // Vessels: branches leave the disc and bend around the macula.
-    vec2 disc = vec2(3.6, 0.4);
-    vec2 d = q - disc;
-    float r = length(d);
-    float a = atan(d.y, d.x);
-    float vessel = 0.0;
-    for (int k = 0; k < 8; ++k) {
-        float fk = float(k);
-        float side = (k % 2 == 0) ? 1.0 : -1.0;
-        float a0 = (k < 4) ? 3.14159 - side * (0.45 + 0.12 * fk) : side * (0.9 + 0.25 * (fk - 4.0));
-        float bend = (k < 4) ? side * (0.10 + 0.02 * fk) : side * 0.05;
-        float target = a0 + bend * r;
-        float da = a - target;
-        da = da - 6.28318 * floor((da + 3.14159) / 6.28318);
-        float dist = abs(da) * r;
-        float len = (k < 4) ? 11.0 : 6.0;
-        float width = mix(0.16, 0.04, clamp(r / len, 0.0, 1.0)) * ((k < 2) ? 1.2 : 1.0);
-        float v = (1.0 - smoothstep(width * 0.5, width, dist)) * (1.0 - smoothstep(len * 0.8, len, r));
-        vessel = max(vessel, v);
-    }
-    base = mix(base, vec3(0.34, 0.02, 0.02), 0.85 * vessel * smoothstep(0.6, 1.0, r));
-    // Optic disc with a pale cup.
-    float disc_mask = 1.0 - smoothstep(0.7, 0.85, r);
-    base = mix(base, vec3(0.95, 0.72, 0.48), disc_mask);
-    base = mix(base, vec3(1.0, 0.9, 0.75), 1.0 - smoothstep(0.2, 0.35, r));
-    // Periphery: thinner pigment coverage seen obliquely, darker.
+    vec3 t = texture(u_fundus, p.xy / (2.0 * u_fundus_half_mm) + 0.5).rgb;
     float pole = clamp(-p.z / u_eye_radius, 0.0, 1.0);
-    base *= mix(0.35, 1.0, smoothstep(0.45, 0.95, pole));
-    return base;
+    return t * t * mix(0.35, 1.0, smoothstep(0.45, 0.95, pole));
 }
 
 void main() {
@@ -155,9 +178,12 @@ void main() {
             l /= max(dist, 1e-4);
             float cone = smoothstep(u_spot_cos_outer, u_spot_cos_inner, dot(-l, u_spot_dir));
             float fall = 1.0 / (1.0 + (dist / u_spot_falloff_mm) * (dist / u_spot_falloff_mm));
-            float lit = lit_fraction(u_shadow_opaque, p + n * 0.02);
-            if (u_material != 1 && u_tissue_shadow > 0.0)
-                lit *= 1.0 - u_tissue_shadow * (1.0 - lit_fraction(u_shadow_tissue, p + n * 0.02));
+            float lit = 1.0;
+            if (cone > 0.0) {
+                lit = lit_fraction(u_shadow_opaque, p + n * 0.02);
+                if (u_material != 1 && u_tissue_shadow > 0.0)
+                    lit *= 1.0 - u_tissue_shadow * (1.0 - lit_fraction(u_shadow_tissue, p + n * 0.02));
+            }
             float e = u_spot_intensity * cone * fall * lit;
             float ndl = dot(n, l);
             if (u_material == 1) ndl = abs(ndl);  // thin membrane: lit through from either side

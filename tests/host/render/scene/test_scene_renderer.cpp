@@ -372,6 +372,32 @@ TEST_CASE("scene renderer: a retina mesh is drawn as fundus and the scene withou
     CHECK(luminance(dark.left_rgba, centre, 20) > 3.0);  // the microscope's own dim light still shows it
 }
 
+TEST_CASE("scene renderer: malformed meshes are skipped, never crash or smear the picture", "[render][scene]") {
+    SceneRenderer* r = renderer();
+    if (!r) return;
+    Scene s;
+    StereoImages clean, bad;
+    r->render(s.frame(false, true, true), clean);
+    // Append triangles with out-of-range indices and a vertex that is NaN to the tissue; add an empty instrument.
+    std::vector<Vector3f> verts = {{0, 0, -10}, {1, 0, -10}, {0, 1, -10}, {NAN, 0.0f, -10.0f}};
+    std::vector<std::array<uint32_t, 3>> tris = {{0, 1, 7}, {0, 1, 3}, {3, 2, 1}, {100, 200, 300}};
+    SceneFrame f = s.frame(false, true, true);
+    f.tissue = MeshView{verts, tris};
+    std::vector<InstrumentView> instruments(f.instruments.begin(), f.instruments.end());
+    instruments.push_back(InstrumentView{MeshView{}, Vector3f(NAN, 0, 0), Vector3f(0, 0, -1), false});
+    f.instruments = instruments;
+    r->render(f, bad);
+    CHECK(bad.left_rgba == clean.left_rgba);
+    CHECK(bad.right_rgba == clean.right_rgba);
+    // A light pipe with a NaN axis does not light the scene (no spot), but the view still renders.
+    Scene s2;
+    s2.light.forward = Vector3f(NAN, 0, 0);
+    StereoImages no_spot;
+    r->render(s2.frame(false, true, true), no_spot);
+    const Eigen::Vector2f centre(kW / 2.0f, kH / 2.0f);
+    CHECK(luminance(no_spot.left_rgba, centre, 20) < 0.6 * luminance(clean.left_rgba, centre, 20));
+}
+
 TEST_CASE("scene renderer: invalid sizes are refused with a reason", "[render][scene]") {
     std::string error;
     CHECK(SceneRenderer::create(0, 480, error) == nullptr);
