@@ -1,6 +1,7 @@
 // `eyesim protocol`: decode captures and raw streams to JSON Lines, and a self-check of the wire codec.
 #include "eyesim/app/command.hpp"
 #include "eyesim/protocol/capture.hpp"
+#include "eyesim/protocol/capture_replay.hpp"
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/protocol/crc32c.hpp"
 #include "eyesim/protocol/json.hpp"
@@ -35,37 +36,33 @@ struct DecodeOptions {
 };
 
 int run_decode(const DecodeOptions& opt) {
-    // The reader holds a 16 KiB record buffer: keep it off the stack.
-    auto reader = std::make_unique<proto::CaptureReader>();
-    if (!reader->open(opt.file.c_str())) {
+    // The replay holds ~18 KiB of buffers: keep it off the stack.
+    auto replay = std::make_unique<proto::CaptureReplay>();
+    if (!replay->open(opt.file.c_str())) {
         std::FILE* probe = std::fopen(opt.file.c_str(), "rb");
         if (!probe) throw eyesim::app::Error(opt.file + ": cannot open for reading");
         std::fclose(probe);
         throw eyesim::app::Error(opt.file + ": capture header: unsupported format version or header size");
     }
-    const bool is_capture = reader->kind() == proto::CaptureKind::Capture;
-    auto parser = std::make_unique<proto::StreamParser>();
+    const bool is_capture = replay->kind() == proto::CaptureKind::Capture;
     std::vector<char> line(proto::kMaxJsonBytes + 1);
-    std::uint64_t messages = 0, records = 0;
+    std::uint64_t messages = 0;
     std::uint64_t rx_us = 0;
-    auto print = [&](const proto::DecodedFrame& f) {
-        const std::size_t n = proto::format_json(f, std::span(line.data(), proto::kMaxJsonBytes), is_capture ? &rx_us : nullptr);
+    proto::DecodedFrame frame;
+    while (replay->next(frame, rx_us)) {
+        const std::size_t n =
+            proto::format_json(frame, std::span(line.data(), proto::kMaxJsonBytes), is_capture ? &rx_us : nullptr);
         line[n] = '\n';
         std::fwrite(line.data(), 1, n + 1, stdout);
         ++messages;
-    };
-    proto::CaptureRecord rec;
-    proto::CaptureStatus status;
-    while ((status = reader->next(rec)) == proto::CaptureStatus::Ok) {
-        ++records;
-        rx_us = rec.host_rx_us;
-        parser->parse(rec.bytes, print);
     }
+    const proto::CaptureStatus status = replay->status();
+    const std::uint64_t records = replay->records();
+    const proto::CaptureReader* reader = &replay->reader();
     if (status == proto::CaptureStatus::IoError) throw eyesim::app::Error(opt.file + ": read error");
-    parser->finish(print);
     std::fflush(stdout);
 
-    const proto::ParserStats& s = parser->stats();
+    const proto::ParserStats& s = replay->stats();
     const bool capture_ok = status == proto::CaptureStatus::End;
     const bool clean = s.errors() == 0 && s.skipped_bytes == 0 && capture_ok;
     if (opt.json) {

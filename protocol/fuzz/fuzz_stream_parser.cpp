@@ -108,7 +108,8 @@ void check_stream(const std::vector<std::uint8_t>& bytes, std::uint32_t chunk_se
         rest = rest.subspan(pulled->feed(rest));
         while (pulled->next(f)) require(k < ref.size() && Got{f.header.sequence, f.message} == ref[k++]);
     }
-    pulled->finish([&](const DecodedFrame& g) { require(k < ref.size() && Got{g.header.sequence, g.message} == ref[k++]); });
+    pulled->end_stream();
+    while (pulled->next(f)) require(k < ref.size() && Got{f.header.sequence, f.message} == ref[k++]);
     require(k == ref.size());
     require(pulled->stats() == whole->stats());
 

@@ -19,13 +19,16 @@ std::size_t StreamParser::feed(std::span<const std::uint8_t> bytes) noexcept {
 void StreamParser::bytes_in_direct(std::size_t n) noexcept { stats_.bytes_in += n; }
 
 bool StreamParser::next(DecodedFrame& out) noexcept {
-    if (fill_ == 0) return false;
-    std::size_t used = 0;
-    const bool got = scan(buf_.data(), fill_, used, out);
-    if (used > 0) {
-        std::memmove(buf_.data(), buf_.data() + used, fill_ - used);
-        fill_ -= used;
+    bool got = false;
+    if (fill_ > 0) {
+        std::size_t used = 0;
+        got = scan(buf_.data(), fill_, used, out);
+        if (used > 0) {
+            std::memmove(buf_.data(), buf_.data() + used, fill_ - used);
+            fill_ -= used;
+        }
     }
+    if (!got && eos_) close();  // end of stream reached and everything decided
     return got;
 }
 

@@ -1,10 +1,12 @@
 #include "eyesim/protocol/capture.hpp"
+#include "eyesim/protocol/capture_replay.hpp"
 #include "test_util.hpp"
 
 #include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <fstream>
+#include <memory>
 
 using namespace eyesim::protocol;
 using namespace eyesim::protocol::test;
@@ -211,4 +213,44 @@ TEST_CASE("the writer rejects empty and oversize records", "[protocol][capture]"
     REQUIRE(got.size() == 1);
     CHECK(got[0].bytes.size() == kMaxCaptureRecordBytes);
     CHECK(last == CaptureStatus::End);
+}
+
+TEST_CASE("CaptureReplay yields every frame with its receive time, also from a torn capture", "[protocol][capture]") {
+    std::mt19937_64 rng(26);
+    auto recs = random_records(rng, 50);
+    // One record carries two frames, and one frame is split over two records: records are received chunks.
+    Bytes joined = recs[10].bytes;
+    joined.insert(joined.end(), recs[11].bytes.begin(), recs[11].bytes.end());
+    const Bytes head(recs[20].bytes.begin(), recs[20].bytes.begin() + 5);
+    const Bytes tail(recs[20].bytes.begin() + 5, recs[20].bytes.end());
+    std::vector<Rec> written;
+    for (std::size_t i = 0; i < recs.size(); ++i) {
+        if (i == 10) written.push_back({recs[10].t, joined});
+        else if (i == 11) continue;
+        else if (i == 20) {
+            written.push_back({recs[20].t - 1, head});
+            written.push_back({recs[20].t, tail});
+        } else written.push_back(recs[i]);
+    }
+    const fs::path path = temp_file("replay.cap");
+    write_all(path, written);
+    fs::resize_file(path, fs::file_size(path) - 2);  // the last record is torn
+
+    auto replay = std::make_unique<CaptureReplay>();
+    REQUIRE(replay->open(path.c_str()));
+    DecodedFrame f;
+    std::uint64_t rx = 0;
+    std::size_t k = 0;
+    while (replay->next(f, rx)) {
+        REQUIRE(k < recs.size() - 1);
+        const Bytes again = frame_of(f.message, f.header.sequence);
+        CHECK(again == recs[k].bytes);
+        CHECK(rx == (k == 11 ? recs[10].t : recs[k].t));  // a frame gets the time of the record completing it
+        ++k;
+    }
+    CHECK(k == recs.size() - 1);
+    CHECK(replay->status() == CaptureStatus::Torn);
+    CHECK(replay->kind() == CaptureKind::Capture);
+    CHECK(replay->stats().errors() == 0);
+    CHECK(replay->records() == written.size() - 1);
 }

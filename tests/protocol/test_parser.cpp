@@ -59,7 +59,8 @@ std::vector<Got> feed_next_all(const Bytes& bytes, StreamParser& p) {
         rest = rest.subspan(p.feed(rest));
         while (p.next(f)) got.push_back({f.header.sequence, f.message});
     }
-    p.finish([&](const DecodedFrame& fr) { got.push_back({fr.header.sequence, fr.message}); });
+    p.end_stream();
+    while (p.next(f)) got.push_back({f.header.sequence, f.message});
     return got;
 }
 

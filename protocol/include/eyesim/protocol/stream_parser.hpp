@@ -82,11 +82,14 @@ public:
     /// is then ready for a new stream (counters kept).
     template <class F>
     void finish(F&& on_frame) noexcept {
-        eos_ = true;
+        end_stream();
         DecodedFrame frame;
         while (next(frame)) on_frame(static_cast<const DecodedFrame&>(frame));
-        close();
     }
+
+    /// Pull-style finish: declares the end of the stream; then call next() until it returns false (the last
+    /// false leaves the buffer empty and the counters final, as finish() does). Feed nothing in between.
+    void end_stream() noexcept { eos_ = true; }
 
     /// The counters.
     const ParserStats& stats() const noexcept { return stats_; }

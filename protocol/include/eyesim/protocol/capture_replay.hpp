@@ -1,0 +1,46 @@
+#pragma once
+/// \file
+/// Replays a capture file (or raw stream) as decoded frames with their host receive times: a CaptureReader
+/// feeding a StreamParser behind one pull call, for the host tracker and tools.
+
+#include "eyesim/protocol/capture.hpp"
+#include "eyesim/protocol/stream_parser.hpp"
+
+#include <cstdint>
+#include <span>
+
+namespace eyesim::protocol {
+
+/// Pull-style replay: `while (replay.next(frame, rx_us)) ...`. Holds ~18 KiB of buffers (allocate it, or keep
+/// it off small stacks). No allocation per frame.
+class CaptureReplay {
+public:
+    /// Opens `path` (capture or raw stream); false when it cannot be opened (see CaptureReader::open).
+    bool open(const char* path) noexcept;
+
+    /// The next decoded frame and the receive time (µs) of the record that completed it (0 for raw streams);
+    /// false at the end of the file, after a torn or corrupt record, or on a read error (see status()).
+    bool next(DecodedFrame& out, std::uint64_t& host_rx_us) noexcept;
+
+    /// How reading ended: End, Torn, Corrupt or IoError (Ok while records remain).
+    CaptureStatus status() const noexcept { return status_; }
+    /// Capture or raw stream.
+    CaptureKind kind() const noexcept { return reader_.kind(); }
+    /// Records (or raw chunks) read so far.
+    std::uint64_t records() const noexcept { return records_; }
+    /// The reader (bad_offset(), dropped_bytes() after a torn or corrupt record).
+    const CaptureReader& reader() const noexcept { return reader_; }
+    /// Parser counters (final once next() returned false).
+    const ParserStats& stats() const noexcept { return parser_.stats(); }
+
+private:
+    CaptureReader reader_;
+    StreamParser parser_;
+    std::span<const std::uint8_t> pending_;
+    std::uint64_t rx_us_ = 0;
+    std::uint64_t records_ = 0;
+    CaptureStatus status_ = CaptureStatus::Ok;
+    bool ended_ = false;
+};
+
+}  // namespace eyesim::protocol
