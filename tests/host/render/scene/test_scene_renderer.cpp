@@ -10,6 +10,8 @@
 #include <Eigen/Geometry>
 
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <optional>
 #include <string>
 #include <vector>
@@ -405,16 +407,28 @@ TEST_CASE("scene renderer: invalid sizes are refused with a reason", "[render][s
 }
 
 TEST_CASE("png writer: images read back identically with OpenCV", "[render][png]") {
-    // A deterministic pattern wider than one stored deflate block (65535 bytes) to cover block splitting.
+    // Smooth gradients, long constant runs (matches up to 258 bytes, distances up to the 32 KiB window) and
+    // pseudo-random noise (literals) in one image.
     const int w = 301, h = 157;
     std::vector<uint8_t> rgba(size_t(w) * h * 4);
+    uint32_t noise = 12345;
     for (int y = 0; y < h; ++y)
         for (int x = 0; x < w; ++x) {
             uint8_t* q = &rgba[(size_t(y) * w + x) * 4];
-            q[0] = uint8_t(x * 7 + y);
-            q[1] = uint8_t(y * 13 ^ x);
-            q[2] = uint8_t((x * y) >> 3);
-            q[3] = uint8_t(255 - ((x + y) & 63));
+            noise ^= noise << 13;
+            noise ^= noise >> 17;
+            noise ^= noise << 5;
+            if (y < 50) {
+                q[0] = uint8_t(x * 7 + y);
+                q[1] = uint8_t(y * 13 ^ x);
+                q[2] = uint8_t((x * y) >> 3);
+                q[3] = uint8_t(255 - ((x + y) & 63));
+            } else if (y < 100) {
+                q[0] = q[1] = q[2] = x < 150 ? 0 : 200;
+                q[3] = 255;
+            } else {
+                std::memcpy(q, &noise, 4);
+            }
         }
     std::string error;
     const std::string path = out_path("png_roundtrip.png");
@@ -431,6 +445,13 @@ TEST_CASE("png writer: images read back identically with OpenCV", "[render][png]
             mismatches += b[2] != q[0] || b[1] != q[1] || b[0] != q[2] || b[3] != q[3];
         }
     CHECK(mismatches == 0);
+    // Compressed: well below the raw pixel bytes (the noise third cannot compress).
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    REQUIRE(f != nullptr);
+    std::fseek(f, 0, SEEK_END);
+    const long size = std::ftell(f);
+    std::fclose(f);
+    CHECK(size < long(rgba.size()) * 6 / 10);
 
     // Side by side: left view on the left.
     StereoImages s;
