@@ -23,7 +23,8 @@ LineStatus FieldSource::next_line(CameraLine& out) noexcept {
         // The loader may throw (file read errors in the PC build); a failed load ends the stream.
         bool ok = false;
         try {
-            ok = loader_(index_, field_.data(), parity_);
+            start_us_ = field_start_us(index_);
+            ok = loader_(index_, field_.data(), parity_, start_us_);
         } catch (...) {
             ok = false;
         }
@@ -33,7 +34,7 @@ LineStatus FieldSource::next_line(CameraLine& out) noexcept {
         }
         next_y_ = 0;
     }
-    const std::uint64_t start_us = field_start_us(index_);
+    const std::uint64_t start_us = start_us_;
     if (next_y_ == lines_) {
         next_y_ = -1;
         ++index_;

@@ -34,7 +34,7 @@ struct CoreRig {
         for (int c = 0; c < 3; ++c) {
             const std::vector<std::uint8_t>* s = &streams[c];
             cams.push_back(std::make_unique<firmware::pc::FieldSource>(
-                [s](std::uint64_t k, std::uint8_t* out, std::uint8_t& parity) {
+                [s](std::uint64_t k, std::uint8_t* out, std::uint8_t& parity, std::uint64_t&) {
                     if ((k + 1) * kFieldBytes > s->size()) return false;
                     std::memcpy(out, s->data() + k * kFieldBytes, kFieldBytes);
                     parity = static_cast<std::uint8_t>(k % 2);

@@ -90,6 +90,8 @@ public:
     bool low_latency() const noexcept { return low_latency_; }
     /// True when nothing is queued or half written.
     bool tx_idle() const noexcept { return queue_.empty() && tx_len_ == tx_off_; }
+    /// Bytes waiting in the transmit queue.
+    std::size_t tx_queued_bytes() const noexcept { return queue_.bytes(); }
     /// Current DeviceStatus values.
     protocol::DeviceStatus status() const noexcept;
     /// Transmit queue counters (drops, high-water marks).

@@ -15,8 +15,10 @@
 namespace eyesim::firmware::pc {
 
 /// Loads field `index` (0-based) of a stream into `uyvy` (720×288×2 bytes) and sets its parity; returns false
-/// when the stream has no field `index` (end of stream).
-using FieldLoader = std::function<bool(std::uint64_t index, std::uint8_t* uyvy, std::uint8_t& parity)>;
+/// when the stream has no field `index` (end of stream). `start_us` comes in as epoch + index·20 000 µs (the
+/// genlocked PAL default) and may be changed (camera clock offsets, half-line offset of bottom fields).
+using FieldLoader =
+    std::function<bool(std::uint64_t index, std::uint8_t* uyvy, std::uint8_t& parity, std::uint64_t& start_us)>;
 
 /// A camera's field stream, paced by the PAL model on a ModelledClock.
 class FieldSource final : public CameraSource {
@@ -28,7 +30,7 @@ public:
 
     /// Fields delivered completely so far.
     std::uint64_t fields_delivered() const noexcept { return fields_done_; }
-    /// Device time at which field `k` of this stream starts, µs.
+    /// Default device time at which field `k` of this stream starts (before the loader's adjustment), µs.
     std::uint64_t field_start_us(std::uint64_t k) const noexcept;
 
 private:
@@ -40,6 +42,7 @@ private:
     std::uint64_t index_ = 0;          // field being delivered
     int next_y_ = 0;                   // next line of it; lines_ = field end pending; -1 = load needed
     std::uint8_t parity_ = 0;
+    std::uint64_t start_us_ = 0;       // device time of the loaded field's start
     bool ended_ = false;
     std::uint64_t fields_done_ = 0;
 };

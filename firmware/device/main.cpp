@@ -1,0 +1,223 @@
+// `eyesim-device`: the simulated eyesim device. Plays a recording directory as three PAL camera streams through
+// the firmware core (three FPGA pipelines, packetiser, commands, bounded queue) and serves the wire protocol
+// over TCP. Device time is modelled (PAL pixel clock), so its output does not depend on this PC's speed.
+#include "eyesim/firmware/device_core.hpp"
+#include "eyesim/firmware/pc/field_source.hpp"
+#include "eyesim/firmware/pc/latency_log.hpp"
+#include "eyesim/firmware/pc/modelled_clock.hpp"
+#include "eyesim/firmware/pc/tcp_server.hpp"
+
+#include "eyesim/rig/pal.hpp"
+#include "eyesim/rig/recording.hpp"
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <exception>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace {
+
+volatile std::sig_atomic_t g_stop = 0;
+void on_signal(int) { g_stop = 1; }
+
+struct Options {
+    std::string recording;
+    std::string address = "127.0.0.1";
+    std::string bind;
+    int port = 7431;
+    bool realtime = false;
+    bool loop = false;
+    bool free_run = false;
+    bool low_latency = false;
+    bool stream = false;
+    bool allow_drops = false;
+    bool json = false;
+    long long max_fields = -1;
+    int send_buffer = 0;
+    int linger_ms = 5000;
+};
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+nlohmann::json summary_json(const eyesim::firmware::pc::LatencySummary& s) {
+    return {{"count", s.count}, {"p50", s.p50_us}, {"p99", s.p99_us}, {"max", s.max_us}, {"mean", s.mean_us}};
+}
+
+int run(const Options& opt) {
+    using namespace eyesim;
+    using namespace eyesim::firmware;
+
+    auto recording = std::make_shared<rig::Recording>(rig::Recording::open(opt.recording));
+    if (recording->camera_count() < static_cast<int>(kCameras))
+        throw std::runtime_error(opt.recording + "/rig.yaml: camera_count " + std::to_string(recording->camera_count()) +
+                                 " but the device has " + std::to_string(kCameras) + " cameras");
+    const std::int64_t fields_in_file = recording->common_field_count();
+    if (fields_in_file <= 0) throw std::runtime_error(opt.recording + ": the recording has no complete field");
+    const bool allow_any = !opt.bind.empty();
+    pc::TcpServer server(allow_any ? opt.bind : opt.address, static_cast<std::uint16_t>(opt.port), allow_any);
+    if (opt.send_buffer > 0) server.set_send_buffer(opt.send_buffer);
+    std::FILE* announce = opt.json ? stderr : stdout;
+    std::fprintf(announce, "listening tcp://%s:%u\n", (allow_any ? opt.bind : opt.address).c_str(), server.port());
+    std::fflush(announce);
+
+    pc::ModelledClock clock;
+    std::vector<std::unique_ptr<pc::FieldSource>> sources;
+    DeviceHal hal;
+    const long long limit = opt.max_fields;
+    for (std::size_t c = 0; c < kCameras; ++c) {
+        const int cam = static_cast<int>(c);
+        const rig::CameraModel model = recording->cameras()[c];
+        auto loader = [recording, cam, model, fields_in_file, loop = opt.loop, limit](
+                          std::uint64_t k, std::uint8_t* out, std::uint8_t& parity, std::uint64_t& start_us) {
+            if (limit >= 0 && k >= static_cast<std::uint64_t>(limit)) return false;
+            if (!loop && k >= static_cast<std::uint64_t>(fields_in_file)) return false;
+            const auto index = static_cast<std::int64_t>(k % static_cast<std::uint64_t>(fields_in_file));
+            recording->read_field(cam, index, out);
+            // Field k (also past the file's end when looping) on the rig's clock: camera offset + k·20 ms, plus
+            // half a line for a bottom field, as `eyesim fpga` stamps it, so both write identical packets.
+            const rig::FieldTiming t = rig::field_timing(static_cast<std::int64_t>(k), model.field_time_offset_us,
+                                                         model.exposure_us, model.first_field_parity);
+            parity = static_cast<std::uint8_t>(t.parity);
+            start_us = static_cast<std::uint64_t>(std::llround(std::max(0.0, t.start_us + (t.parity ? 32.0 : 0.0))));
+            return true;
+        };
+        sources.push_back(std::make_unique<pc::FieldSource>(loader, &clock));
+        hal.cameras[c] = sources.back().get();
+    }
+    pc::LatencyLog latency(1u << 20);
+    hal.sink = &server;
+    hal.source = &server;
+    hal.clock = &clock;
+    hal.latency = &latency;
+    CoreConfig config;
+    config.low_latency = opt.low_latency;
+    config.stream_on_start = opt.stream;
+    auto core = std::make_unique<DeviceCore>(hal, config);
+
+    bool finished = false;
+    bool ever_connected = false;
+    Clock::time_point play_t0{};
+    std::uint64_t play_model0_us = 0;
+    bool play_started = false;
+    Clock::time_point finished_at{};
+    const std::size_t queue_pause_bytes = DeviceCore::TxQueue::byte_capacity() / 2;
+
+    while (!g_stop) {
+        if (server.poll_accept()) ever_connected = true;
+        if (server.take_disconnect()) {
+            core->host_disconnected();
+            if (finished) break;
+        }
+        core->service();
+        const bool playing = !finished && (opt.free_run || (server.connected() && core->streaming()));
+        if (!playing) {
+            if (finished) {
+                // Recording over: let the host drain what is queued, then leave when it goes (or after linger).
+                if (!server.connected() && ever_connected) break;
+                if (!server.connected() && seconds_since(finished_at) * 1000 > opt.linger_ms) break;
+                if (core->tx_idle() && seconds_since(finished_at) * 1000 > opt.linger_ms) break;
+            }
+            server.wait(finished ? 20 : 5, !core->tx_idle());
+            continue;
+        }
+        if (!play_started) {
+            play_started = true;
+            play_t0 = Clock::now();
+            play_model0_us = clock.now_us();
+        }
+        if (opt.realtime) {
+            // PAL pace: do not run ahead of the wall clock.
+            const double ahead_us = static_cast<double>(clock.now_us() - play_model0_us) - seconds_since(play_t0) * 1e6;
+            if (ahead_us > 200) {
+                server.wait(static_cast<int>(std::min(ahead_us / 1000.0, 5.0)), !core->tx_idle());
+                continue;
+            }
+        } else if (!opt.allow_drops && core->tx_queued_bytes() > queue_pause_bytes) {
+            // As fast as possible, but the recording player waits for a slow host instead of dropping: runs stay
+            // deterministic. (--realtime, or --allow-drops, shows the device's real drop-oldest behaviour.)
+            server.wait(5, true);
+            continue;
+        }
+        if (core->step_cameras() == StepStatus::finished) {
+            finished = true;
+            finished_at = Clock::now();
+        }
+    }
+
+    const double wall_s = play_started ? seconds_since(play_t0) : 0.0;
+    const auto st = core->status();
+    const auto fields = static_cast<std::uint64_t>(st.fields_processed[0]);
+    using Span = pc::LatencyLog::Span;
+    const auto written = latency.summarise(Span::last_pixel_to_written);
+    if (opt.json) {
+        nlohmann::json j;
+        j["fields"] = fields;
+        j["fields_per_s"] = wall_s > 0 ? static_cast<double>(fields) / wall_s : 0.0;
+        j["latency_us"] = summary_json(written);
+        j["latency_queued_us"] = summary_json(latency.summarise(Span::last_pixel_to_queued));
+        j["latency_complete_us"] = summary_json(latency.summarise(Span::last_pixel_to_complete));
+        j["blobs_sent"] = core->counters().blobs_sent;
+        j["blobs_dropped"] = st.blobs_dropped;
+        j["queue_overflows"] = st.queue_overflows;
+        j["bytes_sent"] = st.bytes_sent;
+        j["commands"] = core->counters().commands;
+        j["nacks"] = core->counters().nacks;
+        j["errors"] = st.crc_errors + st.parse_errors;
+        std::printf("%s\n", j.dump().c_str());
+    } else {
+        std::fprintf(stderr,
+                     "eyesim-device: %llu fields per camera, %llu blobs sent, %u queue overflows, modelled latency "
+                     "p50 %.1f us p99 %.1f us max %.1f us (last pixel to bytes written)\n",
+                     static_cast<unsigned long long>(fields),
+                     static_cast<unsigned long long>(core->counters().blobs_sent), st.queue_overflows,
+                     written.p50_us, written.p99_us, written.max_us);
+    }
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    CLI::App app{"eyesim-device: the simulated eyesim tracking device (three PAL cameras, FPGA pipelines, firmware "
+                 "core) serving the wire protocol over TCP"};
+    Options opt;
+    app.add_option("--recording", opt.recording, "recording directory (rig.yaml + cam0..2 streams)")->required();
+    app.add_option("--address", opt.address, "loopback address to listen on")->capture_default_str();
+    app.add_option("--bind", opt.bind, "listen on this address even if it is not loopback (explicit opt-in)");
+    app.add_option("--port", opt.port, "TCP port; 0 picks a free one (printed as 'listening tcp://ADDR:PORT')")
+        ->check(CLI::Range(0, 65535))
+        ->capture_default_str();
+    app.add_flag("--realtime", opt.realtime, "play at PAL pace (50 fields/s) instead of as fast as possible");
+    app.add_flag("--loop", opt.loop, "start the recording again at its end (field counters keep counting)");
+    app.add_option("--fields", opt.max_fields, "stop after this many fields per camera");
+    app.add_flag("--free-run", opt.free_run, "run the cameras from start-up, whether or not a host listens");
+    app.add_flag("--stream", opt.stream, "stream without waiting for a stream_start command");
+    app.add_flag("--low-latency", opt.low_latency, "start in per-blob (low-latency) mode");
+    app.add_flag("--allow-drops", opt.allow_drops,
+                 "as-fast-as-possible mode: let the queue drop for a slow host instead of pausing the player");
+    app.add_option("--send-buffer", opt.send_buffer, "kernel send buffer of the host socket, bytes");
+    app.add_option("--linger-ms", opt.linger_ms, "after the recording ends, wait this long for the host to finish")
+        ->capture_default_str();
+    app.add_flag("--json", opt.json, "print one JSON summary on stdout at exit");
+    CLI11_PARSE(app, argc, argv);
+    std::signal(SIGINT, on_signal);
+    std::signal(SIGTERM, on_signal);
+    std::signal(SIGPIPE, SIG_IGN);
+    try {
+        return run(opt);
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "eyesim-device: error: %s\n", e.what());
+        return 1;
+    }
+}

@@ -1,0 +1,206 @@
+// End to end: `eyesim-device --recording DIR` as a child process, a host client over TCP loopback recording a
+// capture; the capture decodes to the FPGA model's markers (what `eyesim fpga --out` writes).
+#include "child_process.hpp"
+
+#include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/wire.hpp"
+#include "eyesim/protocol/capture_replay.hpp"
+#include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/synth.hpp"
+#include "eyesim/transport/device_link.hpp"
+#include "eyesim/transport/tcp.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <set>
+
+using namespace eyesim;
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::string kDevice = EYESIM_DEVICE_EXE;
+
+/// A short synthetic recording (0.2 s = 10 fields per camera), generated once per test run.
+const std::string& recording_dir() {
+    static const std::string dir = [] {
+        const std::string d = std::string(EYESIM_TEST_TMP) + "/e2e_recording";
+        fs::remove_all(d);
+        rig::SynthRequest req;
+        req.out_dir = d;
+        req.scenario = "sweep";
+        req.seconds = 0.2;
+        req.seed = 11;
+        rig::write_recording(req);
+        return d;
+    }();
+    return dir;
+}
+
+/// The FPGA model over the recording, stamped and converted as `eyesim fpga --out` does.
+std::vector<protocol::FieldMarkers> reference_messages(const std::string& dir) {
+    rig::Recording rec = rig::Recording::open(dir);
+    std::vector<protocol::FieldMarkers> out;
+    fpga::RegisterMap regs;
+    std::vector<std::uint8_t> field(rig::kFieldBytes);
+    for (int c = 0; c < 3; ++c) {
+        fpga::PipelineConfig cfg;
+        cfg.camera = static_cast<std::uint8_t>(c);
+        auto pipe = std::make_unique<fpga::Pipeline>(regs, cfg);
+        for (std::int64_t i = 0; i < rec.common_field_count(); ++i) {
+            rec.read_field(c, i, field.data());
+            const int parity = rec.field_parity(c, i);
+            const rig::FieldTiming t = rec.field_timing(c, i);
+            const auto start_us = static_cast<std::uint64_t>(std::llround(std::max(0.0, t.start_us + (parity ? 32.0 : 0.0))));
+            REQUIRE(pipe->process_field(field.data(), rig::kFieldHeight, static_cast<std::uint32_t>(i),
+                                        static_cast<std::uint8_t>(parity)) == fpga::PipelineStatus::kOk);
+            std::vector<fpga::Blob> blobs;
+            fpga::Blob b;
+            while (pipe->pop_blob(b)) blobs.push_back(b);
+            std::vector<protocol::FieldMarkers> parts(fpga::field_markers_messages(blobs.size()));
+            const auto info = fpga::field_info(pipe->field_stats(), static_cast<std::uint8_t>(c),
+                                               static_cast<std::uint8_t>(parity), start_us);
+            parts.resize(fpga::to_field_markers(blobs.data(), blobs.size(), info, parts.data(), parts.size()));
+            out.insert(out.end(), parts.begin(), parts.end());
+        }
+    }
+    return out;
+}
+
+struct Run {
+    std::vector<protocol::FieldMarkers> messages;  // from the capture, in arrival order
+    int exit_code = -1;
+    std::string stderr_text;
+    protocol::ParserStats stats;
+};
+
+/// Starts the device on a free port, records a capture of one whole playback, returns what the capture holds.
+Run run_device(bool low_latency, const std::string& capture) {
+    const std::string& dir = recording_dir();
+    rig::Recording rec = rig::Recording::open(dir);
+    const auto fields = static_cast<std::uint32_t>(rec.common_field_count());
+    test::ChildProcess child({kDevice, "--recording", dir, "--port", "0", "--linger-ms", "3000"});
+    REQUIRE(child.started());
+    const std::string line = child.read_line(10000);
+    INFO("device said: " << line);
+    const std::string prefix = "listening tcp://127.0.0.1:";
+    REQUIRE(line.rfind(prefix, 0) == 0);
+    const auto port = static_cast<std::uint16_t>(std::stoi(line.substr(prefix.size())));
+
+    Run run;
+    {
+        transport::DeviceLink link(transport::connect_tcp("127.0.0.1", port, 2000));
+        link.record_to(capture);
+        if (low_latency) {
+            const auto id = link.command(protocol::Opcode::SetLowLatency, 0, 1);
+            const auto r = link.wait_reply(id, 5000);
+            REQUIRE(r.has_value());
+            REQUIRE(r->status == 0);
+        }
+        for (int i = 0; i < 4; ++i) link.ping();
+        link.command(protocol::Opcode::StreamStart);
+        // Until the last part of the last field of every camera is in (bounded).
+        std::set<int> done;
+        const std::uint64_t deadline = transport::host_now_us() + 60'000'000;
+        while (done.size() < 3 && transport::host_now_us() < deadline) {
+            const int n = link.poll(100, [&](const protocol::DecodedFrame& f) {
+                if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message))
+                    if (fm->field_counter + 1 == fields && !(fm->flags & protocol::kFieldFlagMoreFollows))
+                        done.insert(fm->camera_id);
+            });
+            if (n < 0) break;
+        }
+        REQUIRE(done.size() == 3);
+        REQUIRE(link.clock().valid());
+        // Modelled device time vs host steady clock: any offset, but a finite round trip on loopback.
+        REQUIRE(link.clock().delay_us() < 1e6);
+        link.transport().close();
+    }
+    run.exit_code = child.wait(10000);
+    run.stderr_text = child.drain_stderr();
+    // Replay the capture, as the host tracker would.
+    auto replay = std::make_unique<protocol::CaptureReplay>();
+    REQUIRE(replay->open(capture.c_str()));
+    protocol::DecodedFrame f;
+    std::uint64_t rx = 0, last_rx = 0;
+    while (replay->next(f, rx)) {
+        REQUIRE(rx >= last_rx);
+        last_rx = rx;
+        if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message)) run.messages.push_back(*fm);
+    }
+    REQUIRE(replay->status() == protocol::CaptureStatus::End);
+    run.stats = replay->stats();
+    return run;
+}
+
+}  // namespace
+
+TEST_CASE("eyesim-device over TCP: the capture equals the FPGA model's packets (per-field mode)", "[firmware][e2e]") {
+    const auto want = reference_messages(recording_dir());
+    const Run run = run_device(false, std::string(EYESIM_TEST_TMP) + "/e2e_field.capture");
+    INFO(run.stderr_text);
+    REQUIRE(run.exit_code == 0);
+    REQUIRE(run.stats.errors() == 0);
+    REQUIRE(run.stats.sequence_gaps == 0);
+    auto got = run.messages;
+    std::stable_sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.camera_id < b.camera_id; });
+    REQUIRE(got.size() == want.size());
+    std::size_t markers = 0;
+    for (std::size_t i = 0; i < got.size(); ++i) {
+        INFO("message " << i);
+        REQUIRE(got[i] == want[i]);
+        markers += got[i].marker_count;
+    }
+    REQUIRE(markers > 0);
+}
+
+TEST_CASE("eyesim-device over TCP: low-latency parts carry the same markers", "[firmware][e2e]") {
+    const auto want = reference_messages(recording_dir());
+    const Run run = run_device(true, std::string(EYESIM_TEST_TMP) + "/e2e_blob.capture");
+    INFO(run.stderr_text);
+    REQUIRE(run.exit_code == 0);
+    REQUIRE(run.stats.errors() == 0);
+    std::map<std::pair<int, std::uint32_t>, std::vector<protocol::Marker>> a, b;
+    for (const auto& m : want)
+        for (int i = 0; i < m.marker_count; ++i) a[{m.camera_id, m.field_counter}].push_back(m.markers[i]);
+    for (const auto& m : run.messages) {
+        REQUIRE((m.flags & protocol::kFieldFlagLowLatency) != 0);
+        auto& v = b[{m.camera_id, m.field_counter}];
+        for (int i = 0; i < m.marker_count; ++i) v.push_back(m.markers[i]);
+    }
+    // Fields without blobs: a closing part with no markers in both; compare fields that have markers.
+    std::erase_if(a, [](const auto& kv) { return kv.second.empty(); });
+    std::erase_if(b, [](const auto& kv) { return kv.second.empty(); });
+    REQUIRE(!a.empty());
+    REQUIRE(a == b);
+}
+
+TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero exit", "[firmware][e2e]") {
+    struct Case {
+        std::vector<std::string> args;
+        std::string expect;
+    };
+    const std::vector<Case> cases = {
+        {{"--recording", recording_dir(), "--address", "0.0.0.0", "--port", "0"}, "not loopback"},
+        {{"--recording", recording_dir(), "--address", "example", "--port", "0"}, "not loopback"},
+        {{"--recording", std::string(EYESIM_TEST_TMP) + "/no_such_recording", "--port", "0"}, "no_such_recording"},
+    };
+    for (const auto& c : cases) {
+        std::vector<std::string> argv{kDevice};
+        argv.insert(argv.end(), c.args.begin(), c.args.end());
+        test::ChildProcess child(argv);
+        REQUIRE(child.started());
+        const int rc = child.wait(10000);
+        const std::string err = child.drain_stderr();
+        INFO(err);
+        REQUIRE(rc == 1);
+        REQUIRE(err.rfind("eyesim-device: error: ", 0) == 0);
+        REQUIRE(err.find(c.expect) != std::string::npos);
+        REQUIRE(std::count(err.begin(), err.end(), '\n') == 1);
+    }
+}
