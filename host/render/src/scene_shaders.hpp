@@ -169,8 +169,10 @@ void main() {
         float shininess = (u_material == 2 || u_material == 4) ? 40.0 : 18.0;
         float spec_strength = (u_material == 2 || u_material == 4) ? 0.9 : ((u_material == 1) ? 0.25 : 0.06);
         {
+            // The microscope lamp's mirror image: weak on tissue, a bright stripe along polished metal.
             vec3 h = normalize(vec3(0.0, 0.0, 1.0) + v);
-            spec_light += vec3(u_coaxial * pow(max(dot(n, h), 0.0), shininess));
+            bool metal = u_material == 2 || u_material == 4;
+            spec_light += vec3((metal ? 6.0 : 1.0) * u_coaxial * pow(max(dot(n, h), 0.0), metal ? 60.0 : shininess));
         }
         if (u_has_spot == 1) {
             vec3 l = u_spot_pos - p;
@@ -192,7 +194,14 @@ void main() {
             spec_light += vec3(1.0, 0.97, 0.9) * e * pow(max(dot(n, h), 0.0), shininess) * step(0.0, ndl);
         }
         rgb = albedo * diffuse_light + spec_strength * spec_light;
-        if (u_material == 2 || u_material == 4) rgb += albedo * 0.10 * (1.0 - abs(dot(n, v)));  // rim sheen
+        if (u_material == 2 || u_material == 4) {
+            // Metal mirrors its surroundings: the lit orange fundus below, the dark front of the eye above.
+            vec3 refl = reflect(-v, n);
+            float fundus_seen = smoothstep(0.2, -0.7, refl.z);
+            float scene_light = u_ambient + u_coaxial + (u_has_spot == 1 ? 0.35 : 0.0);
+            rgb += albedo * 0.4 * scene_light * fundus_seen * vec3(0.85, 0.45, 0.3);
+            rgb += albedo * 0.08 * (1.0 - abs(dot(n, v)));  // rim sheen
+        }
         if (u_material == 4 && u_has_spot == 1) {
             // The light pipe's emitting end face glows.
             float along = dot(p - u_spot_pos, u_spot_dir);
