@@ -122,9 +122,9 @@ std::vector<CameraModel> default_rig() {
     const double pi = 3.14159265358979323846;
     for (int i = 0; i < 3; ++i) {
         const double a = az_deg[i] * pi / 180.0;
-        const double horiz = 62.0, z = -48.0;
+        const double horiz = 68.0, z = -52.0;
         const Eigen::Vector3d center(horiz * std::cos(a), horiz * std::sin(a), z);
-        CameraModel c = look_at(fmt::format("cam{}", i), center, Eigen::Vector3d(0, 0, 10.0), roll[i]);
+        CameraModel c = look_at(fmt::format("cam{}", i), center, Eigen::Vector3d(0, 0, 14.0), roll[i]);
         c.fx = fx[i];
         c.fy = fy[i];
         c.cx = ccx[i];

@@ -72,9 +72,9 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     struct Band { double tilt_amp, tilt_f0, tilt_f1, ins_amp, ins_f0, ins_f1, eye_amp, eye_f0, eye_f1; };
     Band b{};
     if (name == "static") b = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-    if (name == "sweep") b = {14 * kDeg, 0.04, 0.12, 4.0, 0.05, 0.10, 6 * kDeg, 0.03, 0.08};
+    if (name == "sweep") b = {22 * kDeg, 0.04, 0.12, 6.0, 0.05, 0.10, 8 * kDeg, 0.03, 0.08};
     if (name == "surgery") b = {1.5 * kDeg, 0.3, 0.8, 0.8, 0.2, 0.6, 2 * kDeg, 0.1, 0.4};
-    if (name == "fast") b = {8 * kDeg, 1.5, 3.0, 2.5, 1.5, 3.0, 5 * kDeg, 0.8, 2.0};
+    if (name == "fast") b = {14 * kDeg, 2.0, 3.5, 4.0, 1.5, 3.0, 6 * kDeg, 0.8, 2.0};
     if (name == "occlusion") b = {16 * kDeg, 0.1, 0.3, 3.0, 0.1, 0.3, 14 * kDeg, 0.1, 0.3};
 
     for (int k = 0; k < 2; ++k) {

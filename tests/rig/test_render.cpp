@@ -249,3 +249,54 @@ TEST_CASE("scenarios are smooth, deterministic and keep instruments through thei
     }
     CHECK_THROWS_AS(Scenario::make("nope", 1, 1e6, bodies), RigError);
 }
+
+TEST_CASE("scenario character: static is still, fast blurs, sweep covers the volume, occlusion hides markers",
+          "[rig][scenario]") {
+    const Bodies bodies = load_bodies(default_bodies_path());
+    const auto cams = default_rig();
+    auto max_blur_px = [&](const Scenario& s, double t_end_us) {
+        const auto markers = scene_markers(bodies, s.kinds());
+        double blur = 0;
+        for (double t = 0; t < t_end_us; t += 20000) {
+            const SceneState a = s.state_at(t - 2000), b = s.state_at(t + 2000);  // a 4 ms exposure
+            for (const auto& m : markers)
+                for (const auto& c : cams) {
+                    const auto pa = c.project_frame(marker_center_rig(m, a)), pb = c.project_frame(marker_center_rig(m, b));
+                    if (pa && pb) blur = std::max(blur, (*pa - *pb).norm());
+                }
+        }
+        return blur;
+    };
+    CHECK(max_blur_px(Scenario::make("static", 3, 1e6, bodies), 1e6) == 0.0);
+    CHECK(max_blur_px(Scenario::make("fast", 3, 1e6, bodies), 1e6) > 3.0);
+    CHECK(max_blur_px(Scenario::make("surgery", 3, 1e6, bodies), 1e6) < 3.0);
+
+    // Sweep: the tissue instrument tip visits a large part of the eye over 30 s.
+    const Scenario sweep = Scenario::make("sweep", 3, 30e6, bodies);
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e9), hi = -lo;
+    for (double t = 0; t < 30e6; t += 100000) {
+        const SceneState s = sweep.state_at(t);
+        const Eigen::Vector3d tip = s.eye_to_rig(s.instruments[0].tip_eye_mm);
+        lo = lo.cwiseMin(tip);
+        hi = hi.cwiseMax(tip);
+    }
+    CHECK((hi - lo).minCoeff() > 6.0);
+
+    // Occlusion: over one second, marker views go from visible to hidden (pulled out, behind the eye).
+    RenderOptions opt;
+    RigSynth synth(cams, bodies, Scenario::make("occlusion", 3, 1e6, bodies), opt);
+    FieldTruth t;
+    int hidden = 0, visible = 0, partial = 0;
+    for (int64_t i = 0; i < 50; i += 5) {
+        synth.render(i, {nullptr, nullptr, nullptr}, t);
+        for (const auto& m : t.markers)
+            for (const auto& mc : m.cams) {
+                visible += mc.visible;
+                hidden += !mc.visible;
+                partial += mc.visible && mc.occluded_fraction > 0.05;
+            }
+    }
+    CHECK(hidden > 20);
+    CHECK(visible > 100);
+    CHECK(partial > 10);
+}

@@ -66,7 +66,7 @@ struct InstrumentMarker {
 struct InstrumentBody {
     InstrumentKind kind = InstrumentKind::kPick;
     std::string name;                  ///< instrument_kind_name(kind)
-    double shaft_radius_mm = 0.3;      ///< 23 G shaft
+    double shaft_radius_mm = 0.25;     ///< 25 G shaft
     double shaft_length_mm = 60.0;     ///< from the tip to the handle end of the rendered shaft
     double tip_offset_mm = 0.0;        ///< tip lies this far beyond the shaft's distal end (forceps jaws)
     double max_insertion_mm = 22.0;    ///< deepest tip position behind the trocar along the axis

@@ -94,8 +94,8 @@ inline Eigen::Vector2d frame_to_field_px(const Eigen::Vector2d& frame_px, int pa
     return {frame_px.x(), 0.5 * (frame_px.y() - parity)};
 }
 
-/// The rig's default three cameras: below the eye at azimuths 90°, 210°, 330°, about 80 mm from the eye
-/// centre, looking up at a point 10 mm above it; 1/3" CCD with a 4 mm lens (fx≈615, fy≈640 frame px), barrel
+/// The rig's default three cameras: below the eye at azimuths 90°, 210°, 330°, 86 mm from the eye
+/// centre, (68 mm out, 52 mm down), looking up at a point 14 mm above it; 1/3" CCD with a 4 mm lens (fx≈615, fy≈640 frame px), barrel
 /// distortion; unsynchronised clocks (offsets 0, 6700, 13300 µs); 4 ms shutter.
 std::vector<CameraModel> default_rig();
 
