@@ -96,54 +96,92 @@ inline bool raster_triangle(Vtx v0, Vtx v1, Vtx v2, int r, int bx0, int by0, int
 
 /// Window coordinate → 1/256 pixel, rounded half away from zero (inline; no libm call).
 inline int32_t to_fx(float w) {
-    const float f = std::clamp(w * float(kSub), -kClampFx, kClampFx);
-    return int32_t(f + (f >= 0.0f ? 0.5f : -0.5f));
+    const float f = std::min(std::max(w * float(kSub), -kClampFx), kClampFx);
+    return int32_t(f + std::copysign(0.5f, f));
 }
 
 }  // namespace
 
-CpuRasterBackend::CpuRasterBackend(size_t max_vertices) {
-    membrane_px_.reserve(max_vertices);
-    instrument_px_.reserve(max_vertices);
+void CpuRasterBackend::Projected::resize(size_t n) {
+    wx.resize(n);
+    wy.resize(n);
+    x.resize(n);
+    y.resize(n);
+    q.resize(n);
+    code.resize(n);
 }
 
-void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, std::vector<Projected>& out) {
-    // Combined mesh → camera transform, then to window coordinates.
+CpuRasterBackend::CpuRasterBackend(size_t max_vertices) {
+    membrane_px_.resize(max_vertices);
+    instrument_px_.resize(max_vertices);
+}
+
+void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, Projected& out) {
+    // Combined mesh → camera → window transform, then three simple loops the compiler vectorises.
     const Eigen::Matrix3f ct = view.camera_to_eye.transpose();
     const Eigen::Matrix3f m = ct * mesh.to_eye.linear();
     const Vec3f t = ct * (mesh.to_eye.translation() - view.origin_eye_mm);
     const float half_r = 0.5f * float(view.resolution_px);
-    out.resize(mesh.vertices_mm.size());
-    if (view.projection == Projection::Parallel) {
-        // Scale folded into the matrix; outcodes (outside left/right/bottom/top/near/far) let whole
-        // triangles be rejected with one AND.
-        const float s = half_r / view.half_width_mm;
-        const float m00 = m(0, 0) * s, m01 = m(0, 1) * s, m02 = m(0, 2) * s, t0 = t.x() * s + half_r;
-        const float m10 = m(1, 0) * s, m11 = m(1, 1) * s, m12 = m(1, 2) * s, t1 = t.y() * s + half_r;
-        const float m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2), t2 = t.z();
-        const float r = 2.0f * half_r, zn = view.near_mm, zf = view.far_mm;
-        const Vec3f* v = mesh.vertices_mm.data();
-        Projected* o = out.data();
-        for (size_t i = 0, n = out.size(); i < n; ++i) {
-            const float x = v[i].x(), y = v[i].y(), z = v[i].z();
-            const float wx = m00 * x + m01 * y + m02 * z + t0;
-            const float wy = m10 * x + m11 * y + m12 * z + t1;
-            const float wz = m20 * x + m21 * y + m22 * z + t2;
-            const uint8_t code = uint8_t((wx < 0.0f) | ((wx > r) << 1) | ((wy < 0.0f) << 2) | ((wy > r) << 3) |
-                                         ((wz < zn) << 4) | ((wz > zf) << 5));
-            o[i] = {to_fx(wx), to_fx(wy), wz, true, code};
+    const size_t n = mesh.vertices_mm.size();
+    if (out.x.size() < n) out.resize(n);
+    const bool central = view.projection == Projection::Central;
+    const float s = half_r / (central ? view.tan_half_angle : view.half_width_mm);
+    const float m00 = m(0, 0) * s, m01 = m(0, 1) * s, m02 = m(0, 2) * s, t0 = t.x() * s;
+    const float m10 = m(1, 0) * s, m11 = m(1, 1) * s, m12 = m(1, 2) * s, t1 = t.y() * s;
+    const float m20 = m(2, 0), m21 = m(2, 1), m22 = m(2, 2), t2 = t.z();
+    const float* v = mesh.vertices_mm.data()->data();
+    float* __restrict wx = out.wx.data();
+    float* __restrict wy = out.wy.data();
+    float* __restrict q = out.q.data();
+    for (size_t i = 0; i < n; ++i) {
+        const float x = v[3 * i], y = v[3 * i + 1], z = v[3 * i + 2];
+        wx[i] = m00 * x + m01 * y + m02 * z + t0;
+        wy[i] = m10 * x + m11 * y + m12 * z + t1;
+        q[i] = m20 * x + m21 * y + m22 * z + t2;
+    }
+    const float r = 2.0f * half_r, zn = view.near_mm, zf = view.far_mm;
+    int32_t* __restrict fx = out.x.data();
+    int32_t* __restrict fy = out.y.data();
+    uint8_t* __restrict code = out.code.data();
+    if (!central) {
+        for (size_t i = 0; i < n; ++i) {
+            const float px = wx[i] + half_r, py = wy[i] + half_r;
+            fx[i] = to_fx(px);
+            fy[i] = to_fx(py);
+            const int c = int(px < 0.0f) | (int(px > r) << 1) | (int(py < 0.0f) << 2) | (int(py > r) << 3) |
+                          (int(q[i] < zn) << 4) | (int(q[i] > zf) << 5);
+            code[i] = uint8_t(c);
         }
     } else {
-        const float s = half_r / view.tan_half_angle;
-        for (size_t i = 0; i < out.size(); ++i) {
-            const Vec3f c = m * mesh.vertices_mm[i] + t;
-            const bool valid = c.z() >= view.near_mm;
-            const float iz = valid ? 1.0f / c.z() : 0.0f;
-            const float wx = c.x() * iz * s + half_r, wy = c.y() * iz * s + half_r, r = 2.0f * half_r;
-            const uint8_t code = uint8_t((wx < 0.0f) | ((wx > r) << 1) | ((wy < 0.0f) << 2) | ((wy > r) << 3) |
-                                         ((c.z() > view.far_mm) << 5));
-            out[i] = {to_fx(wx), to_fx(wy), iz, valid, code};
+        for (size_t i = 0; i < n; ++i) {
+            const float z = q[i];
+            const bool behind = z < zn;
+            const float iz = behind ? 0.0f : 1.0f / z;
+            const float px = wx[i] * iz + half_r, py = wy[i] * iz + half_r;
+            fx[i] = to_fx(px);
+            fy[i] = to_fx(py);
+            q[i] = iz;
+            code[i] = uint8_t((px < 0.0f) | ((px > r) << 1) | ((py < 0.0f) << 2) | ((py > r) << 3) |
+                              ((z > zf) << 5) | (behind << 6));
         }
+    }
+}
+
+void CpuRasterBackend::instrument_codes(const ZcollView& view) {
+    const int32_t bx0 = mem_x0_ << kSubBits, bx1 = (mem_x1_ + 1) << kSubBits;
+    const int32_t by0 = mem_y0_ << kSubBits, by1 = (mem_y1_ + 1) << kSubBits;
+    const bool central = view.projection == Projection::Central;
+    // Parallel views also reject triangles behind the deepest membrane sample or in front of the camera.
+    const float zmax = central ? -1.0f : mem_zmax_, znear = central ? -1.0f : view.near_mm;
+    const size_t n = instrument_px_.code.size();
+    const int32_t* fx = instrument_px_.x.data();
+    const int32_t* fy = instrument_px_.y.data();
+    const float* q = instrument_px_.q.data();
+    uint8_t* code = instrument_px_.code.data();
+    for (size_t i = 0; i < n; ++i) {
+        const uint8_t behind = code[i] & 64;
+        code[i] = uint8_t((fx[i] < bx0) | ((fx[i] > bx1) << 1) | ((fy[i] < by0) << 2) | ((fy[i] > by1) << 3) |
+                          (central ? 0 : ((q[i] >= zmax) << 4) | ((q[i] < znear) << 5)) | behind);
     }
 }
 
@@ -156,6 +194,10 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
     if (req.count_layers) std::fill(out.layers.begin(), out.layers.end(), uint8_t{0});
     out.multi_layer_pixels = 0;
     project(membrane, view, membrane_px_);
+    const uint8_t* mc = membrane_px_.code.data();
+    const int32_t* mx = membrane_px_.x.data();
+    const int32_t* my = membrane_px_.y.data();
+    const float* mq = membrane_px_.q.data();
     const bool central = view.projection == Projection::Central;
     const float znear = view.near_mm, zfar = view.far_mm;
     float* zm = out.zm_mm.data();
@@ -169,10 +211,9 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
     mem_zmax_ = -kEmptyDepth;
     for (size_t ti = 0; ti < membrane.triangles.size(); ++ti) {
         const auto& tr = membrane.triangles[ti];
-        const Projected &a = membrane_px_[tr[0]], &b = membrane_px_[tr[1]], &c = membrane_px_[tr[2]];
-        // Trivial reject: all three vertices outside the same side of V.
-        if (a.outcode & b.outcode & c.outcode) continue;
-        if (central && !(a.valid && b.valid && c.valid)) continue;
+        // Trivial reject: all three vertices outside the same side of V (or any behind a central camera).
+        const uint8_t ca = mc[tr[0]], cb = mc[tr[1]], cc = mc[tr[2]];
+        if ((ca & cb & cc) || ((ca | cb | cc) & 64)) continue;
         const uint32_t ids[3] = {tr[0], tr[1], tr[2]};
         const uint32_t tid = uint32_t(ti);
         auto frag = [&](size_t p, float z, int corner) {
@@ -184,7 +225,8 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
             }
             return false;
         };
-        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        const Vtx va{mx[tr[0]], my[tr[0]], mq[tr[0]]}, vb{mx[tr[1]], my[tr[1]], mq[tr[1]]},
+            vc{mx[tr[2]], my[tr[2]], mq[tr[2]]};
         if (central) raster_triangle<true>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
         else raster_triangle<false>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
     }
@@ -208,26 +250,24 @@ void CpuRasterBackend::render(const MeshRef& membrane, const MeshRef* instrument
     std::copy(out.zm_mm.begin(), out.zm_mm.end(), out.zi_mm.begin());
     if (!req.instrument || instrument == nullptr || mem_x1_ < 0) return;
     project(*instrument, view, instrument_px_);
+    instrument_codes(view);
     const int r = view.resolution_px;
-    const int32_t bx0 = mem_x0_ << kSubBits, bx1 = (mem_x1_ + 1) << kSubBits;
-    const int32_t by0 = mem_y0_ << kSubBits, by1 = (mem_y1_ + 1) << kSubBits;
-    const float znear = view.near_mm, zmax = mem_zmax_;
+    const float znear = view.near_mm;
     float* zi = out.zi_mm.data();
     const bool central = view.projection == Projection::Central;
+    const uint8_t* ic = instrument_px_.code.data();
+    const int32_t* ix = instrument_px_.x.data();
+    const int32_t* iy = instrument_px_.y.data();
+    const float* iq = instrument_px_.q.data();
     for (const auto& tr : instrument->triangles) {
-        const Projected &a = instrument_px_[tr[0]], &b = instrument_px_[tr[1]], &c = instrument_px_[tr[2]];
-        if ((a.x < bx0 && b.x < bx0 && c.x < bx0) || (a.x > bx1 && b.x > bx1 && c.x > bx1)) continue;
-        if ((a.y < by0 && b.y < by0 && c.y < by0) || (a.y > by1 && b.y > by1 && c.y > by1)) continue;
-        if (central) {
-            if (!(a.valid && b.valid && c.valid)) continue;
-        } else if ((a.q >= zmax && b.q >= zmax && c.q >= zmax) || (a.q < znear && b.q < znear && c.q < znear)) {
-            continue;
-        }
+        const uint8_t ca = ic[tr[0]], cb = ic[tr[1]], cc = ic[tr[2]];
+        if ((ca & cb & cc) || ((ca | cb | cc) & 64)) continue;
         auto frag = [&](size_t p, float z, int) {
             if (z >= znear && z <= zi[p]) zi[p] = z;  // LEQUAL against the membrane depth
             return false;
         };
-        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        const Vtx va{ix[tr[0]], iy[tr[0]], iq[tr[0]]}, vb{ix[tr[1]], iy[tr[1]], iq[tr[1]]},
+            vc{ix[tr[2]], iy[tr[2]], iq[tr[2]]};
         if (central) raster_triangle<true>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
         else raster_triangle<false>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
     }
@@ -239,25 +279,23 @@ bool CpuRasterBackend::any_penetration(const MeshRef& membrane, const MeshRef& i
     raster_membrane(membrane, view, req, scratch_);
     if (mem_x1_ < 0) return false;
     project(instrument, view, instrument_px_);
+    instrument_codes(view);
     const int r = view.resolution_px;
-    const int32_t bx0 = mem_x0_ << kSubBits, bx1 = (mem_x1_ + 1) << kSubBits;
-    const int32_t by0 = mem_y0_ << kSubBits, by1 = (mem_y1_ + 1) << kSubBits;
-    const float znear = view.near_mm, zmax = mem_zmax_;
+    const float znear = view.near_mm;
     const float* zm = scratch_.zm_mm.data();
     const uint32_t* cm = scratch_.cm.data();
     const bool central = view.projection == Projection::Central;
+    const uint8_t* ic = instrument_px_.code.data();
+    const int32_t* ix = instrument_px_.x.data();
+    const int32_t* iy = instrument_px_.y.data();
+    const float* iq = instrument_px_.q.data();
     for (const auto& tr : instrument.triangles) {
-        const Projected &a = instrument_px_[tr[0]], &b = instrument_px_[tr[1]], &c = instrument_px_[tr[2]];
-        if ((a.x < bx0 && b.x < bx0 && c.x < bx0) || (a.x > bx1 && b.x > bx1 && c.x > bx1)) continue;
-        if ((a.y < by0 && b.y < by0 && c.y < by0) || (a.y > by1 && b.y > by1 && c.y > by1)) continue;
-        if (central) {
-            if (!(a.valid && b.valid && c.valid)) continue;
-        } else if ((a.q >= zmax && b.q >= zmax && c.q >= zmax) || (a.q < znear && b.q < znear && c.q < znear)) {
-            continue;
-        }
+        const uint8_t ca = ic[tr[0]], cb = ic[tr[1]], cc = ic[tr[2]];
+        if ((ca & cb & cc) || ((ca | cb | cc) & 64)) continue;
         // Early out on the first instrument sample in front of a membrane sample.
         auto frag = [&](size_t p, float z, int) { return cm[p] != 0 && z >= znear && z < zm[p]; };
-        const Vtx va{a.x, a.y, a.q}, vb{b.x, b.y, b.q}, vc{c.x, c.y, c.q};
+        const Vtx va{ix[tr[0]], iy[tr[0]], iq[tr[0]]}, vb{ix[tr[1]], iy[tr[1]], iq[tr[1]]},
+            vc{ix[tr[2]], iy[tr[2]], iq[tr[2]]};
         const bool hit = central ? raster_triangle<true>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag)
                                  : raster_triangle<false>(va, vb, vc, r, mem_x0_, mem_y0_, mem_x1_, mem_y1_, frag);
         if (hit) return true;

@@ -424,3 +424,37 @@ TEST_CASE("ZCOLL queries on a membrane deforming every frame allocate nothing", 
     CHECK(collided > 0);
     CHECK(allocations == 0);
 }
+
+TEST_CASE("exact narrow phase: grid + flood-filled containment equals brute force", "[sim][collision][zcoll]") {
+    // A deep push: many membrane triangles lie entirely inside the sphere.
+    TriangleMesh m = make_membrane_patch(4.0f, 4.0f, 39, 39);
+    PosedInstrument sphere(sphere_body(0.8f, 32, 48));
+    ExactNarrowPhase exact(m.triangle_count(), sphere.instrument().mesh.triangle_count());
+    std::mt19937 rng(9);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    size_t contained_cases = 0;
+    for (int i = 0; i < 6; ++i) {
+        const Eigen::Isometry3f pose = pose_at(Vec3f(0.5f * u(rng), 0.5f * u(rng), -0.3f - 0.6f * std::fabs(u(rng))),
+                                               Vec3f(0.3f * u(rng), 0.3f * u(rng), -1.0f).normalized());
+        sphere.set_state(0.0f, pose);
+        const auto truth = brute_force_colliding(m.vertices_mm, m.triangles, sphere.instrument(),
+                                                 sphere.vertices_local_mm(), pose);
+        const MeshRef mem{m.vertices_mm, m.triangles, Eigen::Isometry3f::Identity()};
+        const MeshRef ins{sphere.vertices_local_mm(), sphere.instrument().mesh.triangles, pose};
+        ExactOptions plain;
+        const auto a = exact.colliding_triangles(mem, ins, sphere.instrument().part_triangle_begin, plain);
+        CHECK(std::vector<uint32_t>(a.begin(), a.end()) == truth);
+        const size_t surface_only = [&] {
+            ExactOptions o;
+            o.include_contained = false;
+            return exact.colliding_triangles(mem, ins, sphere.instrument().part_triangle_begin, o).size();
+        }();
+        contained_cases += surface_only < truth.size();
+        ExactOptions flood;
+        flood.vertex_triangle_begin = m.vertex_triangle_begin;
+        flood.vertex_triangles = m.vertex_triangles;
+        const auto b = exact.colliding_triangles(mem, ins, sphere.instrument().part_triangle_begin, flood);
+        CHECK(std::vector<uint32_t>(b.begin(), b.end()) == truth);
+    }
+    CHECK(contained_cases >= 4);  // the scenes exercise containment, not only surface hits
+}

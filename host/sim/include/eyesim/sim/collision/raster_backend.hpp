@@ -82,19 +82,22 @@ public:
     bool any_penetration(const MeshRef& membrane, const MeshRef& instrument, const ZcollView& view) override;
 
 private:
-    /// Per vertex: window position in 1/256 pixel, interpolated depth quantity (parallel: depth in mm,
-    /// central: 1/depth), whether it lies in front of the near plane, and its outcode (bits: outside
-    /// left, right, bottom, top, near, far of V).
+    /// Projected vertices, structure of arrays (vectorisable): window position in 1/256 pixel, the
+    /// interpolated depth quantity (parallel: depth in mm, central: 1/depth) and an outcode (bits: outside
+    /// left, right, bottom, top, near, far of V; bit 6: behind the camera of a central view).
     struct Projected {
-        int32_t x, y;
-        float q;
-        bool valid;
-        uint8_t outcode;
+        std::vector<float> wx, wy;
+        std::vector<int32_t> x, y;
+        std::vector<float> q;
+        std::vector<uint8_t> code;
+        void resize(size_t n);
     };
-    void project(const MeshRef& mesh, const ZcollView& view, std::vector<Projected>& out);
+    void project(const MeshRef& mesh, const ZcollView& view, Projected& out);
+    /// Outcodes of projected instrument vertices against the membrane image bounds and deepest depth.
+    void instrument_codes(const ZcollView& view);
     void raster_membrane(const MeshRef& membrane, const ZcollView& view, const RasterRequest& req,
                          RasterBuffers& out);
-    std::vector<Projected> membrane_px_, instrument_px_;
+    Projected membrane_px_, instrument_px_;
     RasterBuffers scratch_;  // boolean mode: membrane buffers that are never read back
     // Screen bounds and deepest depth of the membrane in V: instrument triangles outside them cannot collide.
     int mem_x0_ = 0, mem_y0_ = 0, mem_x1_ = -1, mem_y1_ = -1;
