@@ -565,29 +565,33 @@ void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
         r.label = label;
     }
 
-    // Edge ring: background pixels 8-adjacent to a blob add their weights to its moments (first claim wins):
-    // on this line below the previous line's runs and beside this line's runs, and on the previous line above
-    // this line's runs. The previous line's ring below is thereby complete before its blobs are.
+    // Edge ring: background pixels within 2 columns and 1 line of a blob add their weights to its moments (first
+    // claim wins). Two columns because 4:2:2 chroma, [1 2 1]-filtered and interpolated, spreads a marker's weight
+    // two pixels sideways; the linear weights of those pixels are what makes the weighted x centroid exact. The
+    // ring is collected on this line below the previous line's runs and beside this line's runs, and on the
+    // previous line above this line's runs, so a blob's ring is complete when the blob is.
     if (params_.edge_ring && params_.weight_mode != 0 && line != nullptr) {
         const int xmax = static_cast<int>(kActivePixelsPerLine) - 1;
         for (int k = 0; k < n_prev; ++k) {
             if (prev[k].label == kNoLabel) continue;
             const uint16_t root = find_root(prev[k].label);
-            for (int x = std::max(0, prev[k].x0 - 1); x <= std::min(xmax, prev[k].x1 + 1); ++x)
+            for (int x = std::max(0, prev[k].x0 - kRingColumns); x <= std::min(xmax, prev[k].x1 + kRingColumns); ++x)
                 add_ring_pixel(root, line, x, y);
         }
         for (int i = 0; i < n_cur; ++i) {
             if (cur[i].label == kNoLabel) continue;
             const uint16_t root = find_root(cur[i].label);
-            if (cur[i].x0 > 0) add_ring_pixel(root, line, cur[i].x0 - 1, y);
-            if (cur[i].x1 < xmax) add_ring_pixel(root, line, cur[i].x1 + 1, y);
+            for (int d = 1; d <= kRingColumns; ++d) {
+                if (cur[i].x0 - d >= 0) add_ring_pixel(root, line, cur[i].x0 - d, y);
+                if (cur[i].x1 + d <= xmax) add_ring_pixel(root, line, cur[i].x1 + d, y);
+            }
         }
         if (prev_line_ != nullptr && y > 0) {
             cur_buf_ ^= 1;  // the previous line's masks
             for (int i = 0; i < n_cur; ++i) {
                 if (cur[i].label == kNoLabel) continue;
                 const uint16_t root = find_root(cur[i].label);
-                for (int x = std::max(0, cur[i].x0 - 1); x <= std::min(xmax, cur[i].x1 + 1); ++x)
+                for (int x = std::max(0, cur[i].x0 - kRingColumns); x <= std::min(xmax, cur[i].x1 + kRingColumns); ++x)
                     add_ring_pixel(root, prev_line_, x, y - 1);
             }
             cur_buf_ ^= 1;

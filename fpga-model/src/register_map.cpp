@@ -20,7 +20,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
-    t[i++] = {reg::kWeightBg, 8, true, 0u, "WEIGHT_BG"};
+    t[i++] = {reg::kWeightBg, 8, true, 3u, "WEIGHT_BG"};  // tint of the white eye and grey shafts
     t[i++] = {reg::kWeightBits, 4, true, 8u, "WEIGHT_BITS"};
     t[i++] = {reg::kMinArea, 18, true, 2u, "MIN_AREA"};
     t[i++] = {reg::kMaxArea, 18, true, 4096u, "MAX_AREA"};

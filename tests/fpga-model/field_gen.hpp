@@ -138,7 +138,8 @@ inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, Re
 }
 
 /// OpenCV connectedComponentsWithStats (8-connected) per class on the classified mask, plus weighted sums over
-/// each component and, with EDGE_RING in a weighted mode, its ring of background pixels.
+/// each component and, with EDGE_RING in a weighted mode, its ring of background pixels (within kRingColumns
+/// columns and one line).
 inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, const cv::Mat1b& cls_mask) {
     std::vector<RefBlob> out;
     cv::Mat1i comp(f.height, W, -1);
@@ -170,9 +171,9 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
         for (int y = 0; y < f.height; ++y)
             for (int x = 0; x < W; ++x) {
                 if (cls_mask(y, x) != 0 || !roi_contains(par, x, y)) continue;
-                int ids[9], n = 0;
+                int ids[15], n = 0;
                 for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx) {
+                    for (int dx = -kRingColumns; dx <= kRingColumns; ++dx) {
                         const int yy = y + dy, xx = x + dx;
                         if (yy < 0 || yy >= f.height || xx < 0 || xx >= W || comp(yy, xx) < 0) continue;
                         const int id = comp(yy, xx);

@@ -41,6 +41,8 @@ inline constexpr int kMaxRunsPerLine = static_cast<int>(kActivePixelsPerLine);
 inline constexpr int kOutputRingCapacity = 64;
 /// Chroma LUT: 6 bits of Cb and 6 of Cr index 4096 entries of 3 bits (class 0..4).
 inline constexpr int kLutChromaBits = 6;
+/// Edge ring: background pixels within this many columns (and one line) of a blob count in its moments.
+inline constexpr int kRingColumns = 2;
 /// Modelled clocks from a pixel on the wire to its run being labelled (classify 3, run close 1, label 4).
 inline constexpr uint32_t kPipelineDepthClocks = 8;
 /// Modelled clocks between two blob emissions (serial output through one pipelined divider).

@@ -1,0 +1,311 @@
+// `eyesim fpga`: run the FPGA pipeline model over a recording; write protocol FieldMarkers packets and/or CSV.
+#include "eyesim/app/command.hpp"
+#include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/wire.hpp"
+#include "eyesim/protocol/capture.hpp"
+#include "eyesim/protocol/codec.hpp"
+#include "eyesim/rig/error.hpp"
+#include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/truth.hpp"
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fpga = eyesim::fpga;
+namespace proto = eyesim::protocol;
+namespace rig = eyesim::rig;
+
+struct FpgaOptions {
+    std::string recording;
+    std::string cameras;
+    std::string out;
+    std::string csv;
+    int64_t max_fields = -1;
+    std::vector<std::string> regs;
+    bool json = false;
+};
+
+// Applies "ADDR=VALUE" register writes (C integer syntax: 0x14=3) through the map's validation.
+void apply_register_writes(const std::vector<std::string>& writes, fpga::RegisterMap& map) {
+    for (const std::string& w : writes) {
+        const size_t eq = w.find('=');
+        unsigned long addr = 0, value = 0;
+        bool ok = eq != std::string::npos && eq > 0 && eq + 1 < w.size();
+        if (ok) {
+            try {
+                size_t a = 0, v = 0;
+                addr = std::stoul(w.substr(0, eq), &a, 0);
+                value = std::stoul(w.substr(eq + 1), &v, 0);
+                ok = a == eq && v == w.size() - eq - 1 && addr <= 0xFFFF && value <= 0xFFFFFFFFul;
+            } catch (const std::exception&) {
+                ok = false;
+            }
+        }
+        if (!ok) throw eyesim::app::Error(fmt::format("--reg: '{}': expected ADDRESS=VALUE", w));
+        const fpga::RegWriteResult r = map.write(static_cast<uint16_t>(addr), static_cast<uint32_t>(value));
+        if (r != fpga::RegWriteResult::kOk)
+            throw eyesim::app::Error(fmt::format("--reg: '{}': register write refused: {}", w, fpga::to_string(r)));
+    }
+}
+
+// Parses "0,1,2" into camera indices below `count`.
+std::vector<int> parse_cameras(const std::string& text, int count) {
+    std::vector<int> cams;
+    if (text.empty()) {
+        for (int c = 0; c < count; ++c) cams.push_back(c);
+        return cams;
+    }
+    std::stringstream ss(text);
+    std::string item;
+    while (std::getline(ss, item, ',')) {
+        size_t used = 0;
+        int c = -1;
+        try {
+            c = std::stoi(item, &used);
+        } catch (const std::exception&) {
+            used = 0;
+        }
+        if (used != item.size() || item.empty() || c < 0 || c >= count)
+            throw eyesim::app::Error(fmt::format("--cameras: '{}': not a camera index 0..{}", item, count - 1));
+        if (std::find(cams.begin(), cams.end(), c) == cams.end()) cams.push_back(c);
+    }
+    if (cams.empty()) throw eyesim::app::Error("--cameras: empty list");
+    return cams;
+}
+
+// Percentile of a sorted vector (nearest rank).
+double percentile(const std::vector<double>& sorted, double p) {
+    if (sorted.empty()) return 0.0;
+    const size_t i = std::min(sorted.size() - 1, static_cast<size_t>(std::ceil(p * sorted.size())) - (p > 0 ? 1 : 0));
+    return sorted[i];
+}
+
+nlohmann::json latency_json(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return {{"p50", percentile(v, 0.5)}, {"p99", percentile(v, 0.99)}, {"max", v.empty() ? 0.0 : v.back()}};
+}
+
+struct CameraStats {
+    int camera = 0;
+    int64_t fields = 0;
+    int64_t blobs = 0;
+    int64_t overflows = 0;
+    double se = 0;
+    int64_t matched = 0, missed = 0, extra = 0;
+    std::vector<double> latency_us;        // blob: emission after its last pixel
+    std::vector<double> field_latency_us;  // field: last blob after the last active line
+};
+
+// Matches blobs to the visible truth markers of one camera by class and nearest centroid (≤ 3 px).
+void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, CameraStats& st) {
+    std::vector<bool> used(blobs.size(), false);
+    for (const rig::MarkerTruth& m : truth.markers) {
+        if (cam >= static_cast<int>(m.cams.size())) continue;
+        const rig::MarkerCameraTruth& t = m.cams[static_cast<size_t>(cam)];
+        if (!t.visible || t.area_px < 2.0) continue;  // below the reset MIN_AREA
+        int best = -1;
+        double bd = 3.0;
+        for (size_t j = 0; j < blobs.size(); ++j) {
+            if (used[j] || blobs[j].class_id != m.colour_class) continue;
+            const double d = std::hypot(blobs[j].cx_px() - t.centroid_px.x(), blobs[j].cy_px() - t.centroid_px.y());
+            if (d < bd) {
+                bd = d;
+                best = static_cast<int>(j);
+            }
+        }
+        if (best < 0) {
+            ++st.missed;
+            continue;
+        }
+        used[static_cast<size_t>(best)] = true;
+        st.se += bd * bd;
+        ++st.matched;
+    }
+    for (bool u : used) st.extra += !u;
+}
+
+int run(const FpgaOptions& opt) {
+    rig::Recording rec = rig::Recording::open(opt.recording);
+    const std::vector<int> cams = parse_cameras(opt.cameras, rec.camera_count());
+    int64_t n_fields = rec.common_field_count();
+    if (opt.max_fields >= 0) n_fields = std::min(n_fields, opt.max_fields);
+
+    std::vector<rig::FieldTruth> truth;
+    if (!rec.truth_path().empty()) truth = rig::read_truth(rec.truth_path());
+
+    proto::CaptureWriter capture;
+    const bool capture_on = !opt.out.empty();
+    if (capture_on && !capture.create(opt.out.c_str()))
+        throw eyesim::app::Error(fmt::format("{}: cannot create capture file", opt.out));
+    capture.set_flush_each(false);
+    std::ofstream csv;
+    if (!opt.csv.empty()) {
+        csv.open(opt.csv);
+        if (!csv) throw eyesim::app::Error(fmt::format("{}: cannot create CSV file", opt.csv));
+        csv << "camera,field,parity,index,class,x_px,y_px,area_px,sum_w,bbox_x0,bbox_y0,bbox_x1,bbox_y1,flags,"
+               "complete_us,emit_us,latency_us\n";
+    }
+
+    // One pipeline per camera with the reset register map, as the device powers up, plus any --reg writes.
+    fpga::RegisterMap regs;
+    apply_register_writes(opt.regs, regs);
+    std::vector<std::unique_ptr<fpga::Pipeline>> pipes;
+    std::vector<CameraStats> stats;
+    for (int c : cams) {
+        fpga::PipelineConfig cfg;
+        cfg.camera = static_cast<uint8_t>(c);
+        pipes.push_back(std::make_unique<fpga::Pipeline>(regs, cfg));
+        stats.push_back(CameraStats{c});
+    }
+    std::vector<fpga::Blob> blobs;
+    blobs.reserve(fpga::kMaxBlobSlots);
+    std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
+    std::vector<proto::FieldMarkers> msgs(fpga::field_markers_messages(fpga::kMaxBlobSlots * 4));
+    std::array<uint8_t, proto::kMaxFrameBytes> frame{};
+    struct Record {
+        uint64_t t_us;
+        std::vector<uint8_t> bytes;
+    };
+    std::vector<Record> records;
+    uint16_t sequence = 0;
+    double model_s = 0;
+    const bool progress = eyesim::app::show_progress(opt.json);
+
+    for (int64_t i = 0; i < n_fields; ++i) {
+        records.clear();
+        for (size_t k = 0; k < cams.size(); ++k) {
+            const int cam = cams[k];
+            rec.read_field(cam, i, field.data());
+            const int parity = rec.field_parity(cam, i);
+            const rig::FieldTiming timing = rec.field_timing(cam, i);
+            // Device time of the field's cycle 0: vertical sync (+ half a line for a bottom field, as the rig).
+            const uint64_t start_us =
+                static_cast<uint64_t>(std::llround(std::max(0.0, timing.start_us + (parity ? 32.0 : 0.0))));
+            fpga::Pipeline& p = *pipes[k];
+            blobs.clear();
+            p.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); },
+                       &blobs);
+            const auto t0 = std::chrono::steady_clock::now();
+            const fpga::PipelineStatus s =
+                p.process_field(field.data(), rig::kFieldHeight, static_cast<uint32_t>(i), static_cast<uint8_t>(parity));
+            model_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            if (s != fpga::PipelineStatus::kOk)
+                throw eyesim::app::Error(fmt::format("{}: camera {} field {}: pipeline status {}", opt.recording, cam,
+                                                     i, static_cast<int>(s)));
+            const fpga::FieldStats& fs = p.field_stats();
+            CameraStats& st = stats[k];
+            ++st.fields;
+            st.blobs += static_cast<int64_t>(blobs.size());
+            st.overflows += fs.table_overflows;
+            for (const fpga::Blob& b : blobs) st.latency_us.push_back(b.latency_us());
+            st.field_latency_us.push_back(fpga::cycles_to_us(fs.last_blob_latency_cycles));
+            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], cam, st);
+
+            if (csv.is_open()) {
+                for (const fpga::Blob& b : blobs)
+                    csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}\n", cam, i,
+                                       parity, b.index, b.class_id, b.cx_px(), b.cy_px(), b.area_px, b.sum_w, b.x_min,
+                                       b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(start_us, b.last_pixel_cycle),
+                                       fpga::device_time_us(start_us, b.emit_cycle), b.latency_us());
+            }
+            if (capture_on) {
+                const fpga::FieldInfo info = fpga::field_info(fs, static_cast<uint8_t>(cam), static_cast<uint8_t>(parity), start_us);
+                const size_t n = fpga::to_field_markers(blobs.data(), blobs.size(), info, msgs.data(), msgs.size());
+                // Receive time: the field's end plus the pipeline's latency for its last blob.
+                const uint64_t t_us = msgs[0].field_end_us +
+                                      static_cast<uint64_t>(std::llround(fpga::cycles_to_us(fs.last_blob_latency_cycles)));
+                for (size_t m = 0; m < n; ++m) {
+                    const size_t len = proto::encode_frame(proto::Message{msgs[m]}, sequence++, frame);
+                    if (len == 0)
+                        throw eyesim::app::Error(fmt::format("camera {} field {}: message {} does not encode", cam, i, m));
+                    records.push_back({t_us, std::vector<uint8_t>(frame.begin(), frame.begin() + static_cast<long>(len))});
+                }
+            }
+        }
+        std::stable_sort(records.begin(), records.end(), [](const Record& a, const Record& b) { return a.t_us < b.t_us; });
+        for (const Record& r : records)
+            if (!capture.write(r.t_us, r.bytes)) throw eyesim::app::Error(fmt::format("{}: write failed", opt.out));
+        if (progress && (i % 25 == 0 || i + 1 == n_fields))
+            std::fprintf(stderr, "\rfpga: field %lld/%lld", static_cast<long long>(i + 1), static_cast<long long>(n_fields));
+    }
+    if (progress) std::fprintf(stderr, "\n");
+    if (capture_on && !capture.flush()) throw eyesim::app::Error(fmt::format("{}: write failed", opt.out));
+    capture.close();
+    if (csv.is_open()) {
+        csv.flush();
+        if (!csv) throw eyesim::app::Error(fmt::format("{}: write failed", opt.csv));
+    }
+
+    int64_t total_fields = 0, total_blobs = 0, matched = 0;
+    double se = 0;
+    std::vector<double> all_latency;
+    nlohmann::json per_cam = nlohmann::json::array();
+    for (const CameraStats& st : stats) {
+        total_fields += st.fields;
+        total_blobs += st.blobs;
+        matched += st.matched;
+        se += st.se;
+        all_latency.insert(all_latency.end(), st.latency_us.begin(), st.latency_us.end());
+        nlohmann::json j{{"camera", st.camera}, {"fields", st.fields}, {"blobs", st.blobs},
+                         {"blob_table_overflows", st.overflows}, {"latency_us", latency_json(st.latency_us)},
+                         {"field_last_blob_latency_us", latency_json(st.field_latency_us)}};
+        if (!truth.empty()) {
+            j["centroid_rms_px"] = st.matched ? std::sqrt(st.se / st.matched) : 0.0;
+            j["matched"] = st.matched;
+            j["missed"] = st.missed;
+            j["extra"] = st.extra;
+        }
+        per_cam.push_back(j);
+    }
+    const double fps = model_s > 0 ? total_fields / model_s : 0.0;
+    if (opt.json) {
+        nlohmann::json j{{"recording", opt.recording}, {"fields", total_fields}, {"fields_per_s", fps},
+                         {"blobs", total_blobs}, {"latency_us", latency_json(all_latency)}, {"cameras", per_cam},
+                         {"truth", !truth.empty()}, {"errors", 0}};
+        if (!truth.empty()) j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
+        if (!opt.out.empty()) j["out"] = opt.out;
+        if (!opt.csv.empty()) j["csv"] = opt.csv;
+        std::printf("%s\n", j.dump().c_str());
+    } else {
+        std::printf("%s: %lld fields, %lld blobs, %.0f fields/s (model)\n", opt.recording.c_str(),
+                    static_cast<long long>(total_fields), static_cast<long long>(total_blobs), fps);
+        for (const CameraStats& st : stats)
+            if (!truth.empty())
+                std::printf("  cam%d: centroid RMS %.4f px over %lld markers, %lld missed, %lld extra\n", st.camera,
+                            st.matched ? std::sqrt(st.se / st.matched) : 0.0, static_cast<long long>(st.matched),
+                            static_cast<long long>(st.missed), static_cast<long long>(st.extra));
+    }
+    return 0;
+}
+
+eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording", [](CLI::App& sub) {
+    auto opt = std::make_shared<FpgaOptions>();
+    sub.add_option("--recording", opt->recording, "recording directory (rig.yaml + cam*.uyvy or video)")->required();
+    sub.add_option("--cameras", opt->cameras, "comma-separated camera indices (default: all)");
+    sub.add_option("--out", opt->out, "capture file of protocol FieldMarkers packets (device-time stamps)");
+    sub.add_option("--csv", opt->csv, "CSV file with one row per blob");
+    sub.add_option("--fields", opt->max_fields, "process at most this many fields per camera");
+    sub.add_option("--reg", opt->regs, "register write ADDRESS=VALUE before the first field (repeatable)");
+    sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
+    return [opt]() -> int {
+        try {
+            return run(*opt);
+        } catch (const rig::RigError& e) {
+            throw eyesim::app::Error(e.what());
+        }
+    };
+}};
+
+}  // namespace
