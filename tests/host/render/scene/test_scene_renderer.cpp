@@ -255,21 +255,25 @@ TEST_CASE("scene renderer: left and right views differ by the stereo disparity o
     }
 }
 
-TEST_CASE("scene renderer: the forceps cast the light pipe's shadow where projection from the light predicts",
-          "[render][scene]") {
-    SceneRenderer* r = renderer();
-    if (!r) return;
-    const RenderConfig& c = r->config();
-    Scene s;
-    StereoImages with, without;
-    r->render(s.frame(true, true, true), with);
-    r->render(s.frame(true, false, true), without);
-    CHECK(write_views("scene_shadow_with_forceps.png", with));
-    CHECK(write_views("scene_shadow_without_forceps.png", without));
+namespace {
 
-    // Shadow points: rays from the light through the forceps axis, meeting the retina. Control points: rays passing
-    // 1.2 mm beside the shaft (perpendicular to both the shaft and the ray), which miss it.
+/// Renders `s` with and without its forceps and compares retina pixels on rays from the light: through the forceps
+/// axis (must be in shadow) and 1.2 mm beside the shaft (must be unchanged). Points the forceps or the membrane
+/// hide from a view, or outside the inner spot cone, are skipped.
+struct ShadowCounts {
     int shadow_n = 0, shadow_dark = 0, control_n = 0, control_same = 0;
+};
+
+ShadowCounts forceps_shadow(SceneRenderer& r, Scene& s, const char* png) {
+    const RenderConfig& c = r.config();
+    StereoImages with, without;
+    r.render(s.frame(true, true, true), with);
+    r.render(s.frame(true, false, true), without);
+    if (png) {
+        CHECK(write_views(std::string(png) + "_with_forceps.png", with));
+        CHECK(write_views(std::string(png) + "_without_forceps.png", without));
+    }
+    ShadowCounts n;
     for (int view = 0; view < 2; ++view) {
         const auto& a = view == 0 ? with.left_rgba : with.right_rgba;
         const auto& b = view == 0 ? without.left_rgba : without.right_rgba;
@@ -282,7 +286,6 @@ TEST_CASE("scene renderer: the forceps cast the light pipe's shadow where projec
                 const Vector3f through = k == 0 ? q : q + (k == 1 ? 1.2f : -1.2f) * side;
                 const auto wall = hit_wall(s.light.tip, through - s.light.tip);
                 if (!wall) continue;
-                // Skip points the forceps or the membrane hide from this view.
                 const Vector3f cam = view_position(c, view);
                 if (segments_distance(cam, *wall, s.forceps.tip, s.forceps.back()) < 0.8f) continue;
                 if (s.behind_membrane(c, view, *wall, 0.3f)) continue;
@@ -290,22 +293,60 @@ TEST_CASE("scene renderer: the forceps cast the light pipe's shadow where projec
                 if ((px - Eigen::Vector2f(kW / 2.0f, kH / 2.0f)).norm() > 0.9f * kH / 2) continue;
                 const double la = luminance(a, px), lb = luminance(b, px);
                 if (k == 0) {
-                    ++shadow_n;
-                    shadow_dark += la < 0.6 * lb;
+                    ++n.shadow_n;
+                    n.shadow_dark += la < 0.6 * lb;
                     UNSCOPED_INFO("shadow px " << px.transpose() << ": " << la << " vs " << lb);
                 } else {
-                    ++control_n;
-                    control_same += std::abs(la - lb) < 0.08 * lb + 2.0;
+                    ++n.control_n;
+                    n.control_same += std::abs(la - lb) < 0.08 * lb + 2.0;
                     UNSCOPED_INFO("control px " << px.transpose() << ": " << la << " vs " << lb);
                 }
             }
         }
     }
-    INFO("shadow " << shadow_dark << "/" << shadow_n << " control " << control_same << "/" << control_n);
-    REQUIRE(shadow_n >= 20);
-    REQUIRE(control_n >= 20);
-    CHECK(shadow_dark >= shadow_n * 95 / 100);
-    CHECK(control_same >= control_n * 95 / 100);
+    return n;
+}
+
+}  // namespace
+
+TEST_CASE("scene renderer: the forceps cast the light pipe's shadow where projection from the light predicts",
+          "[render][scene]") {
+    SceneRenderer* r = renderer();
+    if (!r) return;
+    Scene s;
+    const ShadowCounts n = forceps_shadow(*r, s, "scene_shadow");
+    INFO("shadow " << n.shadow_dark << "/" << n.shadow_n << " control " << n.control_same << "/" << n.control_n);
+    REQUIRE(n.shadow_n >= 20);
+    REQUIRE(n.control_n >= 20);
+    CHECK(n.shadow_dark >= n.shadow_n * 95 / 100);
+    CHECK(n.control_same >= n.control_n * 95 / 100);
+}
+
+TEST_CASE("scene renderer: the shadow stays attached as the forceps tip approaches the retina (no peter-panning)",
+          "[render][scene]") {
+    SceneRenderer* r = renderer();
+    if (!r) return;
+    // The depth cue: near contact the tip and its shadow meet. Lower the tip towards a retina point and check that
+    // the shadow is still where the light predicts, and that the predicted tip-to-shadow distance in the image
+    // shrinks (what the surgeon reads).
+    const Vector3f on_retina = Vector3f(1.8f, -1.2f, -std::sqrt(144.0f - 1.8f * 1.8f - 1.2f * 1.2f));
+    float last_gap_px = 1e9f;
+    for (float height : {2.0f, 0.8f, 0.3f}) {
+        Scene s;
+        const Vector3f tip = on_retina - height * on_retina.normalized();
+        s.forceps = Posed(col::make_forceps(), tip, tip - Vector3f(8.5f, 0.0f, 8.5f));
+        const ShadowCounts n = forceps_shadow(*r, s, height < 0.5f ? "scene_shadow_near_contact" : nullptr);
+        const auto shadow_tip = hit_wall(s.light.tip, tip - s.light.tip);
+        REQUIRE(shadow_tip);
+        const float gap_px = (project(r->config(), 0, *shadow_tip) - project(r->config(), 0, tip)).norm();
+        INFO("height " << height << " mm: shadow " << n.shadow_dark << "/" << n.shadow_n << " control "
+                       << n.control_same << "/" << n.control_n << ", tip-shadow gap " << gap_px << " px");
+        REQUIRE(n.shadow_n >= 10);
+        CHECK(n.shadow_dark >= n.shadow_n * 95 / 100);
+        CHECK(n.control_same >= n.control_n * 95 / 100);
+        CHECK(gap_px < last_gap_px);
+        last_gap_px = gap_px;
+    }
 }
 
 TEST_CASE("scene renderer: the membrane casts a partial shadow on the retina", "[render][scene]") {
