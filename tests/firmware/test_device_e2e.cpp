@@ -26,10 +26,22 @@ namespace {
 
 const std::string kDevice = EYESIM_DEVICE_EXE;
 
-/// A short synthetic recording (0.2 s = 10 fields per camera), generated once per test run.
+/// Removes the generated recording when the test program ends.
+struct RemoveAtExit {
+    std::string path;
+    ~RemoveAtExit() {
+        std::error_code ec;
+        if (!path.empty()) fs::remove_all(path, ec);
+    }
+};
+
+/// A short synthetic recording (0.2 s = 10 fields per camera), generated once per test process (its own folder,
+/// so parallel test processes never share one).
 const std::string& recording_dir() {
+    static RemoveAtExit cleanup;
     static const std::string dir = [] {
-        const std::string d = std::string(EYESIM_TEST_TMP) + "/e2e_recording";
+        const std::string d = std::string(EYESIM_TEST_TMP) + "/e2e_recording_" + std::to_string(::getpid());
+        cleanup.path = d;
         fs::remove_all(d);
         rig::SynthRequest req;
         req.out_dir = d;
@@ -135,6 +147,8 @@ Run run_device(bool low_latency, const std::string& capture) {
     }
     REQUIRE(replay->status() == protocol::CaptureStatus::End);
     run.stats = replay->stats();
+    replay.reset();
+    fs::remove(capture);
     return run;
 }
 
@@ -142,7 +156,7 @@ Run run_device(bool low_latency, const std::string& capture) {
 
 TEST_CASE("eyesim-device over TCP: the capture equals the FPGA model's packets (per-field mode)", "[firmware][e2e]") {
     const auto want = reference_messages(recording_dir());
-    const Run run = run_device(false, std::string(EYESIM_TEST_TMP) + "/e2e_field.capture");
+    const Run run = run_device(false, std::string(EYESIM_TEST_TMP) + "/e2e_field_" + std::to_string(::getpid()) + ".capture");
     INFO(run.stderr_text);
     REQUIRE(run.exit_code == 0);
     REQUIRE(run.stats.errors() == 0);
@@ -161,7 +175,7 @@ TEST_CASE("eyesim-device over TCP: the capture equals the FPGA model's packets (
 
 TEST_CASE("eyesim-device over TCP: low-latency parts carry the same markers", "[firmware][e2e]") {
     const auto want = reference_messages(recording_dir());
-    const Run run = run_device(true, std::string(EYESIM_TEST_TMP) + "/e2e_blob.capture");
+    const Run run = run_device(true, std::string(EYESIM_TEST_TMP) + "/e2e_blob_" + std::to_string(::getpid()) + ".capture");
     INFO(run.stderr_text);
     REQUIRE(run.exit_code == 0);
     REQUIRE(run.stats.errors() == 0);
