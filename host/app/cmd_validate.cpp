@@ -49,6 +49,7 @@ struct ValidateOptions {
     std::string sync = "interpolate";
     bool no_trocar = false;
     double truth_noise_px = 0.02;
+    bool truth_projected = false;
     double sigma_px = 0.05;
     std::string bodies;
     std::uint64_t seed = 1;
@@ -452,8 +453,8 @@ int run_validate(const ValidateOptions& opt) {
         regs.push_back(std::make_unique<eyesim::fpga::RegisterMap>());
         pipes.push_back(std::make_unique<eyesim::fpga::Pipeline>(*regs.back()));
     }
-    std::vector<CentroidStats> cstats(std::size_t(ncam));
-    std::vector<std::uint8_t> field(std::size_t(rig::kFieldBytes));
+    std::vector<CentroidStats> cstats(static_cast<std::size_t>(ncam));
+    std::vector<std::uint8_t> field(static_cast<std::size_t>(rig::kFieldBytes));
     std::vector<eyesim::fpga::Blob> blobs;
     std::vector<proto::FieldMarkers> msgs(64);
     std::array<std::uint8_t, proto::kMaxFrameBytes> frame_bytes{};
@@ -535,7 +536,16 @@ int run_validate(const ValidateOptions& opt) {
                 ++cs.matched;
                 cs.err_px.push_back(bd);
             }
-            for (bool u : used) cs.spurious += u ? 0 : 1;
+            for (std::size_t k = 0; k < got.size(); ++k) {
+                if (used[k]) continue;
+                bool near_truth = false;  // partly occluded markers are not scored but are not spurious either
+                for (const rig::MarkerTruth& mt : truth[std::size_t(i)].markers) {
+                    const rig::MarkerCameraTruth& ct = mt.cams[std::size_t(c)];
+                    if (ct.visible && mt.colour_class == got[k].first && (got[k].second - ct.centroid_px).norm() < 3.0)
+                        near_truth = true;
+                }
+                if (!near_truth) ++cs.spurious;
+            }
             // --- The same field from truth centroids + Gaussian noise (isolates the tracking error). ---
             proto::FieldMarkers tm;
             tm.camera_id = std::uint8_t(c);
@@ -545,7 +555,8 @@ int run_validate(const ValidateOptions& opt) {
             for (const rig::MarkerTruth& mt : truth[std::size_t(i)].markers) {
                 const rig::MarkerCameraTruth& ct = mt.cams[std::size_t(c)];
                 if (!ct.visible || ct.area_px < 4.0) continue;
-                const Eigen::Vector2d p = ct.centroid_px + opt.truth_noise_px * Eigen::Vector2d(gauss(rng), gauss(rng));
+                const Eigen::Vector2d base = opt.truth_projected ? ct.projected_px : ct.centroid_px;
+                const Eigen::Vector2d p = base + opt.truth_noise_px * Eigen::Vector2d(gauss(rng), gauss(rng));
                 if (p.x() < 0 || p.y() < 0 || p.x() > 719 || p.y() > 287) continue;
                 proto::Marker& mk = tm.markers[tm.marker_count++];
                 mk.colour_class = std::uint8_t(mt.colour_class);
@@ -712,6 +723,8 @@ eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest"}));
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
     sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run");
+    sub.add_flag("--truth-projected", opt->truth_projected,
+                 "comparison run from projected marker centres instead of rendered centroids");
     sub.add_option("--sigma-px", opt->sigma_px, "centroid noise assumed for the covariance (frame px)");
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise");
