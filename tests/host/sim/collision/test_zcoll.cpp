@@ -1,4 +1,5 @@
 #include "eyesim/sim/collision/exact.hpp"
+#include "eyesim/sim/collision/eye_sphere.hpp"
 #include "eyesim/sim/collision/zcoll.hpp"
 
 #include "alloc_counter.hpp"
@@ -457,4 +458,37 @@ TEST_CASE("exact narrow phase: grid + flood-filled containment equals brute forc
         CHECK(std::vector<uint32_t>(b.begin(), b.end()) == truth);
     }
     CHECK(contained_cases >= 4);  // the scenes exercise containment, not only surface hits
+}
+
+TEST_CASE("pick touching the curved retina: ZCOLL on the hemisphere, eye-wall warning", "[sim][collision][zcoll]") {
+    const TriangleMesh retina = make_retina_hemisphere(kEyeRadius_mm - 0.5f, 40, 128);
+    PosedInstrument pick(make_pick());
+    // Tip 0.15 mm beyond the inner wall near the posterior pole, pointing outwards along −z (slightly tilted).
+    const Vec3f dir = Vec3f(0.1f, -0.05f, -1.0f).normalized();
+    const Eigen::Isometry3f pose = pose_at(dir * (kEyeRadius_mm - 0.5f + 0.15f), dir);
+    pick.set_state(0.0f, pose);
+    ZcollConfig cfg;
+    cfg.resolution_px = 128;
+    ZcollEngine engine(retina, cfg);
+    // π along the local wall normal (outwards at the tip), camera outside the wall looking back in.
+    const ZcollView view = make_tip_view_along(pick.tip_eye_mm(), -dir, Vec3f(0, 1, 0), 0.6f, 0.4f, 1.0f, 128);
+    const ZcollResult& r = engine.push(retina.vertices_mm, pick, view);
+    REQUIRE(r.colliding);
+    CHECK(r.pi_convex);  // a small V on a 11.5 mm sphere is a height field
+    const auto exact = brute_force_colliding(retina.vertices_mm, retina.triangles, pick.instrument(),
+                                             pick.vertices_local_mm(), pose);
+    REQUIRE_FALSE(exact.empty());
+    const std::vector<uint32_t> got(r.colliding_triangles.begin(), r.colliding_triangles.end());
+    const size_t common = intersection_size(got, exact);
+    INFO("zcoll " << got.size() << " exact " << exact.size() << " common " << common);
+    CHECK(double(common) >= 0.8 * double(exact.size()));
+    // Push vectors point inwards-to-outwards along the wall normal (towards the camera side = outside).
+    for (const Vec3f& v : r.node_push_eye_mm) CHECK(v.normalized().dot(dir) == Approx(1.0f).margin(1e-4));
+    for (const Vec3f& v : r.node_push_eye_mm) CHECK(v.norm() <= 0.15f + 0.02f);
+    // Case 2 on the same tip: beyond the wall, warning on.
+    EyeSphereMonitor wall({kEyeRadius_mm - 0.5f, 0.5f, 0.6f});
+    const EyeSphereContact c = wall.update(pick.tip_eye_mm());
+    CHECK(c.distance_mm == Approx(-0.15f).margin(1e-4));
+    CHECK(c.warning);
+    CHECK(c.warning_started);
 }
