@@ -73,8 +73,10 @@ Scene make_scene(uint32_t seed, double noise, double diam_min, double diam_max) 
 
 // Matches detections to truth markers by class and nearest centre (≤ 3 px); accumulates squared error.
 struct ErrorStats {
-    double se = 0;
+    double se = 0, sdx = 0, sdy = 0;
     int matched = 0, missed = 0, extra = 0;
+    double bias_x() const { return matched ? sdx / matched : 0.0; }
+    double bias_y() const { return matched ? sdy / matched : 0.0; }
     double rms() const { return matched ? std::sqrt(se / matched) : 0.0; }
 };
 
@@ -97,6 +99,8 @@ void score(const Scene& s, const std::vector<Detection>& det, ErrorStats& e) {
         }
         used[static_cast<size_t>(best)] = true;
         e.se += bd * bd;
+        e.sdx += det[static_cast<size_t>(best)].x - s.truth[i][0];
+        e.sdy += det[static_cast<size_t>(best)].y - s.truth[i][1];
         ++e.matched;
     }
     for (bool u : used) e.extra += !u;
@@ -265,11 +269,13 @@ int main(int argc, char** argv) {
     std::printf("fields: %d (720x288, %d markers, 6-10 px), noise sigma %.2f, repeats %d (median), 1 thread, "
                 "fields per thread-CPU second\n\n",
                 n_fields, markers, noise, repeats);
-    std::printf("| pipeline | fields/s | x OpenCV (weighted) | centroid RMS px | matched | missed | extra |\n");
-    std::printf("|---|---:|---:|---:|---:|---:|---:|\n");
+    std::printf("| pipeline | fields/s | x OpenCV (weighted) | centroid RMS px | bias x, y px | matched | missed | "
+                "extra |\n");
+    std::printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for (const Row& r : rows)
-        std::printf("| %s | %.0f | %.1f | %.4f | %d | %d | %d |\n", r.name.c_str(), r.fields_per_s,
-                    r.fields_per_s / ocv, r.err.rms(), r.err.matched, r.err.missed, r.err.extra);
+        std::printf("| %s | %.0f | %.1f | %.4f | %+.3f, %+.3f | %d | %d | %d |\n", r.name.c_str(), r.fields_per_s,
+                    r.fields_per_s / ocv, r.err.rms(), r.err.bias_x(), r.err.bias_y(), r.err.matched, r.err.missed,
+                    r.err.extra);
 
     // Accuracy per marker size (reset registers) beside the OpenCV baselines.
     std::printf("\nCentroid RMS (px) by marker diameter (frame px), noise sigma %.2f, %d fields each\n\n", noise,

@@ -91,8 +91,8 @@ void Pipeline::compile() {
         const double a = p.hue_centre[c - 1] * kTwoPi / 256.0;
         dir_cb_ref_[c] = std::cos(a);
         dir_cr_ref_[c] = std::sin(a);
-        dir_cb_q7_[c] = static_cast<int16_t>(std::lround(128.0 * dir_cb_ref_[c]));
-        dir_cr_q7_[c] = static_cast<int16_t>(std::lround(128.0 * dir_cr_ref_[c]));
+        dir_cb_q9_[c] = static_cast<int16_t>(std::lround(512.0 * dir_cb_ref_[c]));
+        dir_cr_q9_[c] = static_cast<int16_t>(std::lround(512.0 * dir_cr_ref_[c]));
         luma_min_[c] = p.luma_min[c - 1];
         luma_max_[c] = p.luma_max[c - 1];
     }
@@ -122,11 +122,13 @@ uint8_t Pipeline::classify(uint8_t y, uint8_t cb, uint8_t cr) const {
     return (c != 0 && y >= luma_min_[c] && y <= luma_max_[c]) ? c : 0;
 }
 
-uint16_t Pipeline::weight(uint8_t cls, uint8_t y, uint8_t cb, uint8_t cr) const {
+uint16_t Pipeline::weight2(uint8_t cls, int y, int cb2, int cr2) const {
     if (params_.weight_mode == 0) return 1;
-    // Mode 1: projection of the chroma vector on the class hue direction (Q1.7 coefficients, floor).
+    // Mode 1: projection of the (doubled) chroma vector on the class hue direction, Q1.9 coefficients, rounded.
     // Mode 2: luma. Both minus the background level.
-    const int v = params_.weight_mode == 2 ? y : ((cb - 128) * dir_cb_q7_[cls] + (cr - 128) * dir_cr_q7_[cls]) >> 7;
+    const int v = params_.weight_mode == 2
+                      ? y
+                      : ((cb2 - 256) * dir_cb_q9_[cls] + (cr2 - 256) * dir_cr_q9_[cls] + (1 << 9)) >> 10;
     const int w = std::clamp(v - static_cast<int>(params_.weight_bg), 0, 255);
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
 }
@@ -336,14 +338,12 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
             const uint8_t* q = line + 4 * k;
             int cb = q[0], cr = q[2];
             const int luma = q[1 + 2 * (px & 1)];
-            double cbd = cb, crd = cr;
+            int cb2 = 2 * cb, cr2 = 2 * cr;  // chroma ×2: exact for the interpolated odd pixels
             if ((px & 1) && k < last_pair) {  // odd pixel: chroma interpolated between co-sited neighbours
-                if constexpr (kRef) {
-                    cbd = 0.5 * (cb + q[4]);
-                    crd = 0.5 * (cr + q[6]);
-                }
-                cb = (cb + q[4] + 1) >> 1;
-                cr = (cr + q[6] + 1) >> 1;
+                cb2 = cb + q[4];
+                cr2 = cr + q[6];
+                cb = (cb2 + 1) >> 1;
+                cr = (cr2 + 1) >> 1;
             }
             uint8_t c = lut_[static_cast<size_t>((cb >> 2) << kLutChromaBits | (cr >> 2))];
             if (c != 0 && (luma < luma_min_[c] || luma > luma_max_[c])) c = 0;
@@ -358,12 +358,12 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
                 }
             }
             if (c != 0) {
-                const uint32_t w = weight(c, static_cast<uint8_t>(luma), static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+                const uint32_t w = weight2(c, luma, cb2, cr2);
                 sw += w;
                 swx += w * static_cast<uint32_t>(px);
                 swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
                 if constexpr (kRef) {
-                    const double wr = weight_reference(c, luma, cbd, crd);
+                    const double wr = weight_reference(c, luma, 0.5 * cb2, 0.5 * cr2);
                     rw += wr;
                     rwx += wr * px;
                     rwxx += wr * px * px;
@@ -416,16 +416,13 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     Slot& s = slots_[root];
     const int k = x >> 1;
     const uint8_t* q = line + 4 * k;
-    int cb = q[0], cr = q[2];
+    int cb2 = 2 * q[0], cr2 = 2 * q[2];
     const int luma = q[1 + 2 * (x & 1)];
-    double cbd = cb, crd = cr;
     if ((x & 1) && k < kPairs - 1) {
-        cbd = 0.5 * (cb + q[4]);
-        crd = 0.5 * (cr + q[6]);
-        cb = (cb + q[4] + 1) >> 1;
-        cr = (cr + q[6] + 1) >> 1;
+        cb2 = q[0] + q[4];
+        cr2 = q[2] + q[6];
     }
-    const uint64_t w = weight(s.cls, static_cast<uint8_t>(luma), static_cast<uint8_t>(cb), static_cast<uint8_t>(cr));
+    const uint64_t w = weight2(s.cls, luma, cb2, cr2);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
     s.sw += w;
     s.swx += w * ux;
@@ -434,7 +431,7 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     s.swyy += w * uy * uy;
     s.swxy += w * ux * uy;
     if (config_.float_reference) {
-        const double wr = weight_reference(s.cls, luma, cbd, crd);
+        const double wr = weight_reference(s.cls, luma, 0.5 * cb2, 0.5 * cr2);
         s.rw += wr;
         s.rwx += wr * x;
         s.rwy += wr * y;
@@ -736,6 +733,9 @@ StorageBits Pipeline::storage_bits() const {
     s.chroma_lut = (1ull << (2 * kLutChromaBits)) * 3;
     // Per run: x0, x1, class, label (moment sums go straight into the blob table, not into the line buffer).
     s.run_buffers = 2ull * kMaxRunsPerLine * (2 * x_bits + 3 + label_bits);
+    // Edge ring: the previous line's 4:2:2 pixels (Y + alternating Cb/Cr = 16 bits) and, for two lines, one
+    // occupied and one claimed bit per pixel.
+    s.line_buffer = kActivePixelsPerLine * 16ull + 2ull * 2ull * kActivePixelsPerLine;
     // Per slot: parent, class, flags, live, seen, bbox, last line + its rightmost x, area, six moment sums.
     const uint64_t slot_bits = label_bits + 3 + 6 + 2 + 2 * x_bits + 2 * y_bits + y_bits + x_bits +
                                bits_for(kActivePixelsPerLine * kMaxFieldLines) + kSumWBits + kSumWxBits +

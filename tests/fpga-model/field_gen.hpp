@@ -114,9 +114,11 @@ inline bool roi_contains(const PipelineParams& par, int x, int y) {
 
 /// Adds pixel (x, y) with the weight of class c to b (fixed and floating reference weights).
 inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, RefBlob& b) {
-    const auto [yy, cb, cr] = pixel_ycc(f.line(y), x);
-    const uint64_t w = p.weight(static_cast<uint8_t>(c), static_cast<uint8_t>(yy), static_cast<uint8_t>(cb),
-                                static_cast<uint8_t>(cr));
+    const uint8_t* px = f.line(y) + 4 * (x >> 1);
+    const int yy = px[1 + 2 * (x & 1)];
+    const bool interp = (x & 1) && (x >> 1) < W / 2 - 1;
+    const int cb2 = interp ? px[0] + px[4] : 2 * px[0], cr2 = interp ? px[2] + px[6] : 2 * px[2];
+    const uint64_t w = p.weight2(static_cast<uint8_t>(c), yy, cb2, cr2);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
     b.sw += w;
     b.swx += w * ux;

@@ -316,3 +316,31 @@ TEST_CASE("full-field blob: accumulators stay within their documented widths", "
     CHECK(fits(a * w * 511 * 511, kSumWyyBits));
     CHECK(fits(a * w * 719 * 511, kSumWxyBits));
 }
+
+TEST_CASE("fixed-point centroids stay within the documented tolerance of the floating reference", "[fpga][exact]") {
+    // Rendered markers 6–10 px with noise: 8-bit integer weights differ from the unquantised reference by
+    // RMS ≤ 0.004 px and at most 0.015 px per blob (docs/fpga-pipeline.md, "Fixed point").
+    std::mt19937 rng(21);
+    std::uniform_real_distribution<double> ux(10, 710), uy(5, 283), ud(6.0, 10.0);
+    std::vector<Marker> ms;
+    for (int i = 0; i < 60; ++i) {
+        const double d = ud(rng);
+        ms.push_back({1 + i % 4, ux(rng), uy(rng), d / 2, d / 4});
+    }
+    const Field f = render_markers(ms, 1.0, 4);
+    PipelineConfig cfg;
+    cfg.float_reference = true;
+    Pipeline p(RegisterMap{}, cfg);
+    const auto blobs = run_field(p, f);
+    REQUIRE(blobs.size() >= 50);
+    double se = 0, worst = 0;
+    for (const Blob& b : blobs) {
+        const double e = std::hypot(b.cx_px() - b.ref_cx_px, b.cy_px() - b.ref_cy_px);
+        se += e * e;
+        worst = std::max(worst, e);
+    }
+    const double rms = std::sqrt(se / static_cast<double>(blobs.size()));
+    CHECK(rms <= 0.004);
+    CHECK(worst <= 0.015);
+    CHECK(rms > 0.0);  // the paths differ: the reference is not the fixed-point path
+}

@@ -71,10 +71,11 @@ struct PipelineConfig {
 struct StorageBits {
     uint64_t chroma_lut = 0;      ///< 4096 × 3-bit class LUT
     uint64_t run_buffers = 0;     ///< previous + current line run buffers
+    uint64_t line_buffer = 0;     ///< previous line's pixels (16 bits each) + occupied/claimed bits of two lines
     uint64_t blob_table = 0;      ///< accumulators, bbox, merge table entries
     uint64_t output_fifo = 0;     ///< emitted-blob FIFO
     uint64_t registers = 0;       ///< register file
-    uint64_t total() const { return chroma_lut + run_buffers + blob_table + output_fifo + registers; }
+    uint64_t total() const { return chroma_lut + run_buffers + line_buffer + blob_table + output_fifo + registers; }
 };
 
 /// Called once per emitted blob, at the moment it completes.
@@ -134,8 +135,9 @@ public:
     /// Classifies one pixel exactly as the datapath does: class 0..4 after luma band and class enables.
     uint8_t classify(uint8_t y, uint8_t cb, uint8_t cr) const;
 
-    /// Weight of a pixel of class `cls` (1..4) with luma y and chroma (cb, cr), as the datapath computes it.
-    uint16_t weight(uint8_t cls, uint8_t y, uint8_t cb, uint8_t cr) const;
+    /// Weight of a pixel of class `cls` (1..4) with luma y, as the datapath computes it. Chroma is given doubled,
+    /// as the datapath keeps it: 2·Cb for an even pixel, Cb_k + Cb_k+1 (the sum of its neighbours) for an odd one.
+    uint16_t weight2(uint8_t cls, int y, int cb2, int cr2) const;
 
     /// Floating reference weight for the same pixel (no quantisation of direction, weight or width).
     double weight_reference(uint8_t cls, double y, double cb, double cr) const;
@@ -193,7 +195,7 @@ private:
 
     // Compiled datapath tables.
     std::array<uint8_t, 1u << (2 * kLutChromaBits)> lut_{};
-    std::array<int16_t, kNumClasses + 1> dir_cb_q7_{}, dir_cr_q7_{};
+    std::array<int16_t, kNumClasses + 1> dir_cb_q9_{}, dir_cr_q9_{};
     int fast_half_width_ = 0;
 
     // Line buffers.
