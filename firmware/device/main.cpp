@@ -9,11 +9,13 @@
 
 #include "eyesim/rig/pal.hpp"
 #include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/synth.hpp"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <csignal>
@@ -31,6 +33,9 @@ void on_signal(int) { g_stop = 1; }
 
 struct Options {
     std::string recording;
+    std::string scenario;
+    double seconds = 10.0;
+    std::uint64_t seed = 1;
     std::string address = "127.0.0.1";
     std::string bind;
     int port = 7431;
@@ -48,6 +53,68 @@ struct Options {
 
 using Clock = std::chrono::steady_clock;
 
+/// Where the camera fields come from: a recording directory or the rig's renderer, live.
+class FieldProvider {
+public:
+    virtual ~FieldProvider() = default;
+    /// Fields per camera.
+    virtual std::int64_t fields() const = 0;
+    /// The cameras (clock offsets, parities).
+    virtual const std::vector<eyesim::rig::CameraModel>& cameras() const = 0;
+    /// Field `index` of camera `cam` as UYVY.
+    virtual void read(int cam, std::int64_t index, std::uint8_t* uyvy) = 0;
+};
+
+class RecordingProvider final : public FieldProvider {
+public:
+    explicit RecordingProvider(const std::string& dir) : rec_(eyesim::rig::Recording::open(dir)) {
+        if (rec_.camera_count() < static_cast<int>(eyesim::firmware::kCameras))
+            throw std::runtime_error(dir + "/rig.yaml: camera_count " + std::to_string(rec_.camera_count()) +
+                                     " but the device has 3 cameras");
+        if (rec_.common_field_count() <= 0) throw std::runtime_error(dir + ": the recording has no complete field");
+    }
+    std::int64_t fields() const override { return rec_.common_field_count(); }
+    const std::vector<eyesim::rig::CameraModel>& cameras() const override { return rec_.cameras(); }
+    void read(int cam, std::int64_t index, std::uint8_t* uyvy) override { rec_.read_field(cam, index, uyvy); }
+
+private:
+    eyesim::rig::Recording rec_;
+};
+
+/// Renders the rig's scenario as the cameras ask for fields (all three cameras of a field at once).
+class ScenarioProvider final : public FieldProvider {
+public:
+    ScenarioProvider(const std::string& name, double seconds, std::uint64_t seed)
+        : cams_(eyesim::rig::default_rig()),
+          fields_(std::max<std::int64_t>(1, std::llround(seconds * eyesim::rig::kFieldRateHz))) {
+        const eyesim::rig::Bodies bodies = eyesim::rig::load_bodies(eyesim::rig::default_bodies_path());
+        eyesim::rig::RenderOptions ro;
+        ro.seed = seed;
+        synth_ = std::make_unique<eyesim::rig::RigSynth>(
+            cams_, bodies,
+            eyesim::rig::Scenario::make(name, seed, static_cast<double>(fields_) * eyesim::rig::kFieldPeriodUs, bodies),
+            ro);
+        for (auto& f : buffers_) f.resize(eyesim::rig::kFieldBytes);
+    }
+    std::int64_t fields() const override { return fields_; }
+    const std::vector<eyesim::rig::CameraModel>& cameras() const override { return cams_; }
+    void read(int cam, std::int64_t index, std::uint8_t* uyvy) override {
+        if (index != rendered_) {
+            eyesim::rig::FieldTruth truth;
+            synth_->render(index, {buffers_[0].data(), buffers_[1].data(), buffers_[2].data()}, truth);
+            rendered_ = index;
+        }
+        std::copy(buffers_[static_cast<std::size_t>(cam)].begin(), buffers_[static_cast<std::size_t>(cam)].end(), uyvy);
+    }
+
+private:
+    std::vector<eyesim::rig::CameraModel> cams_;
+    std::int64_t fields_;
+    std::unique_ptr<eyesim::rig::RigSynth> synth_;
+    std::array<std::vector<std::uint8_t>, 3> buffers_;
+    std::int64_t rendered_ = -1;
+};
+
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 nlohmann::json summary_json(const eyesim::firmware::pc::LatencySummary& s) {
@@ -58,12 +125,14 @@ int run(const Options& opt) {
     using namespace eyesim;
     using namespace eyesim::firmware;
 
-    auto recording = std::make_shared<rig::Recording>(rig::Recording::open(opt.recording));
-    if (recording->camera_count() < static_cast<int>(kCameras))
-        throw std::runtime_error(opt.recording + "/rig.yaml: camera_count " + std::to_string(recording->camera_count()) +
-                                 " but the device has " + std::to_string(kCameras) + " cameras");
-    const std::int64_t fields_in_file = recording->common_field_count();
-    if (fields_in_file <= 0) throw std::runtime_error(opt.recording + ": the recording has no complete field");
+    if (opt.recording.empty() == opt.scenario.empty())
+        throw std::runtime_error("give exactly one of --recording DIR or --scenario NAME");
+    if (!opt.scenario.empty() && !(opt.seconds > 0 && std::isfinite(opt.seconds)))
+        throw std::runtime_error("--seconds: must be a positive number, got " + std::to_string(opt.seconds));
+    std::shared_ptr<FieldProvider> recording;
+    if (!opt.recording.empty()) recording = std::make_shared<RecordingProvider>(opt.recording);
+    else recording = std::make_shared<ScenarioProvider>(opt.scenario, opt.seconds, opt.seed);
+    const std::int64_t fields_in_file = recording->fields();
     const bool allow_any = !opt.bind.empty();
     pc::TcpServer server(allow_any ? opt.bind : opt.address, static_cast<std::uint16_t>(opt.port), allow_any);
     if (opt.send_buffer > 0) server.set_send_buffer(opt.send_buffer);
@@ -83,7 +152,7 @@ int run(const Options& opt) {
             if (limit >= 0 && k >= static_cast<std::uint64_t>(limit)) return false;
             if (!loop && k >= static_cast<std::uint64_t>(fields_in_file)) return false;
             const auto index = static_cast<std::int64_t>(k % static_cast<std::uint64_t>(fields_in_file));
-            recording->read_field(cam, index, out);
+            recording->read(cam, index, out);
             // Field k (also past the file's end when looping) on the rig's clock: camera offset + k·20 ms, plus
             // half a line for a bottom field, as `eyesim fpga` stamps it, so both write identical packets.
             const rig::FieldTiming t = rig::field_timing(static_cast<std::int64_t>(k), model.field_time_offset_us,
@@ -192,7 +261,13 @@ int main(int argc, char** argv) {
     CLI::App app{"eyesim-device: the simulated eyesim tracking device (three PAL cameras, FPGA pipelines, firmware "
                  "core) serving the wire protocol over TCP"};
     Options opt;
-    app.add_option("--recording", opt.recording, "recording directory (rig.yaml + cam0..2 streams)")->required();
+    auto* rec_opt = app.add_option("--recording", opt.recording, "recording directory (rig.yaml + cam0..2 streams)");
+    auto* scn_opt = app.add_option("--scenario", opt.scenario,
+                                   "render this rig scenario live instead (static, sweep, surgery, fast, occlusion)");
+    rec_opt->excludes(scn_opt);
+    app.add_option("--seconds", opt.seconds, "--scenario: length in seconds (fields = 50 per second)")
+        ->capture_default_str();
+    app.add_option("--seed", opt.seed, "--scenario: scenario and noise seed")->capture_default_str();
     app.add_option("--address", opt.address, "loopback address to listen on")->capture_default_str();
     app.add_option("--bind", opt.bind, "listen on this address even if it is not loopback (explicit opt-in)");
     app.add_option("--port", opt.port, "TCP port; 0 picks a free one (printed as 'listening tcp://ADDR:PORT')")
