@@ -7,6 +7,20 @@
 
 #include <catch2/catch.hpp>
 
+// AddressSanitizer owns the allocator in sanitizer builds (replacing it there trips its alloc/dealloc pairing
+// checks), so this check runs in the release and debug builds only.
+#if defined(__SANITIZE_ADDRESS__)
+#define EYESIM_COUNT_ALLOCATIONS 0
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define EYESIM_COUNT_ALLOCATIONS 0
+#endif
+#endif
+#ifndef EYESIM_COUNT_ALLOCATIONS
+#define EYESIM_COUNT_ALLOCATIONS 1
+#endif
+
+#if EYESIM_COUNT_ALLOCATIONS
 #include <atomic>
 #include <cstdlib>
 #include <memory>
@@ -45,7 +59,7 @@ TEST_CASE("encoding, parsing damaged streams and JSON rendering allocate nothing
         stream.insert(stream.end(), f.begin(), f.end());
         if (i % 7 == 0) stream.push_back(kSync0);                              // garbage
         if (i % 11 == 0) stream[stream.size() - 5] ^= 0x20;                    // bit flip
-        if (i % 13 == 0) stream.resize(stream.size() - 3);                     // truncation
+        if (i % 13 == 0) stream.erase(stream.end() - 3, stream.end());         // truncation
     }
     auto parser = std::make_unique<StreamParser>();
     auto frame = std::make_unique<DecodedFrame>();
@@ -75,3 +89,4 @@ TEST_CASE("encoding, parsing damaged streams and JSON rendering allocate nothing
     CHECK(json_bytes > 0);
     CHECK(parser->stats().errors() > 0);
 }
+#endif  // EYESIM_COUNT_ALLOCATIONS
