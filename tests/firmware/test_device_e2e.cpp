@@ -92,11 +92,14 @@ struct Run {
 };
 
 /// Starts the device on a free port, records a capture of one whole playback, returns what the capture holds.
-Run run_device(bool low_latency, const std::string& capture) {
+Run run_device(bool low_latency, const std::string& capture, std::vector<std::string> source = {}) {
     const std::string& dir = recording_dir();
     rig::Recording rec = rig::Recording::open(dir);
     const auto fields = static_cast<std::uint32_t>(rec.common_field_count());
-    test::ChildProcess child({kDevice, "--recording", dir, "--port", "0", "--linger-ms", "3000"});
+    if (source.empty()) source = {"--recording", dir};
+    std::vector<std::string> argv{kDevice, "--port", "0", "--linger-ms", "3000"};
+    argv.insert(argv.end(), source.begin(), source.end());
+    test::ChildProcess child(argv);
     REQUIRE(child.started());
     const std::string line = child.read_line(10000);
     INFO("device said: " << line);
@@ -194,6 +197,20 @@ TEST_CASE("eyesim-device over TCP: low-latency parts carry the same markers", "[
     REQUIRE(a == b);
 }
 
+TEST_CASE("eyesim-device --scenario renders live what the synthesiser writes", "[firmware][e2e]") {
+    // The recording was synthesised from scenario "sweep", 0.2 s, seed 11 on the default rig: live rendering with
+    // the same parameters gives the same fields, hence the same packets.
+    const auto want = reference_messages(recording_dir());
+    const Run run = run_device(false, std::string(EYESIM_TEST_TMP) + "/e2e_live_" + std::to_string(::getpid()) + ".capture",
+                               {"--scenario", "sweep", "--seconds", "0.2", "--seed", "11"});
+    INFO(run.stderr_text);
+    REQUIRE(run.exit_code == 0);
+    auto got = run.messages;
+    std::stable_sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.camera_id < b.camera_id; });
+    REQUIRE(got.size() == want.size());
+    for (std::size_t i = 0; i < got.size(); ++i) REQUIRE(got[i] == want[i]);
+}
+
 TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero exit", "[firmware][e2e]") {
     struct Case {
         std::vector<std::string> args;
@@ -203,6 +220,8 @@ TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero ex
         {{"--recording", recording_dir(), "--address", "0.0.0.0", "--port", "0"}, "not loopback"},
         {{"--recording", recording_dir(), "--address", "example", "--port", "0"}, "not loopback"},
         {{"--recording", std::string(EYESIM_TEST_TMP) + "/no_such_recording", "--port", "0"}, "no_such_recording"},
+        {{"--scenario", "no_such_scenario", "--port", "0"}, "no_such_scenario"},
+        {{"--port", "0"}, "exactly one of --recording DIR or --scenario NAME"},
     };
     for (const auto& c : cases) {
         std::vector<std::string> argv{kDevice};
