@@ -1,5 +1,6 @@
 // Stereo scene renderer: pictures that look like the microscope view, checked against the view geometry and the
 // light pipe's shadow geometry computed here independently (pinhole projection, ray-sphere intersection).
+#include "eyesim/render/scene_instruments.hpp"
 #include "eyesim/render/scene_renderer.hpp"
 #include "eyesim/sim/collision/instrument.hpp"
 #include "eyesim/sim/mesh.hpp"
@@ -439,6 +440,32 @@ TEST_CASE("scene renderer: malformed meshes are skipped, never crash or smear th
     r->render(s2.frame(false, true, true), no_spot);
     const Eigen::Vector2f centre(kW / 2.0f, kH / 2.0f);
     CHECK(luminance(no_spot.left_rgba, centre, 20) < 0.6 * luminance(clean.left_rgba, centre, 20));
+}
+
+TEST_CASE("scene instruments: a posed simulation instrument becomes an eye-frame view", "[render][scene]") {
+    col::PosedInstrument forceps(col::make_forceps());
+    Eigen::Isometry3f pose = Eigen::Isometry3f::Identity();
+    pose.linear() = Eigen::AngleAxisf(0.7f, Vector3f(1, 2, 3).normalized()).toRotationMatrix();
+    pose.translation() = Vector3f(1.0f, -2.0f, -8.0f);
+    forceps.set_state(20.0f, pose);
+    std::vector<Vector3f> eye;
+    const InstrumentView v = eyesim::render::make_instrument_view(forceps, eye);
+    REQUIRE(v.mesh.vertices_eye_mm.size() == forceps.vertices_local_mm().size());
+    REQUIRE(v.mesh.triangles.size() == forceps.instrument().mesh.triangles.size());
+    CHECK(v.mesh.vertices_eye_mm.data() == eye.data());
+    float worst = 0;
+    for (size_t i = 0; i < eye.size(); ++i) {
+        // Independent: rotation then translation, written out.
+        const Vector3f expect = pose.linear() * forceps.vertices_local_mm()[i] + pose.translation();
+        worst = std::max(worst, (eye[i] - expect).norm());
+    }
+    CHECK(worst < 1e-5f);
+    CHECK((v.tip_eye_mm - Vector3f(1.0f, -2.0f, -8.0f)).norm() < 1e-6f);
+    CHECK((v.forward_eye - pose.linear().col(2)).norm() < 1e-6f);
+    CHECK_FALSE(v.is_light_pipe);
+    col::PosedInstrument pipe(col::make_light_pipe());
+    pipe.set_state(0.0f, pose);
+    CHECK(eyesim::render::make_instrument_view(pipe, eye).is_light_pipe);
 }
 
 TEST_CASE("scene renderer: invalid sizes are refused with a reason", "[render][scene]") {
