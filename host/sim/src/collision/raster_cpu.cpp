@@ -218,7 +218,7 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
         const uint32_t tid = uint32_t(ti);
         auto frag = [&](size_t p, float z, int corner) {
             if (z < znear || z > zfar) return false;
-            if (req.count_layers && layers[p] < 255) ++layers[p];
+            if (req.count_layers && layers[p] < 255 && ++layers[p] == 2) ++out.multi_layer_pixels;
             if (z < zm[p]) {
                 zm[p] = z;
                 cm[p] = (vertex_ids ? ids[corner] : tid) + 1u;
@@ -227,21 +227,21 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
         };
         const Vtx va{mx[tr[0]], my[tr[0]], mq[tr[0]]}, vb{mx[tr[1]], my[tr[1]], mq[tr[1]]},
             vc{mx[tr[2]], my[tr[2]], mq[tr[2]]};
+        // Conservative image bounds and deepest depth of the membrane (the instrument pass culls by them):
+        // the triangle's clipped sample box and its deepest vertex inside V.
+        const int bx0 = std::max(0, int((std::min({va.x, vb.x, vc.x}) - kHalf + kSub - 1) >> kSubBits));
+        const int bx1 = std::min(r - 1, int((std::max({va.x, vb.x, vc.x}) - kHalf) >> kSubBits));
+        const int by0 = std::max(0, int((std::min({va.y, vb.y, vc.y}) - kHalf + kSub - 1) >> kSubBits));
+        const int by1 = std::min(r - 1, int((std::max({va.y, vb.y, vc.y}) - kHalf) >> kSubBits));
+        if (bx0 > bx1 || by0 > by1) continue;
+        mem_x0_ = std::min(mem_x0_, bx0);
+        mem_x1_ = std::max(mem_x1_, bx1);
+        mem_y0_ = std::min(mem_y0_, by0);
+        mem_y1_ = std::max(mem_y1_, by1);
+        if (!central) mem_zmax_ = std::max(mem_zmax_, std::min(zfar, std::max({va.q, vb.q, vc.q})));
         if (central) raster_triangle<true>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
         else raster_triangle<false>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
     }
-    // Bounds of the membrane image: the instrument can only collide inside them, in front of the deepest ZM.
-    for (int y = 0; y < r; ++y)
-        for (int x = 0; x < r; ++x) {
-            const size_t p = size_t(y) * size_t(r) + size_t(x);
-            if (cm[p] == 0) continue;
-            mem_x0_ = std::min(mem_x0_, x);
-            mem_x1_ = std::max(mem_x1_, x);
-            mem_y0_ = std::min(mem_y0_, y);
-            mem_y1_ = std::max(mem_y1_, y);
-            mem_zmax_ = std::max(mem_zmax_, zm[p]);
-            if (req.count_layers && layers[p] >= 2) ++out.multi_layer_pixels;
-        }
 }
 
 void CpuRasterBackend::render(const MeshRef& membrane, const MeshRef* instrument, const ZcollView& view,
