@@ -143,6 +143,7 @@ struct CameraRenderer::Impl {
     // Per-field scratch (reused: no allocation once warm).
     SceneGeometry geo_mid, geo_start, geo_end;
     std::vector<SceneGeometry> geo_t;
+    std::vector<double> times;
     std::vector<double> tile_I, tile_cv, tile_ca;
     Occluders occ;
     std::vector<Rect> marker_rect;
@@ -151,7 +152,7 @@ struct CameraRenderer::Impl {
 
     void precompute();
     void draw_shafts(int parity, const SceneGeometry& g);
-    void draw_markers(int parity, const std::vector<double>& times, std::vector<MarkerCameraTruth>& truth);
+    void draw_markers(int parity, const std::vector<double>& sample_times_us, std::vector<MarkerCameraTruth>& truth);
     void composite(int parity);
     void to_uyvy(int parity, int64_t index, uint8_t* out) const;
 };
@@ -329,9 +330,9 @@ void CameraRenderer::Impl::draw_shafts(int parity, const SceneGeometry& g) {
     }
 }
 
-void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& times,
+void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& sample_times_us,
                                         std::vector<MarkerCameraTruth>& truth) {
-    const int T = static_cast<int>(times.size());
+    const int T = static_cast<int>(sample_times_us.size());
     const size_t nm = geo_mid.markers.size();
     marker_rect.assign(nm, Rect{0, 0, -1, -1});
     const int ne = std::max(1, opt.edge_subcells);
@@ -489,20 +490,48 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& t
                                 sum_i += 0.25 * vis * es.shade;
                             }
                     } else {
-                        // Outline: n×n sub-cells with exact straight-edge coverage each.
+                        // Outline: n×n sub-cells with exact straight-edge coverage each, visited as 2×2 quads
+                        // so that quads wholly inside (Gauss points) or outside (skipped) cost little.
                         const double cell_w = h * h;
-                        for (int sy = 0; sy < ne; ++sy)
-                            for (int sx = 0; sx < ne; ++sx) {
-                                const Eigen::Vector2d dp((sx + 0.5) * h - 0.5, (sy + 0.5) * h - 0.5);
-                                const Eval es = eval(q + A * dp, true);
-                                const double gsn = std::sqrt(es.gx * es.gx + es.gy * es.gy);
-                                const double c = cell_coverage(es.g / gsn, es.gx / gsn, es.gy / gsn, h);
-                                if (c <= 0) continue;
-                                const double vis = any_occ && occ.hit_before(es.dir, es.depth) ? 0.0 : 1.0;
-                                sum_ca += cell_w * c;
-                                sum_cv += cell_w * c * vis;
-                                sum_i += cell_w * c * vis * es.shade;
-                            }
+                        auto subcell = [&](const Eigen::Vector2d& dp) {
+                            const Eval es = eval(q + A * dp, true);
+                            const double gsn = std::sqrt(es.gx * es.gx + es.gy * es.gy);
+                            const double c = cell_coverage(es.g / gsn, es.gx / gsn, es.gy / gsn, h);
+                            if (c <= 0) return;
+                            const double vis = any_occ && occ.hit_before(es.dir, es.depth) ? 0.0 : 1.0;
+                            sum_ca += cell_w * c;
+                            sum_cv += cell_w * c * vis;
+                            sum_i += cell_w * c * vis * es.shade;
+                        };
+                        if (ne % 2 != 0 || ne < 4) {
+                            for (int sy = 0; sy < ne; ++sy)
+                                for (int sx = 0; sx < ne; ++sx) subcell({(sx + 0.5) * h - 0.5, (sy + 0.5) * h - 0.5});
+                        } else {
+                            const int nh = ne / 2;
+                            for (int qy = 0; qy < 2; ++qy)
+                                for (int qx = 0; qx < 2; ++qx) {
+                                    const Eigen::Vector2d qc(qx ? 0.25 : -0.25, qy ? 0.25 : -0.25);
+                                    const Eval eq = eval(q + A * qc, true);
+                                    const double dq = eq.g / std::sqrt(eq.gx * eq.gx + eq.gy * eq.gy);
+                                    if (dq > 0.45) continue;  // quad (half-diagonal 0.354 px) wholly outside
+                                    if (dq < -0.55) {
+                                        // Wholly inside (margin for the inside over-estimate): 2×2 Gauss points.
+                                        for (int sy = 0; sy < 2; ++sy)
+                                            for (int sx = 0; sx < 2; ++sx) {
+                                                const Eigen::Vector2d dp = qc + 0.5 * Eigen::Vector2d(sx ? gl : -gl, sy ? gl : -gl);
+                                                const Eval es = eval(q + A * dp, false);
+                                                const double vis = any_occ && occ.hit_before(es.dir, es.depth) ? 0.0 : 1.0;
+                                                sum_ca += 0.0625;
+                                                sum_cv += 0.0625 * vis;
+                                                sum_i += 0.0625 * vis * es.shade;
+                                            }
+                                        continue;
+                                    }
+                                    for (int sy = 0; sy < nh; ++sy)
+                                        for (int sx = 0; sx < nh; ++sx)
+                                            subcell({qx * 0.5 + (sx + 0.5) * h - 0.5, qy * 0.5 + (sy + 0.5) * h - 0.5});
+                                }
+                        }
                     }
                     tile_ca[ti] += wt * sum_ca;
                     tile_cv[ti] += wt * sum_cv;
@@ -634,15 +663,15 @@ void CameraRenderer::render_field(const GeometryAt& geometry, int64_t index, uin
     }
     const int T = std::clamp(static_cast<int>(std::ceil(motion_px / d.opt.blur_step_px)), 1,
                              std::min(64, d.opt.max_time_samples));
-    std::vector<double> times(static_cast<size_t>(T));
+    d.times.resize(static_cast<size_t>(T));
     if (d.geo_t.size() < static_cast<size_t>(T)) d.geo_t.resize(static_cast<size_t>(T));
     for (int k = 0; k < T; ++k) {
-        times[k] = ft.exposure_start_us + (k + 0.5) / T * (ft.exposure_end_us - ft.exposure_start_us);
-        geometry(times[k], d.geo_t[k]);
+        d.times[k] = ft.exposure_start_us + (k + 0.5) / T * (ft.exposure_end_us - ft.exposure_start_us);
+        geometry(d.times[k], d.geo_t[k]);
     }
     truth.resize(d.geo_mid.markers.size());
     if (uyvy_out) d.draw_shafts(p, d.geo_mid);
-    d.draw_markers(p, times, truth);
+    d.draw_markers(p, d.times, truth);
     d.composite(p);
     if (uyvy_out) d.to_uyvy(p, index, uyvy_out);
 }
