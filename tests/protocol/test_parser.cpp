@@ -296,9 +296,11 @@ TEST_CASE("sequence gaps count lost frames", "[protocol][parser]") {
     CHECK(p.stats().errors() == 0);
 }
 
-TEST_CASE("the parser delivers exactly what a brute-force scan finds, on any damage", "[protocol][parser]") {
-    std::mt19937_64 rng(12);
-    for (int trial = 0; trial < 200; ++trial) {
+namespace {
+
+void compare_with_brute_force(std::uint64_t seed, int trials) {
+    std::mt19937_64 rng(seed);
+    for (int trial = 0; trial < trials; ++trial) {
         Stream s = make_stream(rng, uniform<int>(rng, 1, 30));
         Bytes b = s.bytes;
         // Random damage: garbage insertions, deletions, bit flips, duplicated slices.
@@ -339,6 +341,16 @@ TEST_CASE("the parser delivers exactly what a brute-force scan finds, on any dam
         CHECK(p1.stats().skipped_bytes + delivered == b.size());
         CHECK(p1.stats().bytes_in == b.size());
     }
+}
+
+}  // namespace
+
+TEST_CASE("the parser delivers exactly what a brute-force scan finds, on any damage", "[protocol][parser]") {
+    compare_with_brute_force(12, 200);
+}
+
+TEST_CASE("brute-force comparison on many damaged streams", "[protocol][parser][stress]") {
+    compare_with_brute_force(1200, 20000);
 }
 
 TEST_CASE("reset clears the buffer and the counters", "[protocol][parser]") {
