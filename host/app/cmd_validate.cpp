@@ -7,6 +7,7 @@
 #include "eyesim/fpga/register_map.hpp"
 #include "eyesim/fpga/timing.hpp"
 #include "eyesim/fpga/wire.hpp"
+#include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
 #include "eyesim/rig/bodies.hpp"
@@ -50,6 +51,7 @@ struct ValidateOptions {
     bool no_trocar = false;
     double truth_noise_px = 0.02;
     bool truth_projected = false;
+    std::string write_capture;
     double sigma_px = 0.05;
     std::string bodies;
     std::uint64_t seed = 1;
@@ -464,6 +466,9 @@ int run_validate(const ValidateOptions& opt) {
     std::mt19937_64 rng(opt.seed);
     std::normal_distribution<double> gauss(0.0, 1.0);
     std::uint16_t sequence = 0;
+    proto::CaptureWriter capture;
+    if (!opt.write_capture.empty() && !capture.create(opt.write_capture.c_str()))
+        throw Error(opt.write_capture + ": cannot create capture file");
     long parse_errors = 0, fields_with_drops = 0;
     const double t_start = us_now();
     double fpga_us = 0;
@@ -503,6 +508,8 @@ int run_validate(const ValidateOptions& opt) {
                 written_ns = link.transmit(queued_ns, len);
             }
             const double received_us = double(written_ns) * 1e-3;
+            if (!opt.write_capture.empty() && !stream.empty() && !capture.write(written_ns / 1000, stream))
+                throw Error(opt.write_capture + ": write failed");
             parser.parse(stream, [&](const proto::DecodedFrame& df) {
                 if (const auto* fm = std::get_if<proto::FieldMarkers>(&df.message)) fpga_msgs.push_back({received_us, *fm});
             });
@@ -580,6 +587,7 @@ int run_validate(const ValidateOptions& opt) {
             std::fprintf(stderr, "\rvalidate: field %lld/%lld", static_cast<long long>(i + 1), static_cast<long long>(n));
     }
     parser.finish([&](const proto::DecodedFrame&) {});
+    if (!opt.write_capture.empty()) capture.close();
     parse_errors = long(parser.stats().errors());
     const double end_us = 1e300;
     fpga_run.finish(end_us);
@@ -728,6 +736,8 @@ eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets
     sub.add_option("--sigma-px", opt->sigma_px, "centroid noise assumed for the covariance (frame px)");
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise");
+    sub.add_option("--write-capture", opt->write_capture,
+                   "also write the FPGA chain's packets as a capture file (modelled receive times)");
     return [opt]() -> int { return run_validate(*opt); };
 }};
 
