@@ -91,7 +91,8 @@ public:
     SceneRenderer& operator=(const SceneRenderer&) = delete;
 
     /// Renders both microscope views of `frame` into `out` (resized as needed). Deterministic: equal inputs give
-    /// equal bytes on the same driver.
+    /// equal bytes on the same driver. Makes this renderer's GL context current on the calling thread and leaves it
+    /// current (other GL users, such as the ZCOLL back-end, make their own context current before use).
     void render(const SceneFrame& frame, StereoImages& out);
     /// GL_RENDERER of the context, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)".
     const std::string& renderer_name() const;
