@@ -5,6 +5,7 @@
 //
 // Usage: bench_fpga_model [fields=64] [repeats=7] [noise_sigma=1.0]
 #include "field_gen.hpp"
+#include "opencv_baseline.hpp"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -19,13 +20,10 @@
 
 using namespace eyesim::fpga;
 using namespace eyesim::fpga::test;
+using eyesim::fpga::bench::Detection;
+using eyesim::fpga::bench::OpenCvPipeline;
 
 namespace {
-
-struct Detection {
-    int cls;
-    double x, y;
-};
 
 struct Scene {
     Field field;
@@ -105,47 +103,6 @@ void score(const Scene& s, const std::vector<Detection>& det, ErrorStats& e) {
     }
     for (bool u : used) e.extra += !u;
 }
-
-// The OpenCV baseline: UYVY → BGR → HSV, inRange per class, connected components, moments.
-struct OpenCvPipeline {
-    cv::Mat bgr, hsv, mask, mask2, labels, stats, centroids;
-    bool weighted = true;
-    std::vector<Detection> run(const Field& f) {
-        std::vector<Detection> out;
-        const cv::Mat uyvy(f.height, W, CV_8UC2, const_cast<uint8_t*>(f.bytes.data()));
-        cv::cvtColor(uyvy, bgr, cv::COLOR_YUV2BGR_UYVY);
-        cv::cvtColor(bgr, hsv, cv::COLOR_BGR2HSV);
-        // Hue (OpenCV 0..180): red 0, yellow 27, green 64, blue 113; saturation ≥ 40 (edges included), V ≥ 30.
-        static const int lo[5] = {0, 172, 52, 100, 18}, hi[5] = {0, 8, 76, 126, 36};
-        for (int c = 1; c <= 4; ++c) {
-            if (c == 1) {
-                cv::inRange(hsv, cv::Scalar(0, 40, 30), cv::Scalar(hi[1], 255, 255), mask);
-                cv::inRange(hsv, cv::Scalar(lo[1], 40, 30), cv::Scalar(180, 255, 255), mask2);
-                mask |= mask2;
-            } else {
-                cv::inRange(hsv, cv::Scalar(lo[c], 40, 30), cv::Scalar(hi[c], 255, 255), mask);
-            }
-            const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
-            for (int i = 1; i < n; ++i) {
-                if (stats.at<int>(i, cv::CC_STAT_AREA) < 2) continue;
-                if (!weighted) {
-                    out.push_back({c, centroids.at<double>(i, 0), centroids.at<double>(i, 1)});
-                    continue;
-                }
-                // Saturation-weighted moments over the component's box (threshold + moments).
-                const cv::Rect r(stats.at<int>(i, cv::CC_STAT_LEFT), stats.at<int>(i, cv::CC_STAT_TOP),
-                                 stats.at<int>(i, cv::CC_STAT_WIDTH), stats.at<int>(i, cv::CC_STAT_HEIGHT));
-                cv::Mat1b sat(r.height, r.width);
-                for (int y = 0; y < r.height; ++y)
-                    for (int x = 0; x < r.width; ++x)
-                        sat(y, x) = labels.at<int>(r.y + y, r.x + x) == i ? hsv.at<cv::Vec3b>(r.y + y, r.x + x)[1] : 0;
-                const cv::Moments m = cv::moments(sat, false);
-                if (m.m00 > 0) out.push_back({c, r.x + m.m10 / m.m00, r.y + m.m01 / m.m00});
-            }
-        }
-        return out;
-    }
-};
 
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -260,8 +217,8 @@ int main(int argc, char** argv) {
         Row row{weighted ? "OpenCV: HSV inRange + CC + saturation-weighted moments"
                          : "OpenCV: HSV inRange + CC, binary centroid",
                 0, {}};
-        for (const Scene& s : scenes) score(s, cvp.run(s.field), row.err);
-        row.fields_per_s = time_it([&](const Scene& s) { cvp.run(s.field); });
+        for (const Scene& s : scenes) score(s, cvp.run(s.field.bytes.data(), 288), row.err);
+        row.fields_per_s = time_it([&](const Scene& s) { cvp.run(s.field.bytes.data(), 288); });
         rows.push_back(row);
     }
 
@@ -297,9 +254,9 @@ int main(int argc, char** argv) {
                 score(s, det, p == &pm ? em : eb);
             }
             cvp.weighted = true;
-            score(s, cvp.run(s.field), ew);
+            score(s, cvp.run(s.field.bytes.data(), 288), ew);
             cvp.weighted = false;
-            score(s, cvp.run(s.field), ec);
+            score(s, cvp.run(s.field.bytes.data(), 288), ec);
         }
         std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), eb.rms(), ew.rms(), ec.rms());
     }

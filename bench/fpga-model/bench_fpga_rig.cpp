@@ -1,0 +1,158 @@
+// Centroid accuracy of the FPGA model on a rig recording (rendered truth), per marker size, beside a binary
+// centroid of the same model and the OpenCV baseline; with fields/s of each on the same fields.
+//
+// Usage: bench_fpga_rig RECORDING_DIR [max_fields]
+//   (make one with: eyesim synth --scenario surgery --seconds 2 --out DIR)
+#include "opencv_baseline.hpp"
+
+#include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/rig/error.hpp"
+#include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/truth.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+using eyesim::fpga::bench::Detection;
+using eyesim::fpga::bench::OpenCvPipeline;
+namespace fpga = eyesim::fpga;
+namespace rig = eyesim::rig;
+
+namespace {
+
+double cpu_s() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+struct Acc {
+    double se = 0;
+    int n = 0, missed = 0;
+    double rms() const { return n ? std::sqrt(se / n) : 0.0; }
+};
+
+// Size bin of a marker: its projected diameter in frame px.
+int size_bin(double radius_px) {
+    const double d = 2 * radius_px;
+    return d < 6 ? 4 : d < 8 ? 6 : d < 10 ? 8 : d < 12 ? 10 : 12;
+}
+
+// Scores detections against the visible markers of camera `cam` in `truth` (class + nearest ≤ 3 px).
+void score(const std::vector<Detection>& det, const rig::FieldTruth& truth, int cam, std::map<int, Acc>& bins) {
+    std::vector<bool> used(det.size(), false);
+    for (const rig::MarkerTruth& m : truth.markers) {
+        const rig::MarkerCameraTruth& t = m.cams[static_cast<size_t>(cam)];
+        if (!t.visible || t.area_px < 2.0 || t.occluded_fraction > 0.0) continue;  // unoccluded markers only
+        Acc& a = bins[size_bin(t.radius_px)];
+        int best = -1;
+        double bd = 3.0;
+        for (size_t j = 0; j < det.size(); ++j) {
+            if (used[j] || det[j].cls != m.colour_class) continue;
+            const double d = std::hypot(det[j].x - t.centroid_px.x(), det[j].y - t.centroid_px.y());
+            if (d < bd) {
+                bd = d;
+                best = static_cast<int>(j);
+            }
+        }
+        if (best < 0) {
+            ++a.missed;
+            continue;
+        }
+        used[static_cast<size_t>(best)] = true;
+        a.se += bd * bd;
+        ++a.n;
+    }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc < 2) {
+        std::fprintf(stderr, "usage: bench_fpga_rig RECORDING_DIR [max_fields]\n");
+        return 2;
+    }
+    try {
+        rig::Recording rec = rig::Recording::open(argv[1]);
+        if (rec.truth_path().empty()) {
+            std::fprintf(stderr, "%s: truth.jsonl: missing\n", argv[1]);
+            return 1;
+        }
+        const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+        int64_t n = std::min<int64_t>(rec.common_field_count(), static_cast<int64_t>(truth.size()));
+        if (argc > 2) n = std::min<int64_t>(n, std::atoll(argv[2]));
+        cv::setNumThreads(1);
+
+        std::vector<std::vector<uint8_t>> fields;  // all cameras' fields in memory, read once
+        std::vector<std::pair<int, int64_t>> ids;
+        for (int64_t i = 0; i < n; ++i)
+            for (int c = 0; c < rec.camera_count(); ++c) {
+                fields.emplace_back(static_cast<size_t>(rig::kFieldBytes));
+                rec.read_field(c, i, fields.back().data());
+                ids.emplace_back(c, i);
+            }
+
+        fpga::RegisterMap reset, binary;
+        binary.write(fpga::reg::kWeightMode, 0);
+        struct Method {
+            std::string name;
+            std::function<std::vector<Detection>(const uint8_t*)> run;
+            std::map<int, Acc> bins;
+            double fields_per_s = 0;
+        };
+        fpga::Pipeline pm(reset), pb(binary);
+        std::vector<fpga::Blob> blobs;
+        blobs.reserve(256);
+        auto model = [&](fpga::Pipeline& p) {
+            return [&](const uint8_t* f) {
+                blobs.clear();
+                p.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); },
+                           &blobs);
+                p.process_field(f, rig::kFieldHeight, 0, 0);
+                std::vector<Detection> det;
+                for (const fpga::Blob& b : blobs) det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+                return det;
+            };
+        };
+        OpenCvPipeline cvw, cvb;
+        cvb.weighted = false;
+        std::vector<Method> methods;
+        methods.push_back({"model (reset registers)", model(pm), {}, 0});
+        methods.push_back({"model, binary centroid", model(pb), {}, 0});
+        methods.push_back({"OpenCV weighted moments", [&](const uint8_t* f) { return cvw.run(f, rig::kFieldHeight); }, {}, 0});
+        methods.push_back({"OpenCV binary centroid", [&](const uint8_t* f) { return cvb.run(f, rig::kFieldHeight); }, {}, 0});
+        for (Method& m : methods) {
+            const double t0 = cpu_s();
+            for (size_t k = 0; k < fields.size(); ++k)
+                score(m.run(fields[k].data()), truth[static_cast<size_t>(ids[k].second)], ids[k].first, m.bins);
+            m.fields_per_s = static_cast<double>(fields.size()) / (cpu_s() - t0);
+        }
+
+        std::printf("recording %s: %lld fields x %d cameras; unoccluded visible markers; fields/s per thread-CPU "
+                    "second (including scoring)\n\n",
+                    argv[1], static_cast<long long>(n), rec.camera_count());
+        std::printf("| diameter px | markers |");
+        for (const Method& m : methods) std::printf(" %s |", m.name.c_str());
+        std::printf("\n|---|---:|");
+        for (size_t i = 0; i < methods.size(); ++i) std::printf("---:|");
+        std::printf("\n");
+        for (const auto& [bin, acc] : methods[0].bins) {
+            std::printf("| %d–%d | %d |", bin, bin == 12 ? 99 : bin + 2, acc.n + acc.missed);
+            for (Method& m : methods) std::printf(" %.4f (%d missed) |", m.bins[bin].rms(), m.bins[bin].missed);
+            std::printf("\n");
+        }
+        std::printf("| fields/s | |");
+        for (const Method& m : methods) std::printf(" %.0f |", m.fields_per_s);
+        std::printf("\n");
+    } catch (const rig::RigError& e) {
+        std::fprintf(stderr, "%s\n", e.what());
+        return 1;
+    }
+    return 0;
+}
