@@ -174,6 +174,9 @@ int run(const Options& opt) {
     config.stream_on_start = opt.stream;
     auto core = std::make_unique<DeviceCore>(hal, config);
 
+    // Fields per camera this run will play (-1: endless loop).
+    const long long expected_fields =
+        opt.loop ? opt.max_fields : (opt.max_fields >= 0 ? std::min<long long>(opt.max_fields, fields_in_file) : fields_in_file);
     bool finished = false;
     bool ever_connected = false;
     Clock::time_point play_t0{};
@@ -186,7 +189,10 @@ int run(const Options& opt) {
         if (server.poll_accept()) ever_connected = true;
         if (server.take_disconnect()) {
             core->host_disconnected();
-            if (finished) break;
+            // The host left after the last field was out: the run is over (otherwise wait for the next host).
+            bool all_out = expected_fields >= 0;
+            for (const auto& s : sources) all_out = all_out && s->fields_delivered() >= static_cast<std::uint64_t>(expected_fields);
+            if (finished || all_out) break;
         }
         core->service();
         const bool playing = !finished && (opt.free_run || (server.connected() && core->streaming()));

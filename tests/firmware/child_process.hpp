@@ -47,15 +47,16 @@ public:
 
     bool started() const { return pid_ > 0; }
 
-    /// Reads one line of stdout within `timeout_ms` (empty on timeout or EOF).
-    std::string read_line(int timeout_ms) {
+    /// Reads one line of stdout (or stderr) within `timeout_ms` (empty on timeout or EOF).
+    std::string read_line(int timeout_ms, bool from_stderr = false) {
+        const int fd = from_stderr ? err_ : out_;
         std::string line;
         const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
         while (std::chrono::steady_clock::now() < deadline) {
-            pollfd p{out_, POLLIN, 0};
+            pollfd p{fd, POLLIN, 0};
             if (::poll(&p, 1, 50) <= 0) continue;
             char c;
-            if (::read(out_, &c, 1) != 1) break;
+            if (::read(fd, &c, 1) != 1) break;
             if (c == '\n') return line;
             line += c;
         }

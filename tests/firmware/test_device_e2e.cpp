@@ -11,6 +11,7 @@
 #include "eyesim/transport/tcp.hpp"
 
 #include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -18,6 +19,7 @@
 #include <map>
 #include <memory>
 #include <set>
+#include <thread>
 
 using namespace eyesim;
 namespace fs = std::filesystem;
@@ -209,6 +211,47 @@ TEST_CASE("eyesim-device --scenario renders live what the synthesiser writes", "
     std::stable_sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.camera_id < b.camera_id; });
     REQUIRE(got.size() == want.size());
     for (std::size_t i = 0; i < got.size(); ++i) REQUIRE(got[i] == want[i]);
+}
+
+TEST_CASE("eyesim-device with a host that stops reading: oldest frames dropped and counted, never blocked",
+          "[firmware][e2e]") {
+    // 400 fields (the 10-field recording looped) into a small socket buffer while the host sleeps.
+    test::ChildProcess child({kDevice, "--recording", recording_dir(), "--loop", "--fields", "400", "--port", "0",
+                              "--allow-drops", "--send-buffer", "4096", "--linger-ms", "3000", "--json"});
+    REQUIRE(child.started());
+    const std::string line = child.read_line(10000, true);
+    const std::string prefix = "listening tcp://127.0.0.1:";
+    REQUIRE(line.rfind(prefix, 0) == 0);
+    const auto port = static_cast<std::uint16_t>(std::stoi(line.substr(prefix.size())));
+    std::uint64_t lost = 0, frames = 0;
+    bool saw_last = false;
+    {
+        transport::DeviceLink link(transport::connect_tcp("127.0.0.1", port, 2000));
+        link.command(protocol::Opcode::StreamStart);
+        std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // the host stalls; the device must not
+        const std::uint64_t deadline = transport::host_now_us() + 30'000'000;
+        while (!saw_last && transport::host_now_us() < deadline) {
+            if (link.poll(100, [&](const protocol::DecodedFrame& f) {
+                    ++frames;
+                    if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message))
+                        if (fm->field_counter == 399 && !(fm->flags & protocol::kFieldFlagMoreFollows)) saw_last = true;
+                }) < 0)
+                break;
+        }
+        REQUIRE(link.stats().errors() == 0);  // only whole frames were dropped
+        REQUIRE(link.stats().sequence_gaps > 0);
+        lost = link.stats().sequence_gaps;
+        link.transport().close();
+    }
+    REQUIRE(saw_last);  // the newest frames survive drop-oldest
+    REQUIRE(child.wait(10000) == 0);
+    const std::string out = child.drain_stdout();
+    INFO(out);
+    const auto j = nlohmann::json::parse(out);
+    REQUIRE(j["fields"] == 400);
+    REQUIRE(j["queue_overflows"].get<std::uint64_t>() >= lost);  // each gap is at least one dropped frame
+    REQUIRE(j["blobs_dropped"].get<std::uint64_t>() > 0);
+    REQUIRE(frames > 0);
 }
 
 TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero exit", "[firmware][e2e]") {
