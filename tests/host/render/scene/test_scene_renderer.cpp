@@ -357,6 +357,41 @@ TEST_CASE("scene renderer: the shadow stays attached as the forceps tip approach
     }
 }
 
+TEST_CASE("scene renderer: the forceps shadow the membrane itself", "[render][scene]") {
+    SceneRenderer* r = renderer();
+    if (!r) return;
+    const RenderConfig& c = r->config();
+    Scene s;
+    const Vector3f tip(-1.5f, 0.5f, -9.6f);  // 1 mm above the membrane
+    s.forceps = Posed(col::make_forceps(), tip, tip - Vector3f(8.5f, 0.0f, 8.5f));
+    StereoImages with, without;
+    r->render(s.frame(true, true, true), with);
+    r->render(s.frame(true, false, true), without);
+    CHECK(write_views("scene_shadow_on_membrane.png", with));
+    int n = 0, dark = 0;
+    for (int view = 0; view < 2; ++view) {
+        const Vector3f cam = view_position(c, view);
+        for (float back = 0.3f; back < 12.0f; back += 0.1f) {
+            // Where the light's ray through the forceps axis meets the membrane plane, inside the patch.
+            const Vector3f q = s.forceps.tip - back * s.forceps.forward;
+            const Vector3f d = q - s.light.tip;
+            const float t = (s.membrane_centre.z() - s.light.tip.z()) / d.z();
+            const Vector3f m = s.light.tip + t * d;
+            if (std::abs(m.x() - s.membrane_centre.x()) > 2.2f || std::abs(m.y() - s.membrane_centre.y()) > 2.2f) continue;
+            if (segments_distance(cam, m, s.forceps.tip, s.forceps.back()) < 0.8f) continue;
+            const Eigen::Vector2f px = project(c, view, m);
+            const double la = luminance(view == 0 ? with.left_rgba : with.right_rgba, px);
+            const double lb = luminance(view == 0 ? without.left_rgba : without.right_rgba, px);
+            ++n;
+            dark += la < 0.85 * lb;
+            UNSCOPED_INFO("membrane shadow px " << px.transpose() << ": " << la << " vs " << lb);
+        }
+    }
+    INFO("dark " << dark << "/" << n);
+    REQUIRE(n >= 10);
+    CHECK(dark >= n * 9 / 10);
+}
+
 TEST_CASE("scene renderer: the membrane casts a partial shadow on the retina", "[render][scene]") {
     SceneRenderer* r = renderer();
     if (!r) return;
