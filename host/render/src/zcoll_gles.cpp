@@ -295,6 +295,8 @@ void GlesZcollBackend::render(const MeshRef& membrane, const MeshRef* instrument
         std::memcpy(&out.zm_mm[p], &scratch_rgba_[4 * p + 1], sizeof(float));
     }
     out.multi_layer_pixels = 0;
+    out.x0 = out.y0 = 0;
+    out.x1 = out.y1 = r - 1;  // the whole viewport was read back
     if (req.count_layers) {
         // Every membrane fragment in V, depth test off: the per-pixel layer count.
         glBindFramebuffer(GL_FRAMEBUFFER, count_fbo_);
@@ -314,6 +316,8 @@ void GlesZcollBackend::render(const MeshRef& membrane, const MeshRef* instrument
         }
         glBindFramebuffer(GL_FRAMEBUFFER, fbo_);
         glEnable(GL_DEPTH_TEST);
+    } else {
+        std::fill(out.layers.begin(), out.layers.begin() + long(npx), uint8_t{0});
     }
     if (!req.instrument || instrument == nullptr) {
         std::copy(out.zm_mm.begin(), out.zm_mm.end(), out.zi_mm.begin());

@@ -14,6 +14,8 @@ void RasterBuffers::resize(int r) {
     cm.assign(n, 0);
     layers.assign(n, 0);
     multi_layer_pixels = 0;
+    x0 = y0 = 0;
+    x1 = y1 = -1;
 }
 
 namespace {
@@ -189,9 +191,14 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
                                        RasterBuffers& out) {
     const int r = view.resolution_px;
     if (out.resolution_px != r) out.resize(r);
-    std::fill(out.zm_mm.begin(), out.zm_mm.end(), kEmptyDepth);
-    std::fill(out.cm.begin(), out.cm.end(), 0u);
-    if (req.count_layers) std::fill(out.layers.begin(), out.layers.end(), uint8_t{0});
+    // Only the previous query's membrane rectangle can hold anything: clear just that.
+    for (int y = out.y0; y <= out.y1; ++y) {
+        const size_t row = size_t(y) * size_t(r);
+        std::fill(out.zm_mm.begin() + long(row) + out.x0, out.zm_mm.begin() + long(row) + out.x1 + 1, kEmptyDepth);
+        std::fill(out.zi_mm.begin() + long(row) + out.x0, out.zi_mm.begin() + long(row) + out.x1 + 1, kEmptyDepth);
+        std::fill(out.cm.begin() + long(row) + out.x0, out.cm.begin() + long(row) + out.x1 + 1, 0u);
+        std::fill(out.layers.begin() + long(row) + out.x0, out.layers.begin() + long(row) + out.x1 + 1, uint8_t{0});
+    }
     out.multi_layer_pixels = 0;
     project(membrane, view, membrane_px_);
     const uint8_t* mc = membrane_px_.code.data();
@@ -242,12 +249,21 @@ void CpuRasterBackend::raster_membrane(const MeshRef& membrane, const ZcollView&
         if (central) raster_triangle<true>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
         else raster_triangle<false>(va, vb, vc, r, 0, 0, r - 1, r - 1, frag);
     }
+    out.x0 = mem_x0_;
+    out.y0 = mem_y0_;
+    out.x1 = mem_x1_;
+    out.y1 = mem_y1_;
 }
 
 void CpuRasterBackend::render(const MeshRef& membrane, const MeshRef* instrument, const ZcollView& view,
                               const RasterRequest& req, RasterBuffers& out) {
     raster_membrane(membrane, view, req, out);
-    std::copy(out.zm_mm.begin(), out.zm_mm.end(), out.zi_mm.begin());
+    const int r0 = view.resolution_px;
+    for (int y = out.y0; y <= out.y1; ++y) {
+        const size_t row = size_t(y) * size_t(r0);
+        std::copy(out.zm_mm.begin() + long(row) + out.x0, out.zm_mm.begin() + long(row) + out.x1 + 1,
+                  out.zi_mm.begin() + long(row) + out.x0);
+    }
     if (!req.instrument || instrument == nullptr || mem_x1_ < 0) return;
     project(*instrument, view, instrument_px_);
     instrument_codes(view);

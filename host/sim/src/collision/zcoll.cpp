@@ -72,8 +72,8 @@ bool ZcollEngine::volume_touches(std::span<const Vec3f> membrane_vertices_eye_mm
 void ZcollEngine::collect_features(const ZcollView& view, bool only_single_layer) {
     const int r = view.resolution_px;
     const auto& b = buffers_;
-    for (int y = 0; y < r; ++y)
-        for (int x = 0; x < r; ++x) {
+    for (int y = b.y0; y <= b.y1; ++y)
+        for (int x = b.x0; x <= b.x1; ++x) {
             const size_t p = size_t(y) * size_t(r) + size_t(x);
             // Paper lines 11–13: the instrument changed the depth buffer where the membrane was seen.
             if (b.cm[p] == 0 || !(b.zi_mm[p] < b.zm_mm[p])) continue;
@@ -235,12 +235,13 @@ const ZcollResult& ZcollEngine::suction(std::span<const Vec3f> membrane_vertices
     backend_->render(membrane, nullptr, cone_view, req, buffers_);
     // Lines 120–130: every non-background colour names a triangle in the suction cone.
     const int r = cone_view.resolution_px;
-    for (size_t p = 0; p < size_t(r) * size_t(r); ++p) {
-        const uint32_t id = buffers_.cm[p];
-        if (id == 0 || tri_stamp_[id - 1] == stamp_) continue;
-        tri_stamp_[id - 1] = stamp_;
-        triangles_.push_back(id - 1);
-    }
+    for (int y = buffers_.y0; y <= buffers_.y1; ++y)
+        for (int x = buffers_.x0; x <= buffers_.x1; ++x) {
+            const uint32_t id = buffers_.cm[size_t(y) * size_t(r) + size_t(x)];
+            if (id == 0 || tri_stamp_[id - 1] == stamp_) continue;
+            tri_stamp_[id - 1] = stamp_;
+            triangles_.push_back(id - 1);
+        }
     std::sort(triangles_.begin(), triangles_.end());
     const TriangleMesh& m = *topology_;
     for (uint32_t t : triangles_)

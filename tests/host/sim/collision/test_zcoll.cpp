@@ -492,3 +492,29 @@ TEST_CASE("pick touching the curved retina: ZCOLL on the hemisphere, eye-wall wa
     CHECK(c.warning);
     CHECK(c.warning_started);
 }
+
+TEST_CASE("a reused engine gives exactly what a fresh engine gives (no stale pixels)", "[sim][collision][zcoll]") {
+    PlaneScene s;
+    PosedInstrument sphere(sphere_body(0.5f, 24, 32));
+    ZcollConfig cfg;
+    cfg.resolution_px = 48;
+    ZcollEngine reused(s.membrane, cfg);
+    std::mt19937 rng(21);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    for (int i = 0; i < 40; ++i) {
+        const Eigen::Isometry3f pose = pose_at(Vec3f(1.5f * u(rng), 1.5f * u(rng), 0.4f * u(rng)),
+                                               Vec3f(0.3f * u(rng), 0.3f * u(rng), -1.0f).normalized());
+        sphere.set_state(0.0f, pose);
+        const ZcollView view = make_tip_view(pose, 0.3f + 0.5f * std::fabs(u(rng)), 0.4f, 1.5f, 48);
+        ZcollEngine fresh(s.membrane, cfg);
+        const ZcollResult& a = reused.push(s.membrane.vertices_mm, sphere, view);
+        const ZcollResult& b = fresh.push(s.membrane.vertices_mm, sphere, view);
+        CHECK(std::vector<uint32_t>(a.colliding_triangles.begin(), a.colliding_triangles.end()) ==
+              std::vector<uint32_t>(b.colliding_triangles.begin(), b.colliding_triangles.end()));
+        CHECK(a.features.size() == b.features.size());
+        CHECK(reused.buffers().cm == fresh.buffers().cm);
+        CHECK(reused.buffers().zm_mm == fresh.buffers().zm_mm);
+        CHECK(reused.buffers().zi_mm == fresh.buffers().zi_mm);
+        CHECK(reused.buffers().layers == fresh.buffers().layers);
+    }
+}

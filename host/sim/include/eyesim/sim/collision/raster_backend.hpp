@@ -42,6 +42,9 @@ struct RasterBuffers {
     std::vector<uint32_t> cm;          ///< membrane colour buffer CM: feature id + 1, 0 = background
     std::vector<uint8_t> layers;       ///< membrane fragments per pixel inside V (saturating), if counted
     uint32_t multi_layer_pixels = 0;   ///< pixels with ≥ 2 membrane layers (not π-convex there)
+    /// Every pixel outside columns [x0, x1] × rows [y0, y1] is background (cm 0, depths kEmptyDepth,
+    /// layers 0): analysis may skip it. x1 < x0 means no membrane pixel at all.
+    int x0 = 0, y0 = 0, x1 = -1, y1 = -1;
 
     /// Allocates for resolution R (call outside the frame loop).
     void resize(int resolution_px);
