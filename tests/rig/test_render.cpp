@@ -300,3 +300,39 @@ TEST_CASE("scenario character: static is still, fast blurs, sweep covers the vol
     CHECK(visible > 100);
     CHECK(partial > 10);
 }
+
+TEST_CASE("long runs of every scenario keep the truth well formed", "[rig][stress]") {
+    const Bodies bodies = load_bodies(default_bodies_path());
+    for (const auto& name : scenario_names()) {
+        RigSynth synth(default_rig(), bodies, Scenario::make(name, 17, 20e6, bodies), RenderOptions{});
+        FieldTruth t;
+        int64_t visible = 0;
+        for (int64_t i = 0; i < 1000; i += 3) {
+            synth.render(i, {nullptr, nullptr, nullptr}, t);
+            REQUIRE(t.q_eye_to_rig.coeffs().allFinite());
+            for (const auto& in : t.instruments) {
+                REQUIRE(in.tip_rig_mm.allFinite());
+                REQUIRE(std::abs(in.axis_rig.norm() - 1.0) < 1e-9);
+                REQUIRE(in.jaw_opening >= 0.0);
+                REQUIRE(in.jaw_opening <= 1.0);
+            }
+            for (const auto& m : t.markers)
+                for (const auto& mc : m.cams) {
+                    REQUIRE(mc.area_px >= 0.0);
+                    REQUIRE(mc.occluded_fraction >= -1e-12);
+                    REQUIRE(mc.occluded_fraction <= 1.0 + 1e-12);
+                    if (!mc.visible) continue;
+                    ++visible;
+                    REQUIRE(mc.centroid_px.allFinite());
+                    REQUIRE(mc.centroid_px.x() >= -0.5);
+                    REQUIRE(mc.centroid_px.x() <= kFieldWidth - 0.5);
+                    REQUIRE(mc.centroid_px.y() >= -0.5);
+                    REQUIRE(mc.centroid_px.y() <= kFieldHeight - 0.5);
+                    // A marker of 6-11 px diameter covers at most ~50 field pixels, blur aside.
+                    REQUIRE(mc.area_px < 80.0);
+                }
+        }
+        INFO(name);
+        CHECK(visible > 1000);
+    }
+}
