@@ -159,8 +159,9 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
                 raw[c].write(reinterpret_cast<const char*>(buf[c].data()), kFieldBytes);
                 if (!raw[c]) throw RigError(fmt::format("{}/{}: file: write failed", req.out_dir, names[c]));
             } else if (i & 1) {
-                // Field i-1 was the top field of this frame (recordings start with a top field).
-                weave_to_bgr(prev[c].data(), buf[c].data(), bgr);
+                // Fields i-1 and i make frame (i-1)/2; the one of parity 0 goes to the even rows.
+                const bool prev_top = req.cameras[c].field_parity(i - 1) == 0;
+                weave_to_bgr(prev_top ? prev[c].data() : buf[c].data(), prev_top ? buf[c].data() : prev[c].data(), bgr);
                 vids[c].write(bgr);
             } else {
                 prev[c].swap(buf[c]);

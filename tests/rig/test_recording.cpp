@@ -35,6 +35,15 @@ std::vector<uint8_t> file_bytes(const std::string& path, size_t offset, size_t n
 }
 
 /// A short synthetic recording shared by the tests of this file.
+/// Removes a directory when the test program exits.
+struct RemoveAtExit {
+    std::string dir;
+    ~RemoveAtExit() {
+        std::error_code ec;
+        fs::remove_all(dir, ec);
+    }
+};
+
 const std::string& recording() {
     static const std::string dir = [] {
         const std::string d = temp_dir("base");
@@ -47,6 +56,7 @@ const std::string& recording() {
         REQUIRE(s.fields == 10);
         return d;
     }();
+    static const RemoveAtExit cleanup{dir};
     return dir;
 }
 
