@@ -111,3 +111,45 @@ TEST_CASE("storage does not grow with field height", "[fpga][storage]") {
     CHECK(s.line_buffer == 720u * 16u + 4u * 720u);
     CHECK(s.total() < 400'000u);
 }
+
+TEST_CASE("random bytes: no crash, bounded tables, invariants hold in every register mode", "[fpga][robust]") {
+    std::mt19937 rng(77);
+    std::uniform_int_distribution<int> byte(0, 255);
+    Field f(288);
+    for (uint8_t& b : f.bytes) b = static_cast<uint8_t>(byte(rng));
+    for (int capacity : {4, 64, kMaxBlobSlots}) {
+        for (uint32_t mode = 0; mode <= 2; ++mode) {
+            RegisterMap r;
+            r.write(reg::kMinArea, 1);
+            r.write(reg::kWeightMode, mode);
+            r.write(reg::kRoiEnable, capacity == 64 ? 0x3u : 0u);
+            r.write(reg::roi_x(0), (400u << 16) | 10u);
+            r.write(reg::roi_x(1), (719u << 16) | 300u);
+            r.write(reg::roi_y(1), (287u << 16) | 100u);
+            PipelineConfig cfg;
+            cfg.blob_table_capacity = capacity;
+            Pipeline p(r, cfg);
+            for (int rep = 0; rep < 2; ++rep) {  // the table must be empty again after a field
+                const std::vector<Blob> blobs = run_field(p, f, static_cast<uint32_t>(rep));
+                const FieldStats& s = p.field_stats();
+                CHECK(s.max_table_occupancy <= static_cast<uint32_t>(capacity));
+                CHECK(s.max_runs_per_line <= 720u);
+                uint64_t area = 0;
+                for (const Blob& b : blobs) {
+                    area += b.area_px;
+                    CHECK(b.class_id >= 1);
+                    CHECK(b.class_id <= 4);
+                    CHECK(b.area_px <= (b.x_max - b.x_min + 1u) * (b.y_max - b.y_min + 1u));
+                    CHECK(b.cx_px() >= b.x_min - 2.0);
+                    CHECK(b.cx_px() <= b.x_max + 2.0);
+                    CHECK(b.cy_px() >= b.y_min - 1.0);
+                    CHECK(b.cy_px() <= b.y_max + 1.0);
+                    CHECK(b.emit_cycle > b.last_pixel_cycle);
+                }
+                CHECK(area <= 720u * 288u);
+                if (capacity < kMaxBlobSlots) CHECK(s.table_overflows > 0);
+                CHECK(s.blobs_emitted == blobs.size());
+            }
+        }
+    }
+}
