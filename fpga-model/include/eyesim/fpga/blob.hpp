@@ -22,10 +22,10 @@ inline constexpr int kSumWBits = 27, kSumWxBits = 37, kSumWyBits = 36, kSumWxxBi
 
 /// Bits of Blob::flags.
 enum BlobFlag : uint8_t {
-    kBlobTouchesLeft = 1u << 0,    ///< has a pixel in column 0 (or the ROI's left edge)
-    kBlobTouchesRight = 1u << 1,   ///< has a pixel in column 719 (or the ROI's right edge)
-    kBlobTouchesTop = 1u << 2,     ///< has a pixel in line 0 (or the ROI's top edge)
-    kBlobTouchesBottom = 1u << 3,  ///< has a pixel in the field's last pushed line (or the ROI's bottom)
+    kBlobTouchesLeft = 1u << 0,    ///< has a pixel in column 0
+    kBlobTouchesRight = 1u << 1,   ///< has a pixel in column 719
+    kBlobTouchesTop = 1u << 2,     ///< has a pixel in line 0
+    kBlobTouchesBottom = 1u << 3,  ///< has a pixel in line 287 or in the last line of a field ended early
     kBlobIncomplete = 1u << 4,     ///< touched a run dropped for lack of a blob-table slot: moments are partial
     kBlobZeroWeight = 1u << 5,     ///< Σw = 0: the centroid is the bounding-box centre
     kBlobMerged = 1u << 6,         ///< formed by merging two or more provisional labels (U/W shapes)

@@ -16,7 +16,8 @@
 ///   pipe.end_field();                                // flushes blobs touching the last line
 /// \endcode
 /// Instead of draining the ring, a sink callback may be set; it is called from push_line/end_field the moment a
-/// blob completes. Connectivity is 8-connected per class (pixels of different classes never join).
+/// blob completes. Connectivity is 8-connected per class (pixels of different classes never join). With
+/// EDGE_RING, background pixels within kRingColumns columns and one line of a blob add to its moments (not area).
 
 #include "eyesim/fpga/blob.hpp"
 #include "eyesim/fpga/field_stats.hpp"
@@ -102,6 +103,8 @@ public:
     PipelineStatus begin_field(uint32_t field_counter, uint8_t parity);
 
     /// Feeds active line y (strictly increasing; skipped lines are treated as background) of 720 UYVY pixels.
+    /// The caller may overwrite the buffer after the call: the model keeps its own copy of the previous line
+    /// (the hardware's line buffer for the edge ring). Blobs completed by this line are delivered before it returns.
     PipelineStatus push_line(const uint8_t* uyvy_line, int y);
 
     /// Ends the field: completes every open blob (after the last pushed line) and finalises the stats.
