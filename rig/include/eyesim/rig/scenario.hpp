@@ -79,7 +79,7 @@ private:
     std::vector<Wave> pedal0_, pedal1_, pedal2_;
     double pedal0_base_ = 0.0;
     // Eye rotation vector (rad) sampled on a fixed grid by integrating the spring model (RK4).
-    double eye_t0_s_ = -1.0, eye_dt_s_ = 0.0005;
+    double eye_t0_s_ = -1.0, eye_dt_s_ = 0.002;  // RK4 step and table spacing (2 Hz spring: ω·dt = 0.025)
     std::vector<Eigen::Vector3d> eye_rot_, eye_rate_;
 };
 
