@@ -58,7 +58,7 @@ void DeviceLink::on_frame_internal(const protocol::DecodedFrame& f, std::uint64_
     }
 }
 
-int DeviceLink::poll(int timeout_ms, const FrameHandler& on_frame) {
+int DeviceLink::poll_impl(int timeout_ms, RawHandler handler, void* context) {
     int frames = 0;
     int wait = timeout_ms;
     for (int reads = 0; reads < 64; ++reads) {  // bounded: a busy stream still returns to the caller
@@ -70,7 +70,7 @@ int DeviceLink::poll(int timeout_ms, const FrameHandler& on_frame) {
         parser_.parse(std::span<const std::uint8_t>(rx_.data(), r.bytes), [&](const protocol::DecodedFrame& f) {
             on_frame_internal(f, rx_us);
             ++frames;
-            if (on_frame) on_frame(f);
+            handler(context, f);
         });
         wait = 0;  // drain what is already there, then return
     }

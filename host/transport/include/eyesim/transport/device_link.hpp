@@ -27,6 +27,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <type_traits>
 
 namespace eyesim::transport {
 
@@ -54,9 +55,15 @@ public:
     /// Sends a ping stamped with host_now_us(); its reply updates clock().
     std::uint32_t ping();
 
-    /// Reads what arrives within `timeout_ms` (0 = only what is there) and hands each frame to `on_frame`.
-    /// Returns the number of frames, or -1 when the link closed or failed (see transport().last_error()).
-    int poll(int timeout_ms, const FrameHandler& on_frame);
+    /// Reads what arrives within `timeout_ms` (0 = only what is there) and hands each frame to `on_frame`
+    /// (any callable taking `const protocol::DecodedFrame&`; no allocation per call). Returns the number of
+    /// frames, or -1 when the link closed or failed (see transport().last_error()).
+    template <class F>
+    int poll(int timeout_ms, F&& on_frame) {
+        using Fn = std::remove_reference_t<F>;
+        const RawHandler call = [](void* ctx, const protocol::DecodedFrame& f) { (*static_cast<Fn*>(ctx))(f); };
+        return poll_impl(timeout_ms, call, const_cast<void*>(static_cast<const void*>(&on_frame)));
+    }
 
     /// Polls until the Reply to `command_id` arrives (other frames go to `on_frame`) or `timeout_ms` passes.
     std::optional<protocol::Reply> wait_reply(std::uint32_t command_id, int timeout_ms,
@@ -70,6 +77,8 @@ public:
     Transport& transport() { return *transport_; }
 
 private:
+    using RawHandler = void (*)(void* context, const protocol::DecodedFrame& frame);
+    int poll_impl(int timeout_ms, RawHandler handler, void* context);
     void on_frame_internal(const protocol::DecodedFrame& f, std::uint64_t rx_us);
 
     std::unique_ptr<Transport> transport_;
