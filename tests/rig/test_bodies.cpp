@@ -1,0 +1,89 @@
+// Marker bodies: identifiability of the default layout and validation of bodies.json.
+#include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/error.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+using namespace eyesim::rig;
+namespace fs = std::filesystem;
+
+TEST_CASE("default bodies: every body identifiable from colour classes and their order", "[rig][bodies]") {
+    const Bodies b = load_bodies(default_bodies_path());
+    REQUIRE(b.instruments.size() == 5);
+    std::set<std::vector<int>> sequences;
+    for (const auto& ib : b.instruments) {
+        REQUIRE(ib.markers.size() == 3);
+        std::vector<int> seq;
+        for (const auto& m : ib.markers) {
+            seq.push_back(m.colour_class);
+            CHECK(m.colour_class != 4);  // yellow is the eye's
+        }
+        // Distinct per kind, read from the tip; unequal gaps tell the tip end from the handle end.
+        CHECK(sequences.insert(seq).second);
+        const double g1 = ib.markers[1].distance_from_tip_mm - ib.markers[0].distance_from_tip_mm;
+        const double g2 = ib.markers[2].distance_from_tip_mm - ib.markers[1].distance_from_tip_mm;
+        CHECK(std::abs(g1 - g2) > 1.0);
+        // Markers stay outside the eye at the deepest insertion.
+        CHECK(ib.markers[0].distance_from_tip_mm - ib.max_insertion_mm > 2.0);
+        CHECK(ib.markers[0].radius_mm > ib.shaft_radius_mm);
+    }
+    CHECK(b.instrument(InstrumentKind::kForceps).tip_offset_mm > 0);
+    REQUIRE(b.eye.markers.size() >= 6);
+    for (const auto& m : b.eye.markers) {
+        CHECK(m.colour_class == 4);
+        CHECK(m.position_eye_mm.norm() == Approx(b.eye.radius_mm + m.radius_mm).margin(1e-5));
+        CHECK(m.position_eye_mm.z() < 0);  // on the lower, camera-facing half
+    }
+    // No two pairs of eye markers have the same angular separation: rotation is fixed without symmetry.
+    std::set<long> separations;
+    size_t pairs = 0;
+    for (size_t i = 0; i < b.eye.markers.size(); ++i)
+        for (size_t j = i + 1; j < b.eye.markers.size(); ++j) {
+            const double d = (b.eye.markers[i].position_eye_mm - b.eye.markers[j].position_eye_mm).norm();
+            separations.insert(std::lround(d * 20));  // 0.05 mm bins
+            ++pairs;
+        }
+    CHECK(separations.size() > pairs / 2);
+    REQUIRE(b.eye.trocars.size() == 2);
+    for (const auto& t : b.eye.trocars) CHECK(t.position_eye_mm.norm() == Approx(b.eye.radius_mm).margin(1e-5));
+    CHECK(marker_class_rgb(1) == std::array<uint8_t, 3>{220, 40, 40});
+    CHECK(marker_class_rgb(4) == std::array<uint8_t, 3>{230, 210, 40});
+}
+
+TEST_CASE("malformed bodies.json gives one-line errors naming the JSON pointer", "[rig][bodies]") {
+    std::ifstream in(default_bodies_path());
+    const nlohmann::json good = nlohmann::json::parse(in);
+    const fs::path p = fs::temp_directory_path() / ("eyesim_test_bodies_" + std::to_string(::getpid()) + ".json");
+    auto expect = [&](const nlohmann::json& j, const std::string& needle) {
+        std::ofstream(p) << j.dump();
+        try {
+            load_bodies(p.string());
+            FAIL("no error, expected " << needle);
+        } catch (const RigError& e) {
+            INFO(e.what());
+            CHECK(std::string(e.what()).find(needle) != std::string::npos);
+        }
+    };
+    nlohmann::json j = good;
+    j["instruments"][1]["markers"][2]["class"] = 5;
+    expect(j, "/instruments/1/markers/2/class: must be 1..4");
+    j = good;
+    j["eye"].erase("radius_mm");
+    expect(j, "/eye/radius_mm: missing");
+    j = good;
+    j["instruments"][0]["kind"] = "scalpel";
+    expect(j, "unknown instrument kind 'scalpel'");
+    j = good;
+    j["eye"]["markers"][0]["position_eye_mm"] = {1.0, 2.0};
+    expect(j, "/eye/markers/0/position_eye_mm: must be an array of 3 numbers");
+    std::ofstream(p) << "{ not json";
+    CHECK_THROWS_WITH(load_bodies(p.string()), Catch::Contains("malformed JSON"));
+    fs::remove(p);
+}
