@@ -56,13 +56,14 @@ Tissue make_scene(PatchSize size, IntegratorKind kind, const TissueParams& p, fl
     const float load = kLoad_nN_per_mm2 * k / 1000.0f;  // same static shape for every stiffness
     t.fix_rim();
     // Pressure load: each node carries a third of its triangles' area.
-    MassSpringSystem& s = t.system_mut();
+    std::vector<Vec3f> f(mesh.vertex_count(), Vec3f::Zero());
     for (const auto& tri : mesh.triangles) {
         const float area = 0.5f * (mesh.vertices_mm[tri[1]] - mesh.vertices_mm[tri[0]])
                                       .cross(mesh.vertices_mm[tri[2]] - mesh.vertices_mm[tri[0]])
                                       .norm();
-        for (uint32_t v : tri) s.ext_nN[v].z() -= load * area / 3.0f;
+        for (uint32_t v : tri) f[v].z() -= load * area / 3.0f;
     }
+    for (uint32_t v = 0; v < f.size(); ++v) t.set_constant_force(v, f[v]);
     return t;
 }
 

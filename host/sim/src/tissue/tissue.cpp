@@ -54,6 +54,12 @@ void Tissue::set_integrator(IntegratorKind kind) {
     if (kind != integrator_->kind()) integrator_ = make_integrator(kind);
 }
 
+void Tissue::set_constant_force(uint32_t node, const Vec3f& f_nN) {
+    if (node >= sys_.node_count() || !f_nN.allFinite()) return;
+    sys_.ext_nN[node] += f_nN - injection_nN_[node];  // keep any suction share of this step
+    injection_nN_[node] = f_nN;
+}
+
 void Tissue::push(std::span<const NodePush> pushes) {
     for (const NodePush& p : pushes) {
         if (p.node >= sys_.node_count() || !is_dynamic(sys_.state[p.node])) continue;

@@ -127,3 +127,25 @@ TEST_CASE("injection detaches retina nodes within d ∝ p and forms bubbles; att
     const char* why = "";
     CHECK(t.system().check_consistency(&why));
 }
+
+TEST_CASE("constant loads persist through suction switching on and off", "[tissue][tools]") {
+    const std::vector<Vec3f> x{Vec3f(0, 0, -1.0f)};
+    const std::vector<float> m{2};
+    Tissue t(MassSpringSystem::from_springs(x, m, {}), TissueParams{}, IntegratorKind::kSymplecticEuler);
+    t.set_constant_force(0, Vec3f(1.0f, 0, 0));
+    SuctionInput s;
+    s.on = true;
+    s.axis = Vec3f(0, 0, -1);
+    s.strength_nN_mm = 3.0f;
+    t.set_suction(s);
+    const float dt = 1e-3f;
+    t.step(dt, 1);
+    CHECK(t.system().v_mm_per_s[0].x() == Approx(0.5 * dt).epsilon(1e-5));
+    CHECK(t.system().v_mm_per_s[0].z() == Approx(1.5 * dt).epsilon(1e-3));
+    s.on = false;
+    t.set_suction(s);
+    const Vec3f v1 = t.system().v_mm_per_s[0];
+    t.step(dt, 1);
+    CHECK(t.system().v_mm_per_s[0].x() == Approx(v1.x() + 0.5 * dt).epsilon(1e-5));
+    CHECK(t.system().v_mm_per_s[0].z() == v1.z());
+}

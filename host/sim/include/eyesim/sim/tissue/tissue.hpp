@@ -92,6 +92,10 @@ public:
     /// Run-time rules.
     const TissueParams& params() const { return params_; }
 
+    /// Sets a constant external force on a node (a load; injections set theirs the same way). The per-step
+    /// external force `system().ext_nN` is this constant force plus suction; write loads here, not there.
+    void set_constant_force(uint32_t node, const Vec3f& f_nN);
+
     /// Adds each push vector to its node's position now (dynamic nodes only; others are ignored). Call with the
     /// collision result of this frame, before `step`.
     void push(std::span<const NodePush> pushes);
