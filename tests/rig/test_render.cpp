@@ -336,3 +336,37 @@ TEST_CASE("long runs of every scenario keep the truth well formed", "[rig][stres
         CHECK(visible > 1000);
     }
 }
+
+TEST_CASE("the rendered image carries the truth: background-subtracted luma centroid matches", "[rig][render]") {
+    const CameraModel cam = test_camera();
+    RenderOptions opt;
+    opt.noise_sigma = 0;
+    CameraRenderer r(cam, 0, Eigen::Vector3d::Zero(), 0.0, opt);
+    const auto luma = [](const float* p) { return 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]; };
+    const double bg = 0.299 * kBackgroundRgb[0] + 0.587 * kBackgroundRgb[1] + 0.114 * kBackgroundRgb[2];
+    for (const Eigen::Vector2d& px : {Eigen::Vector2d(102.3, 77.8), Eigen::Vector2d(420.6, 300.1)}) {
+        const auto q = cam.undistort_to_normalized(px);
+        const Eigen::Vector3d c = cam.center_rig_mm() + cam.R_cam_rig.transpose() * (Eigen::Vector3d(q->x(), q->y(), 1) * 85);
+        const GeometryAt geo = [&](double, SceneGeometry& g) {
+            g.eye_radius_mm = 0;
+            g.shafts.clear();
+            g.markers.assign(1, {c, 0.7, 2});
+        };
+        std::vector<MarkerCameraTruth> t;
+        r.render_field(geo, 2, nullptr, t);
+        const std::vector<float>& rgb = r.last_rgb();
+        double s = 0, sx = 0, sy = 0;
+        for (int y = 0; y < kFieldHeight; ++y)
+            for (int x = 0; x < kFieldWidth; ++x) {
+                const double w = luma(&rgb[(static_cast<size_t>(y) * kFieldWidth + x) * 3]) - bg;
+                if (std::abs(w) < 1e-9) continue;
+                s += w;
+                sx += w * x;
+                sy += w * y;
+            }
+        INFO("image " << sx / s << ", " << sy / s << " truth " << t[0].centroid_px.transpose());
+        // The image weights coverage x (shade x marker luma - background luma), the truth coverage x shade only.
+        CHECK(std::abs(sx / s - t[0].centroid_px.x()) < 0.005);
+        CHECK(std::abs(sy / s - t[0].centroid_px.y()) < 0.005);
+    }
+}
