@@ -26,6 +26,7 @@ public:
     /// `lines` active lines of 720 px per field (288 for PAL); `epoch_us` is the device time of field 0's start.
     FieldSource(FieldLoader loader, ModelledClock* clock, std::uint64_t epoch_us = 0, int lines = 288);
 
+    /// The next line of the current field, its field end, or the end of the stream (loader returned false).
     LineStatus next_line(CameraLine& out) noexcept override;
 
     /// Fields delivered completely so far.

@@ -23,6 +23,7 @@ class LatencyLog final : public LatencyObserver {
 public:
     /// Reserves room for `capacity` records.
     explicit LatencyLog(std::size_t capacity = 1u << 20);
+    /// Keeps the record while there is reserved room.
     void on_blob(const BlobLatency& record) noexcept override;
     /// Records kept.
     const std::vector<BlobLatency>& records() const noexcept { return records_; }

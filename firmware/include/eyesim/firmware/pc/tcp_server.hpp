@@ -42,8 +42,11 @@ public:
     /// Sets the kernel send buffer of the attached host's socket (small values show back-pressure early).
     void set_send_buffer(int bytes) noexcept { send_buffer_ = bytes; }
 
+    /// Non-blocking send to the attached host; 0 when its socket buffer is full or no host is attached.
     std::size_t write_some(const std::uint8_t* data, std::size_t len) noexcept override;
+    /// True while a host is attached.
     bool connected() const noexcept override { return client_ >= 0; }
+    /// Non-blocking receive from the attached host; 0 when nothing is waiting (EOF detaches the host).
     std::size_t read_some(std::uint8_t* out, std::size_t cap) noexcept override;
 
 private:

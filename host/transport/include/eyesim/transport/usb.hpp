@@ -129,11 +129,17 @@ public:
     /// Opens the device once; returns false with a one-line reason (e.g. no device present).
     bool open_first(std::string& why);
 
+    /// Bytes of the IN stream (one bulk transfer staged at a time); reconnects first when the device is away.
     IoResult read(std::span<std::uint8_t> out, int timeout_ms) override;
+    /// One OUT transfer (+ zero-length packet when the length is a multiple of wMaxPacketSize).
     IoResult write(std::span<const std::uint8_t> data, int timeout_ms) override;
+    /// True while the device is open.
     bool connected() const override { return device_ != nullptr; }
+    /// Releases the device; later calls return `closed`.
     void close() override;
+    /// `usb://VID:PID`.
     std::string describe() const override;
+    /// Why the last call failed (device lost, not found, permission), one line.
     std::string last_error() const override { return error_; }
     /// Counters so far.
     const UsbStats& stats() const { return stats_; }
