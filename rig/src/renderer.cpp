@@ -380,11 +380,14 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& s
             const double rq = std::tan(alpha) * (1.0 + qc.squaredNorm()) * 1.1;
             const double rpx = rq * J.norm() + 1.5;
             Rect r;
-            r.x0 = std::max(0, static_cast<int>(std::floor(s.pc.x() - rpx)));
-            r.x1 = std::min(W - 1, static_cast<int>(std::ceil(s.pc.x() + rpx)));
-            r.y0 = std::max(0, static_cast<int>(std::ceil((s.pc.y() - rpx - parity) / 2)));
-            r.y1 = std::min(H - 1, static_cast<int>(std::floor((s.pc.y() + rpx - parity) / 2)));
+            // Not clipped to the image: the parts outside count as hidden in occluded_fraction.
+            constexpr int kOut = 64;
+            r.x0 = std::max(-kOut, static_cast<int>(std::floor(s.pc.x() - rpx)));
+            r.x1 = std::min(W - 1 + kOut, static_cast<int>(std::ceil(s.pc.x() + rpx)));
+            r.y0 = std::max(-kOut / 2, static_cast<int>(std::ceil((s.pc.y() - rpx - parity) / 2)));
+            r.y1 = std::min(H - 1 + kOut / 2, static_cast<int>(std::floor((s.pc.y() + rpx - parity) / 2)));
             if (r.x0 > r.x1 || r.y0 > r.y1) continue;
+            if (r.x1 < 0 || r.x0 > W - 1 || r.y1 < 0 || r.y0 > H - 1) continue;  // wholly outside the image
             s.r = r;
             s.ok = true;
             tile.x0 = std::min(tile.x0, r.x0);
@@ -545,12 +548,13 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& s
         for (int y = tile.y0; y <= tile.y1; ++y)
             for (int x = tile.x0; x <= tile.x1; ++x) {
                 const size_t ti = static_cast<size_t>(y - tile.y0) * tw + (x - tile.x0);
+                sca += tile_ca[ti];
+                if (x < 0 || x >= W || y < 0 || y >= H) continue;  // outside the image: not rendered
                 const double I = tile_I[ti];
                 si += I;
                 sx += I * x;
                 sv += I * (2.0 * y + parity);
                 scv += tile_cv[ti];
-                sca += tile_ca[ti];
             }
         tr.area_px = scv;
         tr.occluded_fraction = sca > 0 ? 1.0 - scv / sca : 0.0;
@@ -560,17 +564,18 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& s
             if (!tr.projectable) tr.projected_px = tr.centroid_px;
             tr.projectable = true;
         }
-        // Marker layer.
+        // Marker layer (inside the image only).
         const auto rgb = marker_class_rgb(geo_mid.markers[m].colour_class);
-        for (int y = tile.y0; y <= tile.y1; ++y)
-            for (int x = tile.x0; x <= tile.x1; ++x) {
+        const Rect in{std::max(0, tile.x0), std::max(0, tile.y0), std::min(W - 1, tile.x1), std::min(H - 1, tile.y1)};
+        for (int y = in.y0; y <= in.y1; ++y)
+            for (int x = in.x0; x <= in.x1; ++x) {
                 const size_t ti = static_cast<size_t>(y - tile.y0) * tw + (x - tile.x0);
                 if (tile_cv[ti] <= 0) continue;
                 const size_t i = static_cast<size_t>(y) * W + x;
                 cov[i] += static_cast<float>(tile_cv[ti]);
                 for (int c = 0; c < 3; ++c) contrib[i * 3 + c] += static_cast<float>(tile_I[ti] * rgb[c]);
             }
-        marker_rect[m] = tile;
+        marker_rect[m] = in;
     }
 }
 

@@ -370,3 +370,33 @@ TEST_CASE("the rendered image carries the truth: background-subtracted luma cent
         CHECK(std::abs(sy / s - t[0].centroid_px.y()) < 0.005);
     }
 }
+
+TEST_CASE("a marker cut by the image border reports the hidden part", "[rig][render]") {
+    const CameraModel cam = test_camera();
+    RenderOptions opt;
+    opt.noise_sigma = 0;
+    CameraRenderer r(cam, 0, Eigen::Vector3d::Zero(), 0.0, opt);
+    // Centre on the left border's outer edge (x = -0.5): half the marker lies outside the image.
+    const auto q = cam.undistort_to_normalized({-0.5, 300.0});
+    const Eigen::Vector3d c = cam.center_rig_mm() + cam.R_cam_rig.transpose() * (Eigen::Vector3d(q->x(), q->y(), 1) * 80);
+    const GeometryAt geo = [&](double, SceneGeometry& g) {
+        g.eye_radius_mm = 0;
+        g.shafts.clear();
+        g.markers.assign(1, {c, 0.7, 1});
+    };
+    std::vector<MarkerCameraTruth> t;
+    r.render_field(geo, 0, nullptr, t);
+    REQUIRE(t[0].visible);
+    CHECK(t[0].occluded_fraction == Approx(0.5).margin(0.03));
+    CHECK(t[0].centroid_px.x() > 0.5);  // the centroid of the visible half lies inside the image
+    // Wholly outside: not visible.
+    const auto q2 = cam.undistort_to_normalized({-40.0, 300.0});
+    const Eigen::Vector3d c2 = cam.center_rig_mm() + cam.R_cam_rig.transpose() * (Eigen::Vector3d(q2->x(), q2->y(), 1) * 80);
+    const GeometryAt geo2 = [&](double, SceneGeometry& g) {
+        g.eye_radius_mm = 0;
+        g.shafts.clear();
+        g.markers.assign(1, {c2, 0.7, 1});
+    };
+    r.render_field(geo2, 0, nullptr, t);
+    CHECK_FALSE(t[0].visible);
+}

@@ -55,7 +55,7 @@ struct MarkerCameraTruth {
     Eigen::Vector2d centroid_px = Eigen::Vector2d::Zero();      ///< rendered intensity centroid, field px
     double radius_px = 0.0;   ///< projected sphere radius (angular radius × fx), frame px horizontally
     double area_px = 0.0;     ///< visible coverage in field pixels, averaged over the exposure
-    double occluded_fraction = 0.0;  ///< 1 - visible / unoccluded coverage (0 = clear)
+    double occluded_fraction = 0.0;  ///< 1 - visible / unoccluded coverage (0 = clear; parts outside the image count as hidden)
 };
 
 /// One marker at field time i.
