@@ -20,6 +20,8 @@ struct SynthOptions {
     double noise = 1.0;
     std::string bodies;
     std::string rig;
+    bool synchronised = false;
+    double exposure_us = 0;
     bool json = false;
 };
 
@@ -35,6 +37,8 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
     sub.add_option("--noise", opt->noise, "read-noise sigma in 8-bit levels (0: no noise at all)");
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--rig", opt->rig, "rig.yaml to use instead of the default three cameras");
+    sub.add_flag("--synchronised", opt->synchronised, "give every camera the same field clock (default: unsynchronised)");
+    sub.add_option("--exposure-us", opt->exposure_us, "shutter time per field in us (default: rig.yaml / 4000)");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     return [opt]() -> int {
         namespace rig = eyesim::rig;
@@ -48,6 +52,15 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
             req.render.noise_sigma = opt->noise;
             if (!opt->bodies.empty()) req.bodies_path = opt->bodies;
             if (!opt->rig.empty()) req.cameras = rig::load_rig_yaml(opt->rig);
+            for (auto& cam : req.cameras) {
+                if (opt->synchronised) cam.field_time_offset_us = 0.0;
+                if (opt->exposure_us != 0.0) {
+                    if (!(opt->exposure_us > 0.0) || opt->exposure_us > rig::kFieldPeriodUs)
+                        throw eyesim::app::Error(fmt::format("synth: --exposure-us: must be in (0, 20000], got {}",
+                                                             opt->exposure_us));
+                    cam.exposure_us = opt->exposure_us;
+                }
+            }
             const bool progress = eyesim::app::show_progress(opt->json);
             const auto summary = rig::write_recording(req, [&](int64_t done, int64_t total) {
                 if (progress && (done % 10 == 0 || done == total))
