@@ -16,7 +16,9 @@
 using namespace eyesim::transport;
 
 TEST_CASE("in-process pair carries bytes both ways and reports close", "[transport][inproc]") {
-    auto [a, b] = make_inproc_pair(16);
+    auto pair = make_inproc_pair(16);
+    auto& a = pair.first;
+    auto& b = pair.second;
     const std::vector<std::uint8_t> msg = {1, 2, 3, 4, 5};
     REQUIRE(a->write(msg, 10).bytes == 5);
     std::vector<std::uint8_t> buf(3);
