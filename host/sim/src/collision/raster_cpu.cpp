@@ -4,6 +4,12 @@
 #include <cmath>
 #include <cstdint>
 
+// The projection loops compare and convert floats per vertex; without trapping-math semantics GCC turns the
+// comparisons into vector selects (no FP exception flags are used anywhere in this file).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("no-trapping-math")
+#endif
+
 namespace eyesim::sim::collision {
 
 void RasterBuffers::resize(int r) {
@@ -98,8 +104,10 @@ inline bool raster_triangle(Vtx v0, Vtx v1, Vtx v2, int r, int bx0, int by0, int
 
 /// Window coordinate → 1/256 pixel, rounded half away from zero (inline; no libm call).
 inline int32_t to_fx(float w) {
-    const float f = std::min(std::max(w * float(kSub), -kClampFx), kClampFx);
-    return int32_t(f + std::copysign(0.5f, f));
+    float f = w * float(kSub);
+    f = f < -kClampFx ? -kClampFx : f;  // selects, not branches: the projection loops vectorise
+    f = f > kClampFx ? kClampFx : f;
+    return int32_t(f + (f < 0.0f ? -0.5f : 0.5f));
 }
 
 }  // namespace
@@ -150,8 +158,8 @@ void CpuRasterBackend::project(const MeshRef& mesh, const ZcollView& view, Proje
             const float px = wx[i] + half_r, py = wy[i] + half_r;
             fx[i] = to_fx(px);
             fy[i] = to_fx(py);
-            const int c = int(px < 0.0f) | (int(px > r) << 1) | (int(py < 0.0f) << 2) | (int(py > r) << 3) |
-                          (int(q[i] < zn) << 4) | (int(q[i] > zf) << 5);
+            const int c = (px < 0.0f ? 1 : 0) | (px > r ? 2 : 0) | (py < 0.0f ? 4 : 0) | (py > r ? 8 : 0) |
+                          (q[i] < zn ? 16 : 0) | (q[i] > zf ? 32 : 0);
             code[i] = uint8_t(c);
         }
     } else {
