@@ -19,10 +19,11 @@ Vec3f eq1_push_vector(std::span<const Vec3f> deformation_vectors) {
 
 ZcollEngine::ZcollEngine(const TriangleMesh& membrane, const ZcollConfig& config,
                          std::unique_ptr<ZcollRasterBackend> backend, size_t max_instrument_triangles)
-    : topology_(&membrane),
+    : topology_(membrane),
       config_(config),
       backend_(backend ? std::move(backend) : std::make_unique<CpuRasterBackend>(membrane.vertex_count() + 4096)),
       exact_(membrane.triangle_count(), max_instrument_triangles) {
+    if (topology_.vertex_triangle_begin.size() != topology_.vertex_count() + 1) topology_.build_adjacency();
     buffers_.resize(config.resolution_px);
     const size_t nt = membrane.triangle_count(), nv = membrane.vertex_count();
     const size_t npx = size_t(config.resolution_px) * size_t(config.resolution_px);
@@ -96,7 +97,7 @@ void ZcollEngine::compute_push_vectors(const ZcollView& view) {
     // Eq. 1: v_i = max_{d∈D_i}|d| · Σd/|Σd|, D_i = the deformation vectors of node i's adjacent triangles
     // (triangle features) or of node i itself (vertex features). d = π · (ZI − ZM), eye frame.
     const Vec3f pi = view.direction_eye();
-    const TriangleMesh& m = *topology_;
+    const TriangleMesh& m = topology_;
     const uint32_t node_mark = stamp_;
     if (config_.features == FeatureKind::Triangle) {
         // Per colliding triangle: Σd and max|d| over its pixels.
@@ -145,7 +146,7 @@ void ZcollEngine::compute_push_vectors(const ZcollView& view) {
 
 void ZcollEngine::collect_grab(std::span<const Vec3f> membrane_vertices_eye_mm, const PosedInstrument& instrument) {
     // Grab rule (§3.3.1): colliding nodes and nodes near the tip are bound to the tip.
-    const TriangleMesh& m = *topology_;
+    const TriangleMesh& m = topology_;
     const uint32_t mark = stamp_;
     auto add = [&](uint32_t v) {
         if (node_stamp_[v] != mark) {
@@ -171,11 +172,15 @@ void ZcollEngine::collect_grab(std::span<const Vec3f> membrane_vertices_eye_mm, 
 const ZcollResult& ZcollEngine::push(std::span<const Vec3f> membrane_vertices_eye_mm,
                                      const PosedInstrument& instrument, const ZcollView& view) {
     reset_result();
+    if (membrane_vertices_eye_mm.size() != topology_.vertex_count()) {
+        result_.invalid_input = true;
+        return result_;
+    }
     if (!volume_touches(membrane_vertices_eye_mm, view)) {
         result_.gated_out = true;
         return result_;
     }
-    const MeshRef membrane{membrane_vertices_eye_mm, topology_->triangles, Eigen::Isometry3f::Identity()};
+    const MeshRef membrane{membrane_vertices_eye_mm, topology_.triangles, Eigen::Isometry3f::Identity()};
     const MeshRef tool{instrument.vertices_local_mm(), instrument.instrument().mesh.triangles,
                        instrument.instrument_to_eye()};
     RasterRequest req;
@@ -193,8 +198,8 @@ const ZcollResult& ZcollEngine::push(std::span<const Vec3f> membrane_vertices_ey
         const OrientedBox box = view_volume(view);
         ExactOptions opt;
         opt.within = &box;
-        opt.vertex_triangle_begin = topology_->vertex_triangle_begin;
-        opt.vertex_triangles = topology_->vertex_triangles;
+        opt.vertex_triangle_begin = topology_.vertex_triangle_begin;
+        opt.vertex_triangles = topology_.vertex_triangles;
         const auto exact = exact_.colliding_triangles(membrane, tool, instrument.instrument().part_triangle_begin, opt);
         triangles_.assign(exact.begin(), exact.end());
         result_.fallback_used = true;
@@ -213,8 +218,9 @@ const ZcollResult& ZcollEngine::push(std::span<const Vec3f> membrane_vertices_ey
 
 bool ZcollEngine::collides(std::span<const Vec3f> membrane_vertices_eye_mm, const PosedInstrument& instrument,
                            const ZcollView& view) {
+    if (membrane_vertices_eye_mm.size() != topology_.vertex_count()) return false;
     if (!volume_touches(membrane_vertices_eye_mm, view)) return false;
-    const MeshRef membrane{membrane_vertices_eye_mm, topology_->triangles, Eigen::Isometry3f::Identity()};
+    const MeshRef membrane{membrane_vertices_eye_mm, topology_.triangles, Eigen::Isometry3f::Identity()};
     const MeshRef tool{instrument.vertices_local_mm(), instrument.instrument().mesh.triangles,
                        instrument.instrument_to_eye()};
     return backend_->any_penetration(membrane, tool, view);
@@ -223,11 +229,15 @@ bool ZcollEngine::collides(std::span<const Vec3f> membrane_vertices_eye_mm, cons
 const ZcollResult& ZcollEngine::suction(std::span<const Vec3f> membrane_vertices_eye_mm, const ZcollView& cone_view,
                                         const Vec3f& suction_tip_eye_mm) {
     reset_result();
+    if (membrane_vertices_eye_mm.size() != topology_.vertex_count()) {
+        result_.invalid_input = true;
+        return result_;
+    }
     if (!volume_touches(membrane_vertices_eye_mm, cone_view)) {
         result_.gated_out = true;
         return result_;
     }
-    const MeshRef membrane{membrane_vertices_eye_mm, topology_->triangles, Eigen::Isometry3f::Identity()};
+    const MeshRef membrane{membrane_vertices_eye_mm, topology_.triangles, Eigen::Isometry3f::Identity()};
     RasterRequest req;
     req.ids = FeatureKind::Triangle;
     req.count_layers = false;
@@ -243,7 +253,7 @@ const ZcollResult& ZcollEngine::suction(std::span<const Vec3f> membrane_vertices
             triangles_.push_back(id - 1);
         }
     std::sort(triangles_.begin(), triangles_.end());
-    const TriangleMesh& m = *topology_;
+    const TriangleMesh& m = topology_;
     for (uint32_t t : triangles_)
         for (uint32_t v : m.triangles[t]) {
             if (node_stamp_[v] == stamp_) continue;

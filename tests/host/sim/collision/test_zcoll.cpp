@@ -549,3 +549,22 @@ TEST_CASE("stress: random deforming membranes and forceps poses stay consistent"
     CHECK(hits > 2000);
     CHECK(fallbacks > 50);
 }
+
+TEST_CASE("the engine keeps its own topology and rejects a vertex span of the wrong size", "[sim][collision][zcoll]") {
+    PosedInstrument sphere(sphere_body(1.0f));
+    const Eigen::Isometry3f pose = pose_at(Vec3f(0.03f, 0.02f, -0.3f), Vec3f(0, 0, -1));
+    sphere.set_state(0.0f, pose);
+    const ZcollView view = make_tip_view(pose, 1.2f, 0.5f, 2.5f, 32);
+    auto membrane = std::make_unique<TriangleMesh>(make_membrane_patch(4.0f, 4.0f, 39, 39));
+    const std::vector<Vec3f> verts = membrane->vertices_mm;
+    ZcollEngine engine(*membrane, ZcollConfig{});
+    membrane.reset();  // the caller's mesh is gone; the engine must not depend on it
+    const ZcollResult& r = engine.push(verts, sphere, view);
+    CHECK_FALSE(r.invalid_input);
+    CHECK(r.colliding);
+    const std::vector<Vec3f> short_span(verts.begin(), verts.end() - 1);
+    const ZcollResult& bad = engine.push(short_span, sphere, view);
+    CHECK(bad.invalid_input);
+    CHECK_FALSE(bad.colliding);
+    CHECK_FALSE(engine.collides(short_span, sphere, view));
+}

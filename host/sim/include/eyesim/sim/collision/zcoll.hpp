@@ -39,6 +39,7 @@ struct ZcollFeature {
 
 /// Result of a ZCOLL query (views into the engine's buffers).
 struct ZcollResult {
+    bool invalid_input = false;   ///< the vertex span does not match the engine's membrane (nothing done)
     bool gated_out = false;       ///< broad phase: V does not touch the membrane's bounds, nothing rendered
     bool colliding = false;       ///< any colliding feature
     bool pi_convex = true;        ///< false when some pixel of V saw ≥ 2 membrane layers
@@ -60,7 +61,8 @@ Vec3f eq1_push_vector(std::span<const Vec3f> deformation_vectors);
 /// The ZCOLL engine for one membrane topology.
 class ZcollEngine {
 public:
-    /// `membrane` gives the topology (triangles, adjacency) and the vertex count; positions come per query.
+    /// `membrane` gives the topology (triangles, adjacency) and the vertex count, copied into the engine;
+    /// positions come per query (a span of exactly that many vertices, else `invalid_input`).
     /// `backend` renders (null: a CpuRasterBackend). `max_instrument_triangles` sizes the exact fallback.
     ZcollEngine(const TriangleMesh& membrane, const ZcollConfig& config,
                 std::unique_ptr<ZcollRasterBackend> backend = nullptr, size_t max_instrument_triangles = 4096);
@@ -93,7 +95,7 @@ private:
     void collect_grab(std::span<const Vec3f> membrane_vertices_eye_mm, const PosedInstrument& instrument);
     void unique_triangles_from_features();
 
-    const TriangleMesh* topology_;
+    TriangleMesh topology_;  // a copy: the caller's mesh may move or be reassigned
     ZcollConfig config_;
     std::unique_ptr<ZcollRasterBackend> backend_;
     RasterBuffers buffers_;
