@@ -29,6 +29,51 @@ Correspondence::Correspondence(std::span<const CameraGeometry> cams, const Corre
     }
 }
 
+void Correspondence::check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const {
+    std::array<double, kMaxCameras> ratio{};
+    double best = 0.0;
+    for (int c = 0; c < ncam; ++c) {
+        ratio[std::size_t(c)] = -1.0;
+        const int i = m.image_index[std::size_t(c)];
+        if (i < 0) continue;
+        const ImagePoint& p = views[std::size_t(c)].points[std::size_t(i)];
+        const CameraGeometry& g = cams_[std::size_t(c)];
+        const double z = (g.R_cam_rig * m.point.X_rig_mm + g.t_cam_rig_mm).z();
+        if (!(p.area_px > 0.0f) || !(z > 0.0)) continue;
+        const double r = opt_.marker_radius_mm / z;
+        const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
+        ratio[std::size_t(c)] = double(p.area_px) / expected;
+        best = std::max(best, ratio[std::size_t(c)]);
+    }
+    if (best <= 0.0) return;
+    int clean = 0;
+    for (int c = 0; c < ncam; ++c) {
+        const double q = ratio[std::size_t(c)];
+        if (m.image_index[std::size_t(c)] < 0) continue;
+        if (q >= 0.0 && (q < opt_.min_area_ratio || q < opt_.relative_area_ratio * best))
+            m.occluded_views = std::uint8_t(m.occluded_views | (1u << c));
+        else
+            ++clean;
+    }
+    if (m.occluded_views == 0) return;
+    if (clean < 2) {
+        m.occluded = true;
+        return;
+    }
+    // Re-triangulate from the unoccluded views only.
+    std::array<Observation, kMaxCameras> obs;
+    int n = 0;
+    for (int c = 0; c < ncam; ++c) {
+        const int i = m.image_index[std::size_t(c)];
+        if (i < 0 || (m.occluded_views & (1u << c))) continue;
+        const ImagePoint& p = views[std::size_t(c)].points[std::size_t(i)];
+        obs[std::size_t(n++)] = Observation{c, p.px, p.xn, p.sigma_px};
+    }
+    const TriangulatedPoint tp =
+        triangulate(cams_, std::span<const Observation>(obs.data(), std::size_t(n)), opt_.triangulation);
+    if (tp.usable()) m.point = tp;
+}
+
 double Correspondence::epipolar_distance_px(int a, int b, const Eigen::Vector2d& xa,
                                             const Eigen::Vector2d& xb) const {
     const Eigen::Vector3d ha(xa.x(), xa.y(), 1.0), hb(xb.x(), xb.y(), 1.0);
@@ -84,6 +129,9 @@ void Correspondence::solve(std::span<const CameraObservations> views, Correspond
         m.colour_class = cls;
         m.point = tp;
         m.image_index = h.idx;
+        m.occluded_views = 0;
+        m.occluded = false;
+        if (opt_.marker_radius_mm > 0.0) check_occlusion(views, m, ncam);
         for (int c = 0; c < ncam; ++c)
             if (h.idx[std::size_t(c)] >= 0) used[std::size_t(c)][std::size_t(h.idx[std::size_t(c)])] = true;
     };

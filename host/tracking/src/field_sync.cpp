@@ -48,6 +48,7 @@ void FieldAssembler::append(const protocol::FieldMarkers& msg, double received_h
         const double x = double(m.x_q16) / protocol::kCoordScale;
         const double y = double(m.y_q16) / protocol::kCoordScale;
         im.frame_px = Eigen::Vector2d(x, 2.0 * y + building_.parity);  // field row y of parity p = frame row 2y+p
+        im.area_px = float(m.area_px);
     }
 }
 
@@ -159,6 +160,8 @@ int blend(const CameraField& f0, const CameraField& f1, double alpha, double gat
         FieldImage& o = out.images[std::size_t(out.count++)];
         o = f0.images[std::size_t(i)];
         o.flags |= f1.images[std::size_t(j)].flags;
+        // Occlusion in either field biases the blend: keep the smaller area so it can be detected.
+        o.area_px = std::min(o.area_px, f1.images[std::size_t(j)].area_px);
         o.frame_px = f0.images[std::size_t(i)].frame_px +
                      alpha * (f1.images[std::size_t(j)].frame_px - f0.images[std::size_t(i)].frame_px);
         ++paired;

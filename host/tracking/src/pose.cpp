@@ -252,7 +252,8 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
             double bd = opt.eye_prior_gate_mm;
             for (int k = 0; k < found.count; ++k) {
                 const MatchedMarker& mk = found.markers[std::size_t(k)];
-                if (mk.colour_class != em.markers[std::size_t(i)].colour_class || !mk.point.usable()) continue;
+                if (mk.colour_class != em.markers[std::size_t(i)].colour_class || !mk.point.usable() || mk.occluded)
+                    continue;
                 const double d = (mk.point.X_rig_mm - pred).norm();
                 if (d < bd) { bd = d; prior[std::size_t(i)] = k; }
             }
@@ -343,6 +344,11 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
                     fitted = through;
             }
         }
+        bool jumped = false;
+        if (ok && was && (fitted.tip_rig_mm - previous_instruments[std::size_t(b)].tip_rig_mm).norm() > opt.max_tip_jump_mm) {
+            ok = false;  // markers of another instrument fitted by chance (crossing shafts): do not report it
+            jumped = true;
+        }
         if (ok) {
             if (fitted.fit_rms_mm > opt.max_fit_rms_mm) fitted.flags |= kPoseHighResidual;
             pose = fitted;
@@ -355,7 +361,7 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
             }
         } else {
             if (std::size_t(b) < previous_instruments.size()) pose = previous_instruments[std::size_t(b)];
-            pose.flags = (pose.flags & kPoseNoRoll) | kPoseTooFewMarkers | kPoseHeld;
+            pose.flags = (pose.flags & kPoseNoRoll) | kPoseTooFewMarkers | kPoseHeld | (jumped ? kPoseJumpRejected : 0u);
             pose.markers_used = n;
         }
         pose.opening = opening;

@@ -1,5 +1,6 @@
 #include "eyesim/tracking/rig_adapter.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace eyesim::tracking {
@@ -32,6 +33,7 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
     if (bodies.eye.markers.size() > std::size_t(kMaxBodyMarkers))
         throw std::invalid_argument("bodies: eye: more than " + std::to_string(kMaxBodyMarkers) + " markers");
     for (const rig::EyeMarker& m : bodies.eye.markers) {
+        set.marker_radius_mm = std::max(set.marker_radius_mm, m.radius_mm);
         BodyMarker& b = set.eye.markers[std::size_t(set.eye.marker_count++)];
         b.colour_class = std::uint8_t(m.colour_class);
         b.pos_body_mm = m.position_eye_mm;
@@ -52,10 +54,12 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
         im.name = rig::instrument_kind_name(si.kind);
         im.tip_body_mm = Eigen::Vector3d::Zero();  // instrument frame: origin at the tip, +z tip → handle
         im.axis_body = Eigen::Vector3d::UnitZ();
+        im.shaft_radius_mm = body->shaft_radius_mm;
         for (std::size_t i = 0; i < body->markers.size(); ++i) {
             BodyMarker& b = im.markers[std::size_t(im.marker_count++)];
             b.colour_class = std::uint8_t(body->markers[i].colour_class);
             b.pos_body_mm = body->marker_position_mm(i);
+            set.marker_radius_mm = std::max(set.marker_radius_mm, body->markers[i].radius_mm);
         }
         if (si.trocar >= 0) {
             bool found = false;

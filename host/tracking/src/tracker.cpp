@@ -17,9 +17,11 @@ double steady_us() {
 
 namespace {
 
-/// Classes whose every body marker is on the eye get a spherical-shell region (see ClassRegion).
+/// Classes whose every body marker is on the eye get a spherical-shell region (see ClassRegion); the occlusion
+/// test gets the bodies' marker radius.
 TrackerConfig with_eye_regions(TrackerConfig cfg) {
     const EyeModel& eye = cfg.bodies.eye;
+    if (cfg.correspondence.marker_radius_mm <= 0.0) cfg.correspondence.marker_radius_mm = cfg.bodies.marker_radius_mm;
     for (int cls = 1; cls <= 4; ++cls) {
         bool on_instrument = false;
         for (int b = 0; b < cfg.bodies.instrument_count; ++b)
@@ -138,6 +140,7 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
             p.px = im.frame_px;
             p.xn = u.xn;
             p.sigma_px = config_.centroid_sigma_px;
+            p.area_px = im.area_px;
         }
         out.images_in += v.count;
     }
@@ -150,11 +153,88 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
     fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
               std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
               std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
+    if (config_.shaft_occlusion_correction) correct_shaft_occlusion(out);
     last_eye_ = out.eye;
     for (int b = 0; b < out.instrument_count; ++b) last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
     out.markers_unassigned = 0;
     for (int k = 0; k < out.markers.count; ++k)
         if (out.assignment.body[std::size_t(k)] < 0) ++out.markers_unassigned;
+}
+
+namespace {
+
+/// Centroid shift (normalised image units, along the projected half-shaft) of a uniform disk of radius rho from
+/// which a strip of half-width w, starting at t0 from the centre and running to the rim, is hidden.
+double strip_centroid_shift(double rho, double w, double t0) {
+    if (!(t0 < rho) || !(w > 0.0)) return 0.0;
+    constexpr int kSteps = 16;
+    const double dt = (rho - t0) / kSteps;
+    double area = 0.0, moment = 0.0;
+    for (int k = 0; k < kSteps; ++k) {
+        const double t = t0 + (k + 0.5) * dt;
+        const double half = std::min(w, std::sqrt(std::max(0.0, rho * rho - t * t)));
+        area += 2.0 * half * dt;
+        moment += t * 2.0 * half * dt;
+    }
+    const double disk = 3.141592653589793 * rho * rho;
+    return -moment / std::max(disk - area, 1e-3 * disk);
+}
+
+}  // namespace
+
+void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
+    const BodySet& bodies = config_.bodies;
+    const double R = bodies.marker_radius_mm;
+    if (!(R > 0.0)) return;
+    bool changed = false;
+    std::array<Observation, kMaxCameras> obs;
+    for (int k = 0; k < out.markers.count; ++k) {
+        const int body = out.assignment.body[std::size_t(k)];
+        if (body < 1) continue;
+        const InstrumentModel& model = bodies.instruments[std::size_t(body - 1)];
+        const InstrumentPose& pose = out.instruments[std::size_t(body - 1)];
+        if (!pose.measured() || !(model.shaft_radius_mm > 0.0)) continue;
+        MatchedMarker& m = out.markers.markers[std::size_t(k)];
+        const Eigen::Vector3d X = m.point.X_rig_mm;
+        const Eigen::Vector3d a = pose.axis_rig;
+        int n = 0;
+        for (int c = 0; c < int(cameras_.size()); ++c) {
+            const int i = m.image_index[std::size_t(c)];
+            if (i < 0 || (m.occluded_views & (1u << c))) continue;
+            const CameraGeometry& g = cameras_[std::size_t(c)];
+            const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
+            const Eigen::Vector3d Xc = g.R_cam_rig * X + g.t_cam_rig_mm;
+            const Eigen::Vector3d v = (g.centre_rig_mm() - X).normalized();  // towards the camera
+            const Eigen::Vector3d e = a.dot(v) > 0.0 ? a : Eigen::Vector3d(-a);  // the half-shaft in front
+            const double sin_t = (e - e.dot(v) * v).norm();
+            Eigen::Vector2d xn = p.xn;
+            if (sin_t > 1e-3 && Xc.z() > 0.0) {
+                const Eigen::Vector3d Xe = g.R_cam_rig * (X + e) + g.t_cam_rig_mm;
+                const Eigen::Vector2d u =
+                    (Eigen::Vector2d(Xe.x() / Xe.z(), Xe.y() / Xe.z()) - Eigen::Vector2d(Xc.x() / Xc.z(), Xc.y() / Xc.z()))
+                        .normalized();
+                const double rho = R / Xc.z();
+                const double shift = strip_centroid_shift(rho, model.shaft_radius_mm / Xc.z(), rho * sin_t);
+                if (u.allFinite()) xn -= shift * u;  // observed = true + shift·u
+            }
+            const Eigen::Vector2d xd = distort_normalized(g, xn);
+            obs[std::size_t(n++)] = Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), xn,
+                                                p.sigma_px};
+        }
+        if (n < 2) continue;
+        const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
+                                                 config_.correspondence.triangulation);
+        if (tp.usable()) {
+            m.point = tp;
+            changed = true;
+        }
+    }
+    if (!changed) return;
+    // Refit every body with the corrected markers (same history as the first fit).
+    for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
+    fit_poses(bodies, out.markers, config_.pose, last_eye_,
+              std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
+              std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
 }
 
 }  // namespace eyesim::tracking

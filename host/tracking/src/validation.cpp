@@ -51,6 +51,7 @@ FrameScore score_frame(const TrackingFrame& frame, const BodySet& bodies, const 
         ms.body = frame.assignment.body[std::size_t(k)];
         ms.colour_class = m.colour_class;
         ms.views = m.point.views;
+        ms.occluded = m.occluded;
         const rig::MarkerTruth* best = nullptr;
         double bd = 1e300;
         if (ms.body >= 0) {
@@ -74,6 +75,7 @@ FrameScore score_frame(const TrackingFrame& frame, const BodySet& bodies, const 
             continue;
         }
         ms.id = best->id;
+        ms.truth_eye = best->body == "eye";
         ms.truth_rig_mm = best->center_rig_mm;
         ms.error_mm = bd;
         fs.markers.push_back(ms);

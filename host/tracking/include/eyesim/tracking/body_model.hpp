@@ -39,6 +39,7 @@ struct InstrumentModel {
     Eigen::Vector3d axis_body = Eigen::Vector3d::UnitZ();      ///< unit shaft direction (tip → handle)
     Eigen::Vector3d trocar_eye_mm = Eigen::Vector3d::Zero();   ///< entry point through the eye wall (eye frame)
     bool has_trocar = false;                                   ///< false: no insertion depth reported
+    double shaft_radius_mm = 0.0;                              ///< shaft through the markers (occlusion model)
     int marker_count = 0;                                      ///< valid entries in `markers`
     std::array<BodyMarker, kMaxBodyMarkers> markers{};         ///< markers in the body frame
 
@@ -48,6 +49,7 @@ struct InstrumentModel {
 
 /// All bodies of a scene.
 struct BodySet {
+    double marker_radius_mm = 0.0;                        ///< marker sphere radius (occlusion test; 0: unknown)
     EyeModel eye;                                         ///< the eye
     int instrument_count = 0;                             ///< valid entries in `instruments`
     std::array<InstrumentModel, kMaxInstruments> instruments{};  ///< the instruments

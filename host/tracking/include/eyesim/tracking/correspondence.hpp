@@ -27,6 +27,7 @@ struct ImagePoint {
     Eigen::Vector2d px = Eigen::Vector2d::Zero();  ///< distorted full-frame pixel
     Eigen::Vector2d xn = Eigen::Vector2d::Zero();  ///< undistorted normalised point (z = 1)
     double sigma_px = 0.05;                        ///< 1σ centroid noise (pixels)
+    float area_px = 0.0f;                          ///< blob area in field pixels (0: unknown)
 };
 
 /// Everything one camera contributes to one tracking frame (after time alignment).
@@ -41,6 +42,8 @@ struct MatchedMarker {
     std::uint8_t colour_class = 0;  ///< 1..4
     TriangulatedPoint point;        ///< position, covariance, residual, flags
     std::array<std::int8_t, kMaxCameras> image_index{};  ///< index in each camera's points, −1 when unused
+    std::uint8_t occluded_views = 0;  ///< bit c: camera c's image was judged partly occluded (left out of the fit)
+    bool occluded = false;            ///< fewer than two unoccluded views: position biased, fit it last
 };
 
 /// Result of one frame's correspondence.
@@ -66,6 +69,14 @@ struct CorrespondenceOptions {
     double max_rms_px = 0.6;         ///< max reprojection RMS of an accepted match (pixels)
     TriangulationOptions triangulation;  ///< passed to `triangulate`
     std::array<ClassRegion, 5> region{};  ///< per colour class 1..4 (index 0 unused)
+    /// Partial-occlusion test of each view from its blob area: a marker sphere of this radius (mm) at the
+    /// triangulated depth covers π·(fx·r/z)·(fy·r/z)/2 field pixels; a view whose area is below
+    /// `min_area_ratio` of that, or below `relative_area_ratio` of the best view's ratio, is partly hidden (by the
+    /// eye, a shaft, another instrument) and its centroid biased by up to a marker radius. Such views are left out
+    /// when two others remain. 0 disables.
+    double marker_radius_mm = 0.0;
+    double min_area_ratio = 0.6;       ///< absolute area ratio below which a view is occluded
+    double relative_area_ratio = 0.85; ///< ratio to the best view below which a view is occluded
 };
 
 /// Same-coloured images per camera the search considers (more are left unmatched and counted).
@@ -91,6 +102,8 @@ public:
     const CorrespondenceOptions& options() const { return opt_; }
 
 private:
+    void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
+
     std::span<const CameraGeometry> cams_;
     CorrespondenceOptions opt_;
     std::array<std::array<Eigen::Matrix3d, kMaxCameras>, kMaxCameras> E_{};  ///< x_bᵀ E[a][b] x_a = 0

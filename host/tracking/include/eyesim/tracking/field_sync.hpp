@@ -30,6 +30,7 @@ struct FieldImage {
     std::uint8_t colour_class = 0;                 ///< 1..4
     std::uint8_t flags = 0;                        ///< protocol marker flags
     Eigen::Vector2d frame_px = Eigen::Vector2d::Zero();  ///< (x, 2·y_field + parity)
+    float area_px = 0.0f;                          ///< blob area, field pixels
 };
 
 /// One camera field assembled from its FieldMarkers parts.

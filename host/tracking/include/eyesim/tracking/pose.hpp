@@ -24,6 +24,7 @@ enum PoseFlag : std::uint32_t {
     kPoseNoRoll = 1u << 2,         ///< markers on the shaft only: roll unobservable, orientation is minimal
     kPoseHighResidual = 1u << 3,   ///< fit RMS above the gate: a marker is probably misassigned
     kPoseNoEye = 1u << 4,          ///< eye pose not available: eye-frame values use the last eye pose
+    kPoseJumpRejected = 1u << 5,   ///< a fit jumped implausibly from the last frame (misassigned markers): held
 };
 
 /// Eye pose: rotation about its fixed centre.
@@ -63,6 +64,7 @@ struct PoseOptions {
     double eye_prior_gate_mm = 3.0; ///< eye markers are matched to their predicted positions within this
     int min_markers_acquire = 3;    ///< markers needed to report an instrument not measured in the last frame
     int min_markers_keep = 2;       ///< markers needed to keep reporting an instrument measured last frame
+    double max_tip_jump_mm = 6.0;   ///< a tracked instrument's tip moving further in one frame is rejected
     /// Use the trocar as a point the shaft passes through (when the tip is past it): the markers sit 26–38 mm
     /// from the tip, so without it the tip is an extrapolation that multiplies the marker error ~4×.
     bool trocar_constraint = true;

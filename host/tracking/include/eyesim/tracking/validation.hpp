@@ -35,6 +35,8 @@ struct MarkerScore {
     int id = -1;                ///< marker index in its body (truth id), −1 when no truth marker was within reach
     int colour_class = 0;       ///< 1..4
     int views = 0;              ///< cameras used
+    bool occluded = false;      ///< the tracker flagged it partly occluded (biased; not used for the eye)
+    bool truth_eye = false;     ///< the truth marker it was scored against is an eye marker
     Eigen::Vector3d truth_rig_mm = Eigen::Vector3d::Zero();  ///< truth centre at the frame time
     double error_mm = 0;        ///< |measured − truth|
 };
