@@ -20,6 +20,8 @@ TrackerConfig SyntheticScene::tracker_config() const {
         cfg.timing.push_back(camera_timing(c));
     }
     cfg.bodies = set_;
+    // The synthetic stream carries exact projected centres (no shaft hides part of a marker): no correction.
+    cfg.shaft_occlusion_correction = false;
     return cfg;
 }
 
