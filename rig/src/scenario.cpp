@@ -41,7 +41,7 @@ double smoothstep(double a, double b, double x) {
 
 }  // namespace
 
-std::vector<std::string> scenario_names() { return {"static", "sweep", "surgery", "fast", "occlusion"}; }
+std::vector<std::string> scenario_names() { return {"static", "sweep", "surgery", "fast", "occlusion", "injection"}; }
 
 double Scenario::eval(const std::vector<Wave>& waves, double t_s) {
     double v = 0;
@@ -52,8 +52,8 @@ double Scenario::eval(const std::vector<Wave>& waves, double t_s) {
 Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies) {
     const auto names = scenario_names();
     if (std::find(names.begin(), names.end(), name) == names.end())
-        throw RigError(fmt::format("scenario: name: unknown scenario '{}' (static, sweep, surgery, fast, occlusion)",
-                                   name));
+        throw RigError(fmt::format(
+            "scenario: name: unknown scenario '{}' (static, sweep, surgery, fast, occlusion, injection)", name));
     Scenario s;
     s.name_ = name;
     s.bodies_ = bodies;
@@ -63,7 +63,8 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     InstrumentKind tissue = InstrumentKind::kForceps;
     if (name == "sweep") tissue = InstrumentKind::kPick;
     if (name == "fast") tissue = InstrumentKind::kVitrector;
-    if (name == "occlusion") tissue = InstrumentKind::kInjection;
+    if (name == "occlusion" || name == "injection") tissue = InstrumentKind::kInjection;
+    s.injection_ = name == "injection";
     s.kinds_ = {tissue, InstrumentKind::kLightPipe};
     (void)bodies.instrument(tissue);
     (void)bodies.instrument(InstrumentKind::kLightPipe);
@@ -76,6 +77,7 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     if (name == "surgery") b = {1.5 * kDeg, 0.3, 0.8, 0.8, 0.2, 0.6, 2 * kDeg, 0.1, 0.4};
     if (name == "fast") b = {14 * kDeg, 2.0, 3.5, 4.0, 1.5, 3.0, 6 * kDeg, 0.8, 2.0};
     if (name == "occlusion") b = {16 * kDeg, 0.1, 0.3, 3.0, 0.1, 0.3, 14 * kDeg, 0.1, 0.3};
+    if (name == "injection") b = {1.0 * kDeg, 0.1, 0.3, 0.0, 0.1, 0.3, 1 * kDeg, 0.1, 0.3};
 
     for (int k = 0; k < 2; ++k) {
         InstrumentMotion m;
@@ -90,6 +92,12 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         if (name == "surgery" && k == 0) {
             // Peeling strokes: slow drag of the tip across the retina, repeated.
             m.tilt_x.push_back({5 * kDeg, 0.25, rng.uniform(0, 2 * kPi)});
+        }
+        if (name == "injection" && k == 0) {
+            m.tilt_x0 = rng.uniform(-4, 4) * kDeg;
+            m.tilt_y0 = rng.uniform(-4, 4) * kDeg;
+            m.tilt_x.push_back({0.0, 1.0, 0.0});
+            m.flick_s = 3.0;
         }
         if (name == "occlusion" && k == 0) {
             // The tissue instrument is pulled out of the eye (markers leave the view) and reinserted.
@@ -169,6 +177,7 @@ SceneState Scenario::state_at(double t_us) const {
 
     // Pedal.
     st.pedal.axes[0] = std::clamp(pedal0_base_ + eval(pedal0_, t), 0.0, 1.0);
+    if (injection_) st.pedal.axes[0] = 0.8 * smoothstep(1.2, 2.0, t) * (1.0 - smoothstep(3.4, 3.6, t));
     st.pedal.axes[1] = std::clamp(eval(pedal1_, t), -1.0, 1.0);
     st.pedal.axes[2] = std::clamp(eval(pedal2_, t), -1.0, 1.0);
     st.pedal.buttons = (st.pedal.axes[1] > 0.5 ? 1u : 0u) | (st.pedal.axes[2] > 0.5 ? 2u : 0u);
@@ -185,11 +194,21 @@ SceneState Scenario::state_at(double t_us) const {
                                        ? n.cross(Eigen::Vector3d::UnitZ()).normalized()
                                        : Eigen::Vector3d::UnitX();
         const Eigen::Vector3d e2 = n.cross(e1);
-        const double tx = m.tilt_x0 + eval(m.tilt_x, t), ty = m.tilt_y0 + eval(m.tilt_y, t);
+        const double flick = m.flick_s < 1e29 ? 4.0 * kDeg * smoothstep(m.flick_s, m.flick_s + 0.1, t) : 0.0;
+        const double tx = m.tilt_x0 + eval(m.tilt_x, t) + flick, ty = m.tilt_y0 + eval(m.tilt_y, t);
         const Eigen::Vector3d d_in = (-n + std::tan(tx) * e1 + std::tan(ty) * e2).normalized();
         // Keep the tip inside the eye: at most 90% of the chord along d_in.
         const double chord = 2.0 * bodies_.eye.radius_mm * (-d_in.dot(n));
         double ins = std::clamp(m.insertion0 + eval(m.insertion, t), 2.0, std::min(0.9 * chord, body.max_insertion_mm));
+        if (injection_ && k == 0) {
+            // The needle goes to the posterior wall and penetrates the retina (inner radius 11.5 mm) by 0.1 mm
+            // after 1 s, then stays at that depth while the tilt waves slide it along the retina; a quick flick
+            // at 3.0 s moves it fast along the retina (the tear-warning situation).
+            const double r_tip = bodies_.eye.radius_mm - 0.4;
+            const double b_ = troc.dot(d_in), c_ = troc.squaredNorm() - r_tip * r_tip;
+            const double s_wall = -b_ + std::sqrt(std::max(0.0, b_ * b_ - c_));
+            ins = s_wall - 1.5 * (1.0 - smoothstep(0.0, 1.0, t));
+        }
         const double retract = smoothstep(m.retract_start_s, m.retract_start_s + 0.15 * (m.retract_end_s - m.retract_start_s), t) *
                                (1.0 - smoothstep(m.retract_end_s - 0.15 * (m.retract_end_s - m.retract_start_s), m.retract_end_s, t));
         ins -= retract * 60.0;

@@ -18,9 +18,8 @@ Eigen::Isometry3f instrument_pose_eye(const Eigen::Vector3d& tip_eye_mm, const E
 
 TrackingPoseAdapter::TrackingPoseAdapter(const tracking::BodySet& bodies) {
     for (int i = 0; i < bodies.instrument_count; ++i) {
-        const bool light = bodies.instruments[size_t(i)].name == "light_pipe";
-        if (light && light_ < 0) light_ = i;
-        if (!light && hand_ < 0) hand_ = i;
+        is_light_[size_t(i)] = bodies.instruments[size_t(i)].name == "light_pipe";
+        if (is_light_[size_t(i)] && light_ < 0) light_ = i;
     }
 }
 
@@ -28,6 +27,10 @@ void TrackingPoseAdapter::convert(const tracking::TrackingFrame& f, FramePoses& 
     out = FramePoses{};
     out.time_s = f.time_device_us * 1e-6;
     out.tracking_us = f.timing.compute_us;
+    // The working hand: the first non-light instrument measured (a live body set lists every kind; only the
+    // instruments present are ever measured). Sticky once chosen.
+    for (int i = 0; hand_ < 0 && i < f.instrument_count; ++i)
+        if (!is_light_[size_t(i)] && f.instruments[size_t(i)].measured()) hand_ = i;
     auto take = [&](int i, bool& valid, Eigen::Isometry3f& pose) {
         if (i < 0 || i >= f.instrument_count) return;
         const tracking::InstrumentPose& p = f.instruments[size_t(i)];

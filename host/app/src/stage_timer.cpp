@@ -48,6 +48,13 @@ StageSummary summarise(const std::vector<double>& v) {
 
 StageSummary StageTimer::summary(Stage st) const { return summary_of_sum({st}); }
 
+StageSummary StageTimer::summary_where_ran(Stage st) const {
+    std::vector<double> v;
+    for (const auto& r : rows_)
+        if (r[size_t(st)] > 0.0) v.push_back(r[size_t(st)]);
+    return summarise(v);
+}
+
 StageSummary StageTimer::summary_of_sum(std::initializer_list<Stage> stages) const {
     std::vector<double> v;
     v.reserve(rows_.size());

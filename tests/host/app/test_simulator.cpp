@@ -180,3 +180,13 @@ TEST_CASE("retina relocation: a fast needle along the retina raises the tear war
     CHECK(run_injection(20.0, 0.8)->scores().tear_warnings > 0);
     CHECK(run_injection(1.0, 0.8)->scores().tear_warnings == 0);
 }
+
+TEST_CASE("retina relocation on the rig's injection scenario: detaches, then warns of the fast flick", "[sim][frame]") {
+    Simulator sim(sim::scenes::load_scene(scene_path("retina-relocation")));
+    run_on_truth(sim, "injection", 4.0);
+    CHECK(sim.scores().nodes_detached > 0);
+    REQUIRE(sim.scores().tear_warnings > 0);
+    // The only fast move along the retina is the flick at 3.0–3.1 s.
+    for (const auto& e : sim.events())
+        if (e.kind == app::EventKind::kTear) CHECK((e.time_s >= 2.98 && e.time_s <= 3.2));
+}

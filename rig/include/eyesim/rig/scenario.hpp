@@ -6,7 +6,8 @@
 /// Scenarios: "static" (everything still), "sweep" (slow sweeps of both instruments and the eye over the whole
 /// working volume), "surgery" (membrane-peel-like strokes near the retina, forceps closing/opening with the
 /// pedal, light pipe following), "fast" (quick moves: motion blur of several pixels), "occlusion" (instruments
-/// crossing, retracting out of view, large eye rotations hiding markers behind the eye).
+/// crossing, retracting out of view, large eye rotations hiding markers behind the eye), "injection" (retina
+/// relocation: the injection needle penetrates the posterior retina, the pedal injects, a quick flick at 3 s).
 
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/truth.hpp"
@@ -74,10 +75,12 @@ private:
         double tilt_x0 = 0, tilt_y0 = 0, insertion0 = 10;
         std::vector<Wave> tilt_x, tilt_y, insertion;
         double retract_start_s = 1e30, retract_end_s = 1e30;  ///< occlusion: pulled out of the eye and back
+        double flick_s = 1e30;  ///< injection: a quick 4° tilt starting here (fast move along the retina)
     };
     std::vector<InstrumentMotion> motion_;
     std::vector<Wave> pedal0_, pedal1_, pedal2_;
     double pedal0_base_ = 0.0;
+    bool injection_ = false;  ///< "injection": the needle reaches the retina, pedal = injection pressure
     // Eye rotation vector (rad) sampled on a fixed grid by integrating the spring model (RK4).
     double eye_t0_s_ = -1.0, eye_dt_s_ = 0.002;  // RK4 step and table spacing (2 Hz spring: ω·dt = 0.025)
     std::vector<Eigen::Vector3d> eye_rot_, eye_rate_;

@@ -15,8 +15,8 @@ namespace eyesim::app {
 /// Collision-convention pose from a tip and a shaft direction (tip → handle), both eye frame.
 Eigen::Isometry3f instrument_pose_eye(const Eigen::Vector3d& tip_eye_mm, const Eigen::Vector3d& axis_tip_to_handle);
 
-/// Converts tracking frames. The working hand is the first instrument of the body set that is not a light
-/// pipe; a pose is used once it has been measured at least once (held poses keep the last measurement).
+/// Converts tracking frames. The working hand is the first instrument that is not a light pipe to be measured;
+/// a pose is used once it has been measured at least once (held poses keep the last measurement).
 class TrackingPoseAdapter {
 public:
     /// `bodies` is the tracker's body set (instrument order of TrackingFrame::instruments).
@@ -27,6 +27,7 @@ public:
 private:
     int hand_ = -1, light_ = -1;
     std::array<bool, tracking::kMaxInstruments> ever_{};
+    std::array<bool, tracking::kMaxInstruments> is_light_{};
 };
 
 /// FramePoses from the rig scenario's truth at `state.t_us` (instrument 0: working hand, 1: light pipe).

@@ -105,6 +105,10 @@ public:
     const Scores& scores() const { return scores_; }
     /// Per-stage times of every frame.
     const StageTimer& timer() const { return timer_; }
+    /// Fault injection for the latency harness's own test: busy-waits this long inside every collision stage.
+    void inject_collision_delay_us(double us) { inject_collision_us_ = us; }
+    /// Adds rendering time (a picture of frame `frame`'s state) to that frame's row.
+    void record_render_us(size_t frame, double us) { timer_.add_to_row(frame, Stage::kRender, us); }
     /// How often each part ran.
     const StageUse& use() const { return use_; }
     /// The tissue mesh as last written (empty when the scene has no tissue).
@@ -139,6 +143,7 @@ private:
     StageUse use_;
     StageTimer timer_;
     bool placed_ = false;
+    double inject_collision_us_ = 0.0;
     bool have_prev_ = false;
     double prev_time_s_ = 0.0, first_time_s_ = 0.0;
     Eigen::Vector3f prev_tip_mm_ = Eigen::Vector3f::Zero();

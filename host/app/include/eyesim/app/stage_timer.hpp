@@ -35,9 +35,9 @@ public:
     void add(Stage s, double us) { current_[size_t(s)] += us; }
     /// Closes the current frame row.
     void end_frame();
-    /// Adds `us` to a stage of the last closed frame (e.g. a render done after the frame's simulation).
-    void add_to_last(Stage s, double us) {
-        if (!rows_.empty()) rows_.back()[size_t(s)] += us;
+    /// Adds `us` to a stage of closed frame `frame` (e.g. a picture of that frame rendered later).
+    void add_to_row(size_t frame, Stage s, double us) {
+        if (frame < rows_.size()) rows_[frame][size_t(s)] += us;
     }
 
     /// Frames recorded.
@@ -46,6 +46,8 @@ public:
     const std::array<double, size_t(Stage::kCount)>& row(size_t i) const { return rows_[i]; }
     /// Percentiles of one stage over all frames.
     StageSummary summary(Stage s) const;
+    /// Percentiles of one stage over the frames where it ran (time > 0), e.g. rendering on snapshot frames.
+    StageSummary summary_where_ran(Stage s) const;
     /// Percentiles of the sum of the given stages per frame.
     StageSummary summary_of_sum(std::initializer_list<Stage> stages) const;
 

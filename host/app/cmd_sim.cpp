@@ -1,0 +1,29 @@
+// `eyesim sim`: run a scene from a live device, a capture, a recording or a scripted scenario.
+#include "eyesim/app/command.hpp"
+#include "eyesim/app/run_scene.hpp"
+
+#include <memory>
+
+namespace {
+
+eyesim::app::Registrar reg{
+    "sim", "Run a simulator scene on tracked instruments (device, capture, recording or scenario)", [](CLI::App& sub) {
+        auto req = std::make_shared<eyesim::app::SceneRunRequest>();
+        sub.add_option("--scene", req->scene_path, "scene file (scenes/*.json)")->required();
+        auto* src = sub.add_option_group("source", "where the markers come from (exactly one)");
+        src->add_option("--connect", req->source.connect, "live device: tcp://HOST:PORT, usb or usb://VID:PID");
+        src->add_option("--capture", req->source.capture, "capture file (or raw protocol stream)");
+        src->add_option("--recording", req->source.recording, "recording directory (run through the FPGA model)");
+        src->add_option("--scenario", req->source.scenario, "synthetic scenario, truth poses (no tracking)");
+        src->require_option(1);
+        sub.add_option("--rig", req->rig_path, "rig.yaml for --connect/--capture (default: the synthetic rig)");
+        sub.add_option("--truth", req->truth_path, "truth.jsonl to score tracking against");
+        sub.add_option("--seconds", req->seconds, "run length for --connect/--scenario; fields for --recording / 50");
+        sub.add_option("--seed", req->seed, "scenario seed");
+        sub.add_option("--report", req->report_dir, "write a report folder (index.html, stereo snapshots, plots)");
+        sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")->capture_default_str();
+        sub.add_flag("--json", req->json, "one JSON object on stdout");
+        return [req]() -> int { return eyesim::app::run_scene(*req); };
+    }};
+
+}  // namespace
