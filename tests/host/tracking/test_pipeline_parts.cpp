@@ -1,0 +1,155 @@
+#include "eyesim/tracking/correspondence.hpp"
+#include "eyesim/tracking/distortion.hpp"
+#include "eyesim/tracking/field_sync.hpp"
+#include "eyesim/tracking/pose.hpp"
+#include "eyesim/tracking/pose_io.hpp"
+#include "eyesim/tracking/validation.hpp"
+
+#include "test_support.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+
+using namespace eyesim::tracking;
+namespace proto = eyesim::protocol;
+
+namespace {
+
+proto::FieldMarkers part(std::uint32_t field, std::uint16_t index, bool more, int markers, std::uint8_t cls = 1) {
+    proto::FieldMarkers m;
+    m.camera_id = 1;
+    m.field_parity = 1;
+    m.field_counter = field;
+    m.part_index = index;
+    m.flags = more ? proto::kFieldFlagMoreFollows : 0;
+    m.field_end_us = 100000 + 20000ull * field;
+    for (int i = 0; i < markers; ++i) {
+        proto::Marker& k = m.markers[m.marker_count++];
+        k.colour_class = cls;
+        k.x_q16 = std::uint32_t((100 + 10 * i) * 65536);
+        k.y_q16 = std::uint32_t(50 * 65536 + 32768);  // field row 50.5
+        k.area_px = 20;
+    }
+    return m;
+}
+
+}  // namespace
+
+TEST_CASE("field assembler joins parts, maps field rows to frame rows, flags lost parts", "[tracking][sync]") {
+    FieldAssembler fa;
+    CameraTiming t;
+    CHECK(fa.push(part(7, 0, true, 14), 1.0, t) == 0);
+    REQUIRE(fa.push(part(7, 1, false, 3), 2.0, t) == 1);
+    const CameraField& f = fa.completed(0);
+    CHECK(f.count == 17);
+    CHECK_FALSE(f.incomplete);
+    CHECK(f.received_host_us == 2.0);
+    CHECK(f.images[0].frame_px.y() == Approx(2.0 * 50.5 + 1.0));  // bottom field: frame row 2y + 1
+    CHECK(f.sample_device_us == Approx(100000.0 + 140000.0 - t.end_to_sample_us[1]));
+    // Field 8 loses its last part: the first part of field 9 completes it, flagged.
+    CHECK(fa.push(part(8, 0, true, 2), 3.0, t) == 0);
+    REQUIRE(fa.push(part(9, 0, false, 1), 4.0, t) == 2);
+    CHECK(fa.completed(0).field_counter == 8);
+    CHECK(fa.completed(0).incomplete);
+    CHECK(fa.completed(1).field_counter == 9);
+    CHECK_FALSE(fa.completed(1).incomplete);
+    // A marker with an undefined colour class is refused and counted.
+    REQUIRE(fa.push(part(10, 0, false, 2, 0), 5.0, t) == 1);
+    CHECK(fa.completed(0).count == 0);
+    CHECK(fa.rejected_images() == 2);
+}
+
+TEST_CASE("error summary percentiles and RMS", "[tracking][validation]") {
+    std::vector<double> v{4.0, 1.0, 3.0, 2.0};
+    const ErrorSummary s = summarise(v);
+    CHECK(s.count == 4);
+    CHECK(s.rms == Approx(std::sqrt(7.5)));
+    CHECK(s.p50 == 2.0);
+    CHECK(s.p95 == 4.0);
+    CHECK(s.max == 4.0);
+    std::vector<double> empty;
+    CHECK(summarise(empty).count == 0);
+}
+
+TEST_CASE("a partly hidden view is left out by the blob-area test", "[tracking][correspondence]") {
+    const auto cams = test::three_camera_rig();
+    CorrespondenceOptions opt;
+    opt.marker_radius_mm = 0.6;
+    const Correspondence corr(cams, opt);
+    const Eigen::Vector3d X(1.0, -2.0, 4.0);
+    std::array<CameraObservations, 3> views;
+    for (int c = 0; c < 3; ++c) {
+        auto& v = views[std::size_t(c)];
+        v.present = true;
+        v.count = 1;
+        ImagePoint& p = v.points[0];
+        REQUIRE(project_point(cams[std::size_t(c)], X, p.px));
+        const double z = (cams[std::size_t(c)].R_cam_rig * X + cams[std::size_t(c)].t_cam_rig_mm).z();
+        const double r = 0.6 / z;
+        p.area_px = float(3.141592653589793 * cams[std::size_t(c)].fx * r * cams[std::size_t(c)].fy * r * 0.5);
+        p.colour_class = 4;
+        if (c == 2) {  // half hidden: area halved, centroid pushed away by 0.4 px
+            p.area_px *= 0.5f;
+            p.px += Eigen::Vector2d(0.4, 0.0);
+        }
+        p.xn = undistort_pixel(cams[std::size_t(c)], p.px).xn;
+    }
+    CorrespondenceResult r;
+    corr.solve(views, r);
+    REQUIRE(r.count == 1);
+    CHECK(r.markers[0].occluded_views == 0x4);
+    CHECK_FALSE(r.markers[0].occluded);
+    CHECK(r.markers[0].point.views == 2);
+    CHECK((r.markers[0].point.X_rig_mm - X).norm() < 1e-6);
+}
+
+TEST_CASE("a tracked instrument that jumps is held, not reported", "[tracking][pose]") {
+    BodySet bodies;
+    bodies.eye.marker_count = 0;
+    bodies.instrument_count = 1;
+    InstrumentModel& im = bodies.instruments[0];
+    im.name = "pick";
+    im.marker_count = 3;
+    const double s[3] = {26.0, 31.0, 38.0};
+    for (int k = 0; k < 3; ++k) {
+        im.markers[std::size_t(k)].colour_class = std::uint8_t(1 + k);
+        im.markers[std::size_t(k)].pos_body_mm = Eigen::Vector3d(0, 0, s[k]);
+    }
+    auto frame_at = [&](const Eigen::Vector3d& tip) {
+        CorrespondenceResult found;
+        for (int k = 0; k < 3; ++k) {
+            MatchedMarker& m = found.markers[std::size_t(found.count++)];
+            m.colour_class = std::uint8_t(1 + k);
+            m.point.X_rig_mm = tip + Eigen::Vector3d(0, 0, s[k]);
+            m.point.cov_mm2 = Eigen::Matrix3d::Identity() * 1e-4;
+            m.point.views = 3;
+        }
+        return found;
+    };
+    PoseOptions opt;
+    EyePose eye0, eye;
+    std::array<InstrumentPose, 1> prev{}, cur{};
+    MarkerAssignment asg;
+    fit_poses(bodies, frame_at({1, 2, 3}), opt, eye0, prev, eye, cur, asg);
+    REQUIRE(cur[0].measured());
+    CHECK((cur[0].tip_rig_mm - Eigen::Vector3d(1, 2, 3)).norm() < 1e-9);
+    CHECK(cur[0].axis_rig.z() == Approx(1.0));
+    prev = cur;
+    fit_poses(bodies, frame_at({1, 2, 13}), opt, eye0, prev, eye, cur, asg);  // 10 mm in one frame
+    CHECK_FALSE(cur[0].measured());
+    CHECK((cur[0].flags & kPoseJumpRejected) != 0);
+    CHECK((cur[0].tip_rig_mm - Eigen::Vector3d(1, 2, 3)).norm() < 1e-9);  // held
+    // Not measured last frame → re-acquired with all three markers.
+    prev = cur;
+    fit_poses(bodies, frame_at({1, 2, 13}), opt, eye0, prev, eye, cur, asg);
+    CHECK(cur[0].measured());
+    // The poses.jsonl line is valid JSON with finite values.
+    TrackingFrame f;
+    f.instrument_count = 1;
+    f.instruments[0] = cur[0];
+    const auto j = nlohmann::json::parse(frame_json_line(f, bodies));
+    CHECK(j["instruments"][0]["name"] == "pick");
+    CHECK(j["instruments"][0]["tip_rig_mm"][2].get<double>() == Approx(13.0));
+}
