@@ -207,6 +207,7 @@ int run_track(const TrackOptions& opt) {
     const bool progress = eyesim::app::show_progress(opt.json);
     const double t0 = host_now_us();
     std::string source;
+    bool torn = false;
 
     if (!opt.capture.empty()) {
         source = opt.capture;
@@ -216,7 +217,12 @@ int run_track(const TrackOptions& opt) {
         double last_us = 0;
         for (;;) {
             const proto::CaptureStatus st = reader.next(rec);
-            if (st == proto::CaptureStatus::End || st == proto::CaptureStatus::Torn) break;
+            if (st == proto::CaptureStatus::Torn) {  // a crash mid-write: earlier records are good
+                torn = true;
+                std::fprintf(stderr, "eyesim: warning: %s: last record torn (skipped)\n", opt.capture.c_str());
+                break;
+            }
+            if (st == proto::CaptureStatus::End) break;
             if (st == proto::CaptureStatus::Corrupt)
                 throw Error(fmt::format("{}: record at offset {}: corrupt", opt.capture, reader.bad_offset()));
             if (st == proto::CaptureStatus::IoError) throw Error(opt.capture + ": read error");
@@ -262,6 +268,7 @@ int run_track(const TrackOptions& opt) {
     const double wall_s = (host_now_us() - t0) * 1e-6;
     nlohmann::json j = session->summary();
     j["source"] = source;
+    if (!opt.capture.empty()) j["capture_torn"] = torn;
     j["fields_per_s"] = double(session->fields()) / std::max(wall_s, 1e-9);
     if (!opt.out.empty()) j["out"] = opt.out;
     if (opt.json) {
