@@ -47,7 +47,7 @@ std::string html_escape(const std::string& s) {
     return o;
 }
 
-/// Minimal line plot (OpenCV), for the report.
+/// Minimal line plot (OpenCV), for the report. Text must be ASCII (OpenCV's Hershey fonts have no µ or →).
 void plot_lines(const std::string& path, const std::string& title, const std::string& ylabel,
                 const std::vector<std::pair<std::string, std::vector<double>>>& series) {
     const int W = 900, H = 360, L = 70, R = 170, T = 40, B = 50;
@@ -267,9 +267,9 @@ std::string write_report(const std::string& dir, const RunReport& r) {
         stages.push_back({to_string(row.stage), std::move(v)});
     }
     stages.pop_back();  // render time is sparse (snapshot frames only): its own table row, not this plot
-    plot_lines(dir + "/stages.png", "Host stage times per frame", "µs", stages);
+    plot_lines(dir + "/stages.png", "Host stage times per frame", "us", stages);
     if (r.stats && !r.stats->latency_us.empty())
-        plot_lines(dir + "/latency.png", "Latency per frame: field end → packet received → poses ready", "µs",
+        plot_lines(dir + "/latency.png", "Latency per frame: field end -> packet received -> poses ready", "us",
                    {{"received", r.stats->transfer_us}, {"poses ready", r.stats->latency_us}});
 
     std::ofstream h(dir + "/index.html");

@@ -75,6 +75,7 @@ int run_scene(const SceneRunRequest& req) {
     }
     Simulator sim(scene);
     RunReport report;
+    RunStats stats;
     report.title = req.title;
     report.sim = &sim;
 
@@ -173,20 +174,10 @@ int run_scene(const SceneRunRequest& req) {
             report.source = "device " + req.source.connect;
             run_live(req.source.connect, run, req.seconds);
         }
-        report.stats = &run.stats();
         report.accuracy = acc.summary();
-        render_snaps();
         if (run.stats().frames == 0) throw Error(report.source + ": no tracking frames (no markers received)");
-        if (req.json) {
-            std::printf("%s\n", report_json(report).dump().c_str());
-        } else {
-            print_report(stdout, report);
-        }
-        if (!req.report_dir.empty()) {
-            const std::string index = write_report(req.report_dir, report);
-            if (!req.json) std::printf("\nreport: %s\n", index.c_str());
-        }
-        return 0;
+        stats = run.stats();
+        report.stats = &stats;
     }
     render_snaps();
     if (req.json) std::printf("%s\n", report_json(report).dump().c_str());

@@ -140,6 +140,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
             }
         }
     }
+    run.set_parse_errors(parser.stats().errors());
     run.finish();
 }
 
@@ -149,6 +150,7 @@ void run_capture(const std::string& path, HostRun& run, std::string& warning) {
     proto::DecodedFrame f;
     uint64_t rx_us = 0;
     while (replay->next(f, rx_us)) run.on_frame(f, double(rx_us));
+    run.set_parse_errors(replay->stats().errors());
     run.finish();
     switch (replay->status()) {
         case proto::CaptureStatus::Torn:
@@ -232,6 +234,7 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds) {
         if (r.status == transport::IoStatus::error) throw Error(uri + ": " + link->last_error());
     }
     parser.finish([&](const proto::DecodedFrame& df) { handle(df, host_now_us()); });
+    run.set_parse_errors(parser.stats().errors());
     run.finish();
     link->close();
     return clock.offset_us();

@@ -55,6 +55,8 @@ public:
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
     /// End of stream: frames still waiting are built and simulated.
     void finish();
+    /// Stream parser errors seen by the source (CRC, truncation, …), for the run's counters.
+    void set_parse_errors(uint64_t n) { stats_.parse_errors = n; }
     /// Counters.
     const RunStats& stats() const { return stats_; }
     /// The tracker.
