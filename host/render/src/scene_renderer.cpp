@@ -3,6 +3,8 @@
 #include "eyesim/render/egl_context.hpp"
 #include "scene_shaders.hpp"
 
+#include "gl_program.hpp"
+
 #include <GLES3/gl3.h>
 
 #include <Eigen/Geometry>
@@ -46,46 +48,8 @@ Eigen::Matrix4f perspective(float fovy_rad, float aspect, float near_mm, float f
     return m;
 }
 
-GLuint compile(GLenum type, const char* src, std::string& error) {
-    GLuint s = glCreateShader(type);
-    glShaderSource(s, 1, &src, nullptr);
-    glCompileShader(s);
-    GLint ok = 0;
-    glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[1024] = {};
-        glGetShaderInfoLog(s, sizeof(log), nullptr, log);
-        error = std::string("scene renderer: shader compile failed: ") + log;
-        glDeleteShader(s);
-        return 0;
-    }
-    return s;
-}
-
 GLuint link(const char* vs_src, const char* fs_src, std::string& error) {
-    GLuint vs = compile(GL_VERTEX_SHADER, vs_src, error);
-    if (!vs) return 0;
-    GLuint fs = compile(GL_FRAGMENT_SHADER, fs_src, error);
-    if (!fs) {
-        glDeleteShader(vs);
-        return 0;
-    }
-    GLuint p = glCreateProgram();
-    glAttachShader(p, vs);
-    glAttachShader(p, fs);
-    glLinkProgram(p);
-    glDeleteShader(vs);
-    glDeleteShader(fs);
-    GLint ok = 0;
-    glGetProgramiv(p, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[1024] = {};
-        glGetProgramInfoLog(p, sizeof(log), nullptr, log);
-        error = std::string("scene renderer: program link failed: ") + log;
-        glDeleteProgram(p);
-        return 0;
-    }
-    return p;
+    return link_program(vs_src, fs_src, "scene renderer", error);
 }
 
 /// The baked fundus texture: texels, and the half extent it covers on the eye-frame x and y axes.

@@ -1,5 +1,7 @@
 #include "eyesim/render/zcoll_gles.hpp"
 
+#include "gl_program.hpp"
+
 #include <GLES3/gl3.h>
 
 #include <cstring>
@@ -76,42 +78,8 @@ layout(location = 0) out vec4 o_count;
 void main() { o_count = vec4(1.0 / 255.0, 0.0, 0.0, 1.0); }
 )";
 
-GLuint compile(GLenum type, const char* src, std::string& error) {
-    GLuint s = glCreateShader(type);
-    glShaderSource(s, 1, &src, nullptr);
-    glCompileShader(s);
-    GLint ok = 0;
-    glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[1024] = {0};
-        glGetShaderInfoLog(s, sizeof log, nullptr, log);
-        error = std::string("GLES3: shader compile failed: ") + log;
-        glDeleteShader(s);
-        return 0;
-    }
-    return s;
-}
-
 GLuint link(const char* vs_src, const char* fs_src, std::string& error) {
-    GLuint vs = compile(GL_VERTEX_SHADER, vs_src, error);
-    if (!vs) return 0;
-    GLuint fs = compile(GL_FRAGMENT_SHADER, fs_src, error);
-    if (!fs) return 0;
-    GLuint p = glCreateProgram();
-    glAttachShader(p, vs);
-    glAttachShader(p, fs);
-    glLinkProgram(p);
-    glDeleteShader(vs);
-    glDeleteShader(fs);
-    GLint ok = 0;
-    glGetProgramiv(p, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[1024] = {0};
-        glGetProgramInfoLog(p, sizeof log, nullptr, log);
-        error = std::string("GLES3: program link failed: ") + log;
-        return 0;
-    }
-    return p;
+    return link_program(vs_src, fs_src, "GLES3", error);
 }
 
 }  // namespace
