@@ -190,3 +190,23 @@ TEST_CASE("retina relocation on the rig's injection scenario: detaches, then war
     for (const auto& e : sim.events())
         if (e.kind == app::EventKind::kTear) CHECK((e.time_s >= 2.98 && e.time_s <= 3.2));
 }
+
+TEST_CASE("every shipped scene runs headless for seconds with deterministic events", "[sim][frame]") {
+    for (const char* name : {"abstract-shadow", "membrane-peel", "vitrectomy", "retina-relocation"}) {
+        INFO(name);
+        const auto scene = sim::scenes::load_scene(scene_path(name));
+        Simulator a(scene), b(scene);
+        run_on_truth(a, scene.scenario.c_str(), 3.0);
+        run_on_truth(b, scene.scenario.c_str(), 3.0);
+        CHECK(a.state_hash() == b.state_hash());
+        REQUIRE(a.events().size() == b.events().size());
+        for (size_t i = 0; i < a.events().size(); ++i) {
+            CHECK(a.events()[i].kind == b.events()[i].kind);
+            CHECK(a.events()[i].time_s == b.events()[i].time_s);
+            CHECK(a.events()[i].value == b.events()[i].value);
+        }
+        CHECK(a.timer().frames() == 150);
+        CHECK(a.use().tissue_steps == (scene.needs_tissue() ? 150u : 0u));
+        for (const auto& v : a.tissue_mesh().vertices_mm) REQUIRE(v.allFinite());
+    }
+}
