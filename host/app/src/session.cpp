@@ -87,7 +87,7 @@ void HostRun::drain() {
         sim_.step(poses_);
         ++stats_.frames;
         const auto& t = frame_.timing;
-        if (t.field_end_host_us > 0) {
+        if (clock_known_ && t.field_end_host_us > 0) {
             stats_.latency_us.push_back(t.poses_ready_host_us - t.field_end_host_us);
             stats_.transfer_us.push_back(t.received_host_us - t.field_end_host_us);
         }
@@ -113,6 +113,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
     proto::StreamParser parser;
     firmware::LinkModel link;
     uint16_t sequence = 0;
+    run.set_clock_offset_us(0.0);  // receive times are modelled on the device clock itself
     for (int64_t i = 0; i < n; ++i) {
         for (int c = 0; c < ncam; ++c) {
             const rig::FieldTiming ft = rec.field_timing(c, i);
@@ -203,25 +204,18 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds) {
         }
         run.on_frame(df, now);
     };
-    // Clock offset first: a few pings before the stream starts.
-    const double t0 = host_now_us();
-    for (int k = 0; k < 8; ++k) {
-        ping();
-        const auto r = link->read(buf, 50);
-        if (r.bytes) {
-            const double now = host_now_us();
-            parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), [&](const proto::DecodedFrame& df) { handle(df, now); });
-        }
-    }
+    // The device clock is modelled and runs with the played fields, so the offset is estimated once the stream
+    // runs: pings every 50 ms for the first half second, then every 500 ms (the minimum-delay sample wins).
     proto::Command start;
     start.command_id = id++;
     start.opcode = uint8_t(proto::Opcode::StreamStart);
     if (!send_command(*link, start, seq)) throw Error(uri + ": cannot send stream_start: " + link->last_error());
-    double last_ping = host_now_us();
+    const double t0 = host_now_us();
+    double last_ping = 0.0;
     while (true) {
         const double now0 = host_now_us();
         if (max_seconds > 0 && now0 - t0 > max_seconds * 1e6) break;
-        if (now0 - last_ping > 500000.0) {
+        if (now0 - last_ping > (now0 - t0 < 500000.0 ? 50000.0 : 500000.0)) {
             ping();
             last_ping = now0;
         }

@@ -49,8 +49,13 @@ public:
     HostRun(tracking::TrackerConfig config, Simulator& sim);
     /// Per-frame hook (accuracy scoring, pictures).
     void set_hook(FrameHook hook) { hook_ = std::move(hook); }
-    /// Device − host clock offset (µs); latencies are measured on the host clock through it.
-    void set_clock_offset_us(double offset) { tracker_->set_clock_offset_us(offset); }
+    /// Device − host clock offset (µs); latencies are measured on the host clock through it. Until the first
+    /// call, frames are not counted in the latency figures (their device times cannot be placed on the host
+    /// clock); sources whose host and device clocks coincide call it with 0 at the start.
+    void set_clock_offset_us(double offset) {
+        tracker_->set_clock_offset_us(offset);
+        clock_known_ = true;
+    }
     /// One decoded message received at `rx_host_us`.
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
     /// End of stream: frames still waiting are built and simulated.
@@ -73,6 +78,7 @@ private:
     FramePoses poses_;
     FrameHook hook_;
     RunStats stats_;
+    bool clock_known_ = false;
 };
 
 /// Pushes a recording through the FPGA model in-process (wire conversion, framing and parsing included, as the
