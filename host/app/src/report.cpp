@@ -244,6 +244,7 @@ nlohmann::json report_json(const RunReport& r) {
     nlohmann::json ev = nlohmann::json::array();
     for (const Event& e : sim.events()) ev.push_back({{"t_s", e.time_s}, {"kind", to_string(e.kind)}, {"value", e.value}});
     j["events"] = ev;
+    j["warnings"] = r.warnings;
     j["snapshots"] = nlohmann::json::array();
     for (const auto& sn : r.snapshots) j["snapshots"].push_back({{"t_s", sn.time_s}, {"file", sn.file}});
     return j;
