@@ -22,18 +22,23 @@ function(eyesim_library target)
   eyesim_defaults(${target})
 endfunction()
 
-# eyesim_test(<name> SOURCES ... LIBS ...) : a Catch2 test program registered with CTest.
+# eyesim_test(<name> [SERIAL] SOURCES ... LIBS ...) : a Catch2 test program registered with CTest.
 # Catch tags choose the CTest label: [stress] -> stress, [fuzz] -> fuzz, everything else -> unit.
+# SERIAL: its tests never run beside others (they measure time).
 function(eyesim_test name)
-  cmake_parse_arguments(T "" "" "SOURCES;LIBS" ${ARGN})
+  cmake_parse_arguments(T "SERIAL" "" "SOURCES;LIBS" ${ARGN})
+  set(serial "")
+  if(T_SERIAL)
+    set(serial RUN_SERIAL TRUE)
+  endif()
   add_executable(${name} ${T_SOURCES})
   target_link_libraries(${name} PRIVATE eyesim_catch_main ${T_LIBS})
   target_compile_definitions(${name} PRIVATE EYESIM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
   eyesim_defaults(${name})
   catch_discover_tests(${name} TEST_SPEC "~[stress]~[fuzz]" TEST_PREFIX "${name}: "
-                       PROPERTIES LABELS unit)
+                       PROPERTIES LABELS unit ${serial})
   catch_discover_tests(${name} TEST_SPEC "[stress]" TEST_PREFIX "${name}: "
-                       PROPERTIES LABELS stress)
+                       PROPERTIES LABELS stress ${serial})
 endfunction()
 
 # eyesim_bench(<name> SOURCES ... LIBS ...) : a benchmark program under bench/.

@@ -10,7 +10,7 @@ LatencyBenchOptions small() {
     LatencyBenchOptions o;
     o.scenes = {std::string(EYESIM_SCENES_DIR) + "/membrane-peel.json"};
     o.seconds = 0.6;
-    o.repeats = 3;
+    o.repeats = 5;
     return o;
 }
 }  // namespace
