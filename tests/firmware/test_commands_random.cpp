@@ -25,7 +25,7 @@ TEST_CASE("random register commands: one reply each, ack exactly when the regist
         const std::uint32_t target = (rng() % 5) * 0x1000;  // broadcast, cameras 0..2, and the invalid window 4
         c.address = target + reg.address + (rng() % 8 == 0 ? 2u : 0u);  // sometimes misaligned
         switch (rng() % 4) {
-            case 0: c.value = rng() & ((1u << reg.width_bits) - 1u); break;  // fits the width
+            case 0: c.value = rng() & (reg.width_bits >= 32 ? ~0u : (1u << reg.width_bits) - 1u); break;  // fits
             case 1: c.value = rng(); break;                                     // usually too wide
             case 2: c.value = reg.reset_value; break;
             default: c.value = rng() % 300; break;                              // small values: ranges
