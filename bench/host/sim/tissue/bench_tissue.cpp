@@ -234,6 +234,65 @@ void error_table(float k, int repeats) {
     }
 }
 
+// ---- Part 1b: the force evaluation alone, per implementation ----
+// The array-order reference loop (one spring at a time in mesh order: every update waits on the previous one
+// through memory) against the coloured schedule with each kernel; error = largest force difference to the
+// reference relative to the largest force (float rounding from the different summation order).
+void kernel_table(int repeats, bool quick) {
+    struct Row { const char* name; PatchSize size; };
+    const Row rows[] = {{"400 triangles", kPatch400}, {"1k triangles", kPatch1k}, {"3k triangles", kPatch3k}};
+    std::printf("\n## Spring forces alone (µs per evaluation, thread CPU time, median of %d repeats; best kernel "
+                "on this CPU: %s)\n\n", repeats, to_string(best_spring_kernel()));
+    std::printf("| mesh | springs | colours | array-order reference | portable scheduled | sse2 | avx | "
+                "reference / best | max rel. difference |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|\n");
+    TissueParams p;
+    for (const Row& r : rows) {
+        Tissue t = make_scene(r.size, IntegratorKind::kPaperEuler, p);
+        for (int i = 0; i < 200; ++i) t.step(1e-4f, 1);  // a deflected, moving membrane
+        MassSpringSystem& s = t.system_mut();
+        const int evals = quick ? 500 : 3000;
+        PaddedVec3Array ref(s.node_count(), Vec3f::Zero()), f(s.node_count(), Vec3f::Zero());
+        auto time = [&](auto&& body) {
+            std::vector<double> cpu;
+            for (int rep = 0; rep < repeats; ++rep) {
+                const double c0 = thread_cpu_us();
+                for (int i = 0; i < evals; ++i) body();
+                cpu.push_back((thread_cpu_us() - c0) / evals);
+            }
+            return median(cpu);
+        };
+        const double t_ref = time([&] {
+            ref.set_zero();
+            accumulate_spring_forces(s.springs, s.x_mm, s.v_mm_per_s, ref);
+        });
+        double t_k[3] = {0, 0, 0}, max_diff = 0.0, max_f = 0.0;
+        const SpringKernel kernels[3] = {SpringKernel::kPortable, SpringKernel::kSse2, SpringKernel::kAvx};
+        for (int k = 0; k < 3; ++k) {
+            if (!spring_kernel_available(kernels[k])) continue;
+            t_k[k] = time([&] {
+                f.set_zero();
+                accumulate_scheduled_spring_forces(s.schedule, s.x_mm.lanes(), s.v_mm_per_s.lanes(), f.lanes(),
+                                                   kernels[k]);
+            });
+            for (size_t i = 0; i < s.node_count(); ++i) {
+                max_diff = std::max(max_diff, double((f[i] - ref[i]).norm()));
+                max_f = std::max(max_f, double(ref[i].norm()));
+            }
+        }
+        const double best = t_k[int(best_spring_kernel())];
+        auto cell = [](double us) {
+            char buf[32];
+            std::snprintf(buf, sizeof buf, us > 0.0 ? "%.1f" : "n/a", us);
+            return std::string(buf);
+        };
+        std::printf("| %s | %zu | %u | %.1f | %s | %s | %s | %.1f× | %.1e |\n", r.name, s.spring_count(),
+                    s.schedule.colours, t_ref, cell(t_k[0]).c_str(), cell(t_k[1]).c_str(), cell(t_k[2]).c_str(),
+                    t_ref / best, max_f > 0.0 ? max_diff / max_f : 0.0);
+        std::fflush(stdout);
+    }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -275,6 +334,8 @@ int main(int argc, char** argv) {
                     r.paper_ms * 1000.0 / us[0], us[2] / us[0], us[3] / us[0]);
         std::fflush(stdout);
     }
+
+    kernel_table(repeats, quick);
 
     // ---- Part 2: a soft and a 100× stiffer membrane ----
     error_table(1000.0f, repeats);

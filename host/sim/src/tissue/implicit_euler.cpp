@@ -36,7 +36,7 @@ public:
             const double m = dyn ? 1.0 / double(s.w_per_mg[i]) : 1.0;
             const double d = dyn ? m * (1.0 + h * double(p.drag_per_s)) : 1.0;
             for (int r = 0; r < 3; ++r) val[diag_[i].row[r] + r] = d;
-            const Vec3f& f = s.f_nN[i];
+            const Vec3f f = s.f_nN[i];
             for (int r = 0; r < 3; ++r) b_[3 * i + r] = dyn ? h * double(f[r]) : 0.0;
         }
         // Springs: add h·D_s + h²·K_s to the matrix and h²·K_s (v_b − v_a) to the rhs of a (opposite for b).
@@ -74,12 +74,15 @@ public:
         x_ = cg_.solveWithGuess(b_, x_);
         if (!x_.allFinite()) x_.setZero();  // never let a failed solve poison the state
         last_iterations_ = int(cg_.iterations());
+        const detail::EndOfStep end(p);
         for (size_t i = 0; i < n; ++i) {
             if (s.w_per_mg[i] == 0.0f) continue;
-            Vec3f& v = s.v_mm_per_s[i];
+            Vec3f v = s.v_mm_per_s[i];
             v += x_.segment<3>(3 * i).cast<float>();
-            s.x_mm[i] += dt_f * v;
-            detail::finish_node(s.x_mm[i], v, p);
+            Vec3f x = s.x_mm[i] + dt_f * v;
+            end.apply(x, v);
+            s.v_mm_per_s[i] = v;
+            s.x_mm[i] = x;
         }
     }
 

@@ -20,7 +20,7 @@ uint64_t edge_key(uint32_t a, uint32_t b) {
 MassSpringSystem MassSpringSystem::from_mesh(const TriangleMesh& mesh, const MaterialParams& material) {
     MassSpringSystem s;
     const size_t n = mesh.vertex_count();
-    s.x_mm = mesh.vertices_mm;
+    s.x_mm.assign(mesh.vertices_mm);
     s.v_mm_per_s.assign(n, Vec3f::Zero());
     s.f_nN.assign(n, Vec3f::Zero());
     s.ext_nN.assign(n, Vec3f::Zero());
@@ -106,7 +106,7 @@ MassSpringSystem MassSpringSystem::from_springs(std::span<const Vec3f> x_mm, std
                                                 std::span<const Spring> springs) {
     MassSpringSystem s;
     const size_t n = x_mm.size();
-    s.x_mm.assign(x_mm.begin(), x_mm.end());
+    s.x_mm.assign(x_mm);
     s.v_mm_per_s.assign(n, Vec3f::Zero());
     s.f_nN.assign(n, Vec3f::Zero());
     s.ext_nN.assign(n, Vec3f::Zero());
@@ -133,7 +133,8 @@ void MassSpringSystem::set_state(uint32_t node, NodeState s) {
     if (!is_dynamic(s)) v_mm_per_s[node].setZero();
 }
 
-void accumulate_spring_forces(std::span<const Spring> springs, const Vec3f* x, const Vec3f* v, Vec3f* f) {
+void accumulate_spring_forces(std::span<const Spring> springs, const PaddedVec3Array& x,
+                              const PaddedVec3Array& v, PaddedVec3Array& f) {
     for (const Spring& s : springs) {
         // Axial elastic + axial damping force, one sqrt per spring.
         const Vec3f d = x[s.b] - x[s.a];
@@ -151,10 +152,18 @@ void accumulate_spring_forces(std::span<const Spring> springs, const Vec3f* x, c
 
 void MassSpringSystem::compute_forces(const TissueParams& p) {
     const size_t n = node_count();
-    const Vec3f g = p.gravity_mm_per_s2;
+    if (schedule.spring.size() != ((springs.size() + 3) & ~size_t{3})) rebuild_incidence();
+    // Body forces, four lanes a node (the padding lanes of v and ext are 0, so f's stays 0).
+    const Eigen::Vector4f g(p.gravity_mm_per_s2.x(), p.gravity_mm_per_s2.y(), p.gravity_mm_per_s2.z(), 0.0f);
     const float drag = p.drag_per_s;
-    for (size_t i = 0; i < n; ++i) f_nN[i] = ext_nN[i] + mass_mg[i] * (g - drag * v_mm_per_s[i]);
-    accumulate_spring_forces(springs, x_mm.data(), v_mm_per_s.data(), f_nN.data());
+    const Float4* __restrict v = v_mm_per_s.lanes();
+    const Float4* __restrict ext = ext_nN.lanes();
+    const float* __restrict m = mass_mg.data();
+    Float4* __restrict f = f_nN.lanes();
+    using C4 = Eigen::Map<const Eigen::Vector4f, Eigen::Aligned16>;
+    for (size_t i = 0; i < n; ++i)
+        Eigen::Map<Eigen::Vector4f, Eigen::Aligned16>(f[i].v) = C4(ext[i].v) + m[i] * (g - drag * C4(v[i].v));
+    accumulate_scheduled_spring_forces(schedule, x_mm.lanes(), v, f);
 }
 
 void MassSpringSystem::rebuild_incidence() {
@@ -168,6 +177,7 @@ void MassSpringSystem::rebuild_incidence() {
         node_springs[scratch_remap_[springs[k].a]++] = k;
         node_springs[scratch_remap_[springs[k].b]++] = k;
     }
+    schedule.build(springs, n);
 }
 
 TopologyDelta MassSpringSystem::remove(std::span<const uint32_t> spring_ids, std::span<const uint32_t> node_ids) {
@@ -237,7 +247,8 @@ TopologyDelta MassSpringSystem::remove(std::span<const uint32_t> spring_ids, std
 }
 
 void MassSpringSystem::write_to(TriangleMesh& mesh, bool rebuild_topology) const {
-    mesh.vertices_mm.assign(x_mm.begin(), x_mm.end());
+    mesh.vertices_mm.resize(x_mm.size());
+    for (size_t i = 0; i < x_mm.size(); ++i) mesh.vertices_mm[i] = x_mm[i];
     if (!rebuild_topology) return;
     mesh.triangles.clear();
     for (size_t t = 0; t < triangles.size(); ++t)
@@ -254,6 +265,7 @@ bool MassSpringSystem::check_consistency(const char** why) const {
     if (v_mm_per_s.size() != n || f_nN.size() != n || w_per_mg.size() != n || state.size() != n)
         return fail("node arrays differ in length");
     if (spring_info.size() != springs.size()) return fail("spring arrays differ in length");
+    if (!schedule.matches(springs)) return fail("force schedule out of date with the springs");
     for (size_t k = 0; k < springs.size(); ++k) {
         const Spring& s = springs[k];
         if (s.a >= n || s.b >= n || s.a == s.b) return fail("spring node index out of range");

@@ -16,8 +16,8 @@ void fnv1a(uint64_t& h, const void* data, size_t bytes) {
 
 uint64_t state_hash(const MassSpringSystem& sys) {
     uint64_t h = 0xcbf29ce484222325ull;
-    fnv1a(h, sys.x_mm.data(), sys.x_mm.size() * sizeof(Vec3f));
-    fnv1a(h, sys.v_mm_per_s.data(), sys.v_mm_per_s.size() * sizeof(Vec3f));
+    for (size_t i = 0; i < sys.node_count(); ++i) fnv1a(h, sys.x_mm.lanes()[i].v, 3 * sizeof(float));
+    for (size_t i = 0; i < sys.node_count(); ++i) fnv1a(h, sys.v_mm_per_s.lanes()[i].v, 3 * sizeof(float));
     fnv1a(h, sys.state.data(), sys.state.size() * sizeof(NodeState));
     for (const Spring& s : sys.springs) {
         fnv1a(h, &s.a, sizeof s.a);

@@ -224,7 +224,7 @@ void Tissue::substep(float dt, float frac_end) {
         }
         ext_has_suction_ = true;
     } else if (ext_has_suction_) {
-        sys_.ext_nN = injection_nN_;
+        sys_.ext_nN.assign(injection_nN_);
         ext_has_suction_ = false;
     }
     // 3. Forces at the current state.

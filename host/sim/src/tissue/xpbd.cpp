@@ -18,8 +18,8 @@ public:
         const size_t n = s.node_count();
         x_prev_.resize(n);
         lambda_.assign(s.spring_count(), 0.0f);
-        Vec3f* x = s.x_mm.data();
-        Vec3f* v = s.v_mm_per_s.data();
+        PaddedVec3Array& x = s.x_mm;
+        PaddedVec3Array& v = s.v_mm_per_s;
         const float* w = s.w_per_mg.data();
         // 1. Prediction from external loads only (spring forces become constraints).
         for (size_t i = 0; i < n; ++i) {
@@ -56,10 +56,14 @@ public:
         }
         // 3. Velocities from positions.
         const float inv_h = 1.0f / h;
+        const detail::EndOfStep end(p);
         for (size_t i = 0; i < n; ++i) {
             if (w[i] == 0.0f) continue;
-            v[i] = (x[i] - x_prev_[i]) * inv_h;
-            detail::finish_node(x[i], v[i], p);
+            Vec3f xi = x[i];
+            Vec3f vi = (xi - x_prev_[i]) * inv_h;
+            end.apply(xi, vi);
+            x[i] = xi;
+            v[i] = vi;
         }
     }
 

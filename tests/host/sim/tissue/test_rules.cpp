@@ -94,7 +94,8 @@ TEST_CASE("paper Euler without limits is bitwise symplectic Euler", "[tissue][ru
     a.fix_rim();
     b.fix_rim();
     for (int i = 0; i < 300; ++i) a.step(2e-4f, 1), b.step(2e-4f, 1);
-    CHECK(std::memcmp(a.system().x_mm.data(), b.system().x_mm.data(), a.system().x_mm.size() * sizeof(Vec3f)) == 0);
+    const std::vector<Vec3f> xa = a.system().x_mm, xb = b.system().x_mm;
+    CHECK(std::memcmp(xa.data(), xb.data(), xa.size() * sizeof(Vec3f)) == 0);
 }
 
 TEST_CASE("fixed and attached nodes never move under any load or tool", "[tissue][rules]") {

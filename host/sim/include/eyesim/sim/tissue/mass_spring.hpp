@@ -6,6 +6,7 @@
 #include "eyesim/sim/mesh.hpp"
 #include "eyesim/sim/tissue/node_state.hpp"
 #include "eyesim/sim/tissue/spring.hpp"
+#include "eyesim/sim/tissue/spring_schedule.hpp"
 #include "eyesim/sim/tissue/tissue_params.hpp"
 
 #include <array>
@@ -31,18 +32,21 @@ struct TopologyDelta {
 /// - an edge spring lives only while one of its triangles lives, a bending spring while both live;
 /// - a node that had triangles is removed when none of its triangles lives.
 struct MassSpringSystem {
-    // ---- hot node data (structure of arrays) ----
-    std::vector<Vec3f> x_mm;          ///< positions, mm
-    std::vector<Vec3f> v_mm_per_s;    ///< velocities, mm/s
-    std::vector<Vec3f> f_nN;          ///< total force of the current step, nN
-    std::vector<Vec3f> ext_nN;        ///< constant external force (injection), nN
+    // ---- hot node data (structure of arrays; the vectors padded to 16 bytes, see padded_vec3.hpp) ----
+    PaddedVec3Array x_mm;             ///< positions, mm
+    PaddedVec3Array v_mm_per_s;       ///< velocities, mm/s
+    PaddedVec3Array f_nN;             ///< total force of the current step, nN
+    PaddedVec3Array ext_nN;           ///< external force of the step (injection, suction), nN
     std::vector<float> w_per_mg;      ///< effective inverse mass: 1/m for dynamic nodes, 0 for kinematic ones
     std::vector<float> inv_mass_per_mg;  ///< true inverse mass, used by the tearing rule for grabbed nodes too
     std::vector<float> mass_mg;       ///< node mass (0 for massless nodes), for body forces without a division
     std::vector<NodeState> state;     ///< node states
 
     // ---- hot springs ----
-    std::vector<Spring> springs;      ///< live springs, dense
+    /// Live springs, dense. Change them only through this class (construction, `remove`), or call
+    /// `rebuild_incidence` afterwards: the force kernel reads its own copy (`schedule`).
+    std::vector<Spring> springs;
+    SpringSchedule schedule;          ///< springs in force-kernel order (see spring_schedule.hpp)
 
     // ---- cold topology ----
     std::vector<SpringInfo> spring_info;              ///< parallel to springs
@@ -73,7 +77,8 @@ struct MassSpringSystem {
     /// Sets a node's state (and its effective inverse mass). Velocity of nodes made kinematic is zeroed.
     void set_state(uint32_t node, NodeState s);
 
-    /// f_nN = ext + m·g − drag·m·v + spring forces, at the current x and v.
+    /// f_nN = ext + m·g − drag·m·v + spring forces, at the current x and v (the scheduled vector kernel;
+    /// `accumulate_spring_forces` is the plain reference it is tested against).
     void compute_forces(const TissueParams& params);
 
     /// Deletes the given springs and the given nodes (spans may be empty), then applies the consistency rule,
@@ -92,7 +97,8 @@ struct MassSpringSystem {
     /// Elastic energy ½ Σ k (|d| − L)², nN·mm.
     double elastic_energy() const;
 
-    /// Rebuilds node → spring incidence from `springs` (after construction or compaction).
+    /// Rebuilds node → spring incidence and the force schedule from `springs` (after construction or
+    /// compaction).
     void rebuild_incidence();
 
 private:
@@ -100,9 +106,9 @@ private:
     std::vector<uint32_t> scratch_remap_;
 };
 
-/// Adds the spring forces of `springs` at (x, v) to f (f is not cleared). Shared by every integrator and the
-/// RK4 reference. The innermost loop of the simulator.
-void accumulate_spring_forces(std::span<const Spring> springs, const Vec3f* x_mm, const Vec3f* v_mm_per_s,
-                              Vec3f* f_nN);
+/// Adds the spring forces of `springs` at (x, v) to f (f is not cleared), one spring at a time in array order:
+/// the plain reference for the scheduled kernel that `compute_forces` runs.
+void accumulate_spring_forces(std::span<const Spring> springs, const PaddedVec3Array& x_mm,
+                              const PaddedVec3Array& v_mm_per_s, PaddedVec3Array& f_nN);
 
 }  // namespace eyesim::sim::tissue
