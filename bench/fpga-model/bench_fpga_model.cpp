@@ -5,6 +5,7 @@
 //
 // Usage: bench_fpga_model [fields=64] [repeats=7] [noise_sigma=1.0]
 #include "field_gen.hpp"
+#include "luma_estimate.hpp"
 #include "opencv_baseline.hpp"
 
 #include <opencv2/core.hpp>
@@ -234,12 +235,13 @@ int main(int argc, char** argv) {
                     r.fields_per_s / ocv, r.err.rms(), r.err.bias_x(), r.err.bias_y(), r.err.matched, r.err.missed,
                     r.err.extra);
 
-    // Accuracy per marker size (reset registers) beside the OpenCV baselines.
+    // Accuracy per marker size (reset registers) beside the OpenCV baselines, and the offline luma estimator.
     std::printf("\nCentroid RMS (px) by marker diameter (frame px), noise sigma %.2f, %d fields each\n\n", noise,
                 n_fields);
-    std::printf("| diameter px | model (reset) | model binary | OpenCV weighted | OpenCV binary |\n|---:|---:|---:|---:|---:|\n");
+    std::printf("| diameter px | model (reset) | model binary | OpenCV weighted | OpenCV binary | luma, local bg "
+                "(offline) | model + luma (offline) |\n|---:|---:|---:|---:|---:|---:|---:|\n");
     for (double d : {4.0, 6.0, 8.0, 10.0, 14.0}) {
-        ErrorStats em, eb, ew, ec;
+        ErrorStats em, eb, ew, ec, el, emix;
         RegisterMap reset, bin;
         bin.write(reg::kWeightMode, 0);
         Pipeline pm(reset), pb(bin);
@@ -249,16 +251,29 @@ int main(int argc, char** argv) {
                 std::vector<Blob> blobs;
                 p->set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
                 p->process_field(s.field.bytes.data(), 288, 0, 0);
-                std::vector<Detection> det;
-                for (const Blob& b : blobs) det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+                std::vector<Detection> det, det_luma, det_mix;
+                for (const Blob& b : blobs) {
+                    det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+                    eyesim::fpga::bench::LumaEstimate l;
+                    if (p != &pm || !eyesim::fpga::bench::luma_centroid(s.field.bytes.data(), 288, b, l)) continue;
+                    det_luma.push_back({b.class_id, l.x_px, l.y_px});
+                    double mx, my;
+                    eyesim::fpga::bench::mix_centroids(b, l, mx, my);
+                    det_mix.push_back({b.class_id, mx, my});
+                }
                 score(s, det, p == &pm ? em : eb);
+                if (p == &pm) {
+                    score(s, det_luma, el);
+                    score(s, det_mix, emix);
+                }
             }
             cvp.weighted = true;
             score(s, cvp.run(s.field.bytes.data(), 288), ew);
             cvp.weighted = false;
             score(s, cvp.run(s.field.bytes.data(), 288), ec);
         }
-        std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), eb.rms(), ew.rms(), ec.rms());
+        std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), eb.rms(), ew.rms(), ec.rms(),
+                    el.rms(), emix.rms());
     }
     return 0;
 }

@@ -3,6 +3,7 @@
 //
 // Usage: bench_fpga_rig RECORDING_DIR [max_fields]
 //   (make one with: eyesim synth --scenario surgery --seconds 2 --out DIR)
+#include "luma_estimate.hpp"
 #include "opencv_baseline.hpp"
 
 #include "eyesim/fpga/pipeline.hpp"
@@ -120,11 +121,34 @@ int main(int argc, char** argv) {
                 return det;
             };
         };
+        // The offline luma estimator on the reset model's blobs (luma_estimate.hpp), alone and mixed.
+        auto luma = [&](bool mixed) {
+            return [&, mixed](const uint8_t* f) {
+                blobs.clear();
+                pm.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); },
+                            &blobs);
+                pm.process_field(f, rig::kFieldHeight, 0, 0);
+                std::vector<Detection> det;
+                for (const fpga::Blob& b : blobs) {
+                    fpga::bench::LumaEstimate l;
+                    if (!fpga::bench::luma_centroid(f, rig::kFieldHeight, b, l)) {
+                        det.push_back({b.class_id, b.cx_px(), b.cy_px()});
+                        continue;
+                    }
+                    double x = l.x_px, y = l.y_px;
+                    if (mixed) fpga::bench::mix_centroids(b, l, x, y);
+                    det.push_back({b.class_id, x, y});
+                }
+                return det;
+            };
+        };
         OpenCvPipeline cvw, cvb;
         cvb.weighted = false;
         std::vector<Method> methods;
         methods.push_back({"model (reset registers)", model(pm), {}, 0});
         methods.push_back({"model, binary centroid", model(pb), {}, 0});
+        methods.push_back({"luma, local bg (offline)", luma(false), {}, 0});
+        methods.push_back({"model + luma (offline)", luma(true), {}, 0});
         methods.push_back({"OpenCV weighted moments", [&](const uint8_t* f) { return cvw.run(f, rig::kFieldHeight); }, {}, 0});
         methods.push_back({"OpenCV binary centroid", [&](const uint8_t* f) { return cvb.run(f, rig::kFieldHeight); }, {}, 0});
         for (Method& m : methods) {
