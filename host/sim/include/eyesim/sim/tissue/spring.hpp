@@ -1,6 +1,7 @@
 #pragma once
 /// \file
-/// Springs: a hot 20-byte record the force loop streams over, and cold bookkeeping for topology changes.
+/// Springs: a 20-byte record per spring (the force kernel reads a copy in its own order, spring_schedule.hpp),
+/// and cold bookkeeping for topology changes.
 
 #include <cstdint>
 
@@ -9,7 +10,7 @@ namespace eyesim::sim::tissue {
 /// "No index" marker for node, spring and triangle references.
 inline constexpr uint32_t kNoIndex = 0xffffffffu;
 
-/// Hot spring data, streamed by every force evaluation. Force on a (b gets the opposite):
+/// Spring data. Force on a (b gets the opposite):
 /// f_a = k (|d| − L) d̂ + c ((v_b − v_a)·d̂) d̂ with d = x_b − x_a.
 struct Spring {
     uint32_t a;                      ///< first node
@@ -18,7 +19,7 @@ struct Spring {
     float stiffness_nN_per_mm;       ///< k
     float damping_nN_s_per_mm;       ///< c, along the spring axis
 };
-static_assert(sizeof(Spring) == 20, "hot spring record must stay 20 bytes");
+static_assert(sizeof(Spring) == 20, "spring record must stay 20 bytes");
 
 /// Why a spring exists; decides when topology changes remove it.
 enum class SpringKind : uint8_t {
