@@ -206,7 +206,7 @@ int main(int argc, char** argv) {
     model_row("model: chroma weight 8 bit, no ring", [](RegisterMap& r) { r.write(reg::kEdgeRing, 0); }, false);
     model_row("model: luma weight 8 bit (bg 30), edge ring", [](RegisterMap& r) {
         r.write(reg::kWeightMode, 2);
-        r.write(reg::kWeightBg, 30);
+        r.write(reg::kWeightBg, 0x1E1E1E1Eu);  // 30 for every class
     }, false);
     model_row("model: binary centroid", [](RegisterMap& r) { r.write(reg::kWeightMode, 0); }, false);
     model_row("model: reset, fast path off", [](RegisterMap& r) { r.write(reg::kFastPath, 0); }, false);

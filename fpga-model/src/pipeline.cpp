@@ -129,7 +129,7 @@ uint16_t Pipeline::weight2(uint8_t cls, int y, int cb2, int cr2) const {
     const int v = params_.weight_mode == 2
                       ? y
                       : ((cb2 - 256) * dir_cb_q9_[cls] + (cr2 - 256) * dir_cr_q9_[cls] + (1 << 9)) >> 10;
-    const int w = std::clamp(v - static_cast<int>(params_.weight_bg), 0, 255);
+    const int w = std::clamp(v - static_cast<int>(params_.weight_bg[cls]), 0, 255);
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
 }
 
@@ -137,7 +137,7 @@ double Pipeline::weight_reference(uint8_t cls, double y, double cb, double cr) c
     if (params_.weight_mode == 0) return 1.0;
     const double v =
         params_.weight_mode == 2 ? y : (cb - 128.0) * dir_cb_ref_[cls] + (cr - 128.0) * dir_cr_ref_[cls];
-    return std::clamp(v - params_.weight_bg, 0.0, 255.0);
+    return std::clamp(v - params_.weight_bg[cls], 0.0, 255.0);
 }
 
 PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {

@@ -16,11 +16,13 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     std::array<RegisterInfo, kNumRegisters> t{};
     int i = 0;
     t[i++] = {reg::kId, 32, false, 0x45594650u, "ID"};
-    t[i++] = {reg::kVersion, 16, false, 0x0100u, "VERSION"};
+    t[i++] = {reg::kVersion, 16, false, 0x0101u, "VERSION"};
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
-    t[i++] = {reg::kWeightBg, 8, true, 3u, "WEIGHT_BG"};  // tint of the white eye and grey shafts
+    // Per class: the tint of the white eye and the grey shafts projected on that class's hue. The eye's warm
+    // tint projects on yellow (class 4) about twice as strongly as on the others.
+    t[i++] = {reg::kWeightBg, 32, true, 0x05030303u, "WEIGHT_BG"};
     t[i++] = {reg::kWeightBits, 4, true, 8u, "WEIGHT_BITS"};
     t[i++] = {reg::kMinArea, 18, true, 2u, "MIN_AREA"};
     t[i++] = {reg::kMaxArea, 18, true, 4096u, "MAX_AREA"};
@@ -151,7 +153,8 @@ PipelineParams decode(const RegisterMap& m) {
     p.enable = m.get(reg::kEnable) != 0;
     p.class_enable = static_cast<uint8_t>(m.get(reg::kClassEnable));
     p.weight_mode = static_cast<uint8_t>(m.get(reg::kWeightMode));
-    p.weight_bg = static_cast<uint8_t>(m.get(reg::kWeightBg));
+    const uint32_t bg = m.get(reg::kWeightBg);
+    for (int c = 1; c <= kNumClasses; ++c) p.weight_bg[c] = static_cast<uint8_t>(bg >> (8 * (c - 1)));
     p.weight_bits = static_cast<uint8_t>(m.get(reg::kWeightBits));
     p.min_area_px = m.get(reg::kMinArea);
     p.max_area_px = m.get(reg::kMaxArea);

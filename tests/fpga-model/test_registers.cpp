@@ -31,7 +31,7 @@ TEST_CASE("register writes are validated: address, alignment, width, read-only, 
     CHECK(r.write(reg::kMinArea + 2, 1) == RegWriteResult::kMisaligned);
     CHECK(r.write(reg::kMinArea, 1, 2) == RegWriteResult::kBadWidth);
     CHECK(r.write(reg::kId, 0) == RegWriteResult::kReadOnly);
-    CHECK(r.write(reg::kVersion, 0x0100) == RegWriteResult::kReadOnly);
+    CHECK(r.write(reg::kVersion, 0x0101) == RegWriteResult::kReadOnly);
     CHECK(r.write(reg::kClassEnable, 0x1F) == RegWriteResult::kTooWide);
     CHECK(r.write(reg::kEnable, 2) == RegWriteResult::kTooWide);
     CHECK(r.write(reg::kWeightMode, 3) == RegWriteResult::kOutOfRange);
@@ -145,6 +145,37 @@ TEST_CASE("per-class enables and area/shape filters", "[fpga][regs]") {
     const auto b = run_field(p, f);
     CHECK(b.size() == 4);
     CHECK(p.field_stats().blobs_filtered == 2);
+}
+
+TEST_CASE("WEIGHT_BG holds one background level per class (byte c-1 for class c)", "[fpga][regs]") {
+    RegisterMap r;
+    CHECK(decode(r).weight_bg == std::array<uint8_t, kNumClasses + 1>{0, 3, 3, 3, 5});  // reset 0x05030303
+    REQUIRE(r.write(reg::kWeightBg, 0x04030201u) == RegWriteResult::kOk);
+    CHECK(decode(r).weight_bg == std::array<uint8_t, kNumClasses + 1>{0, 1, 2, 3, 4});
+    // A level reaches only its own class: raise one byte at a time and compare every blob's Σw with level 0.
+    const std::vector<Marker> ms{{1, 100, 50, 5, 2.5}, {2, 200, 50, 5, 2.5}, {3, 300, 50, 5, 2.5},
+                                 {4, 400, 50, 5, 2.5}};
+    const Field f = render_markers(ms, 0.0, 1, 288, 8, {14, 14, 18});
+    auto sums = [&](uint32_t bg) {
+        RegisterMap m;
+        m.write(reg::kWeightBg, bg);
+        Pipeline p(m);
+        std::array<uint64_t, kNumClasses + 1> sw{};
+        for (const Blob& b : run_field(p, f)) sw[b.class_id] = b.sum_w;
+        return sw;
+    };
+    const auto base = sums(0);
+    for (int c = 1; c <= kNumClasses; ++c) REQUIRE(base[c] > 0);
+    for (int c = 1; c <= kNumClasses; ++c) {
+        const auto raised = sums(10u << (8 * (c - 1)));
+        INFO("level 10 for class " << c);
+        for (int k = 1; k <= kNumClasses; ++k) {
+            if (k == c)
+                CHECK(raised[k] < base[k]);
+            else
+                CHECK(raised[k] == base[k]);
+        }
+    }
 }
 
 TEST_CASE("ROI windows: only pixels inside enabled windows count, clipped blobs flagged", "[fpga][regs][exact]") {

@@ -25,11 +25,12 @@ inline constexpr int kNumRoiWindows = 4;
 /// Register byte addresses.
 namespace reg {
 inline constexpr uint16_t kId = 0x000;            ///< RO 32: 0x45594650 ("EYFP")
-inline constexpr uint16_t kVersion = 0x004;       ///< RO 16: register map version 0x0100
+inline constexpr uint16_t kVersion = 0x004;       ///< RO 16: register map version 0x0101
 inline constexpr uint16_t kEnable = 0x008;        ///< RW 1: pipeline enable (0: fields produce no blobs)
 inline constexpr uint16_t kClassEnable = 0x00C;   ///< RW 4: bit c-1 enables class c
 inline constexpr uint16_t kWeightMode = 0x010;    ///< RW 2: 0 binary, 1 chroma projection − bg, 2 luma − bg
-inline constexpr uint16_t kWeightBg = 0x014;      ///< RW 8: background level subtracted from the projection
+inline constexpr uint16_t kWeightBg = 0x014;      ///< RW 32: background level subtracted from the projection
+                                                  ///<       (or luma), per class: byte c−1 for class c
 inline constexpr uint16_t kWeightBits = 0x018;    ///< RW 4: weight width 1..8 bits (LSBs dropped)
 inline constexpr uint16_t kMinArea = 0x01C;       ///< RW 18: minimum blob area in field pixels
 inline constexpr uint16_t kMaxArea = 0x020;       ///< RW 18: maximum blob area in field pixels (≤ 207360)
@@ -118,7 +119,7 @@ struct PipelineParams {
     bool enable = true;                                  ///< pipeline enable
     uint8_t class_enable = 0xF;                          ///< bit c-1 enables class c
     uint8_t weight_mode = 1;                             ///< 0 binary, 1 chroma projection, 2 luma
-    uint8_t weight_bg = 0;                               ///< background level
+    std::array<uint8_t, kNumClasses + 1> weight_bg{};    ///< background level per class (index = class)
     uint8_t weight_bits = 8;                             ///< 1..8
     uint32_t min_area_px = 0;                            ///< area filter (inclusive)
     uint32_t max_area_px = 0;                            ///< area filter (inclusive)
