@@ -8,6 +8,7 @@
 
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
 
@@ -45,31 +46,27 @@ int size_bin(double radius_px) {
     return d < 6 ? 4 : d < 8 ? 6 : d < 10 ? 8 : d < 12 ? 10 : 12;
 }
 
-// Scores detections against the visible markers of camera `cam` in `truth` (class + nearest ≤ 3 px).
+// Scores detections against the visible, unoccluded markers of camera `cam` in `truth` (class + nearest ≤ 3 px).
 void score(const std::vector<Detection>& det, const rig::FieldTruth& truth, int cam, std::map<int, Acc>& bins) {
-    std::vector<bool> used(det.size(), false);
-    for (const rig::MarkerTruth& m : truth.markers) {
-        const rig::MarkerCameraTruth& t = m.cams[static_cast<size_t>(cam)];
-        if (!t.visible || t.area_px < 2.0 || t.occluded_fraction > 0.0) continue;  // unoccluded markers only
-        Acc& a = bins[size_bin(t.radius_px)];
-        int best = -1;
-        double bd = 3.0;
-        for (size_t j = 0; j < det.size(); ++j) {
-            if (used[j] || det[j].cls != m.colour_class) continue;
-            const double d = std::hypot(det[j].x - t.centroid_px.x(), det[j].y - t.centroid_px.y());
-            if (d < bd) {
-                bd = d;
-                best = static_cast<int>(j);
+    std::vector<rig::DetectedMarker> found;
+    found.reserve(det.size());
+    for (const Detection& d : det) found.push_back({d.cls, Eigen::Vector2d(d.x, d.y)});
+    std::vector<bool> used;
+    rig::match_markers(
+        truth, cam, found, 3.0,
+        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+            return v.visible && !(v.area_px < 2.0) && !(v.occluded_fraction > 0.0);
+        },
+        [&](const rig::MarkerMatch& m) {
+            Acc& a = bins[size_bin(m.view->radius_px)];
+            if (m.detection < 0) {
+                ++a.missed;
+                return;
             }
-        }
-        if (best < 0) {
-            ++a.missed;
-            continue;
-        }
-        used[static_cast<size_t>(best)] = true;
-        a.se += bd * bd;
-        ++a.n;
-    }
+            a.se += m.distance_px * m.distance_px;
+            ++a.n;
+        },
+        used);
 }
 
 }  // namespace

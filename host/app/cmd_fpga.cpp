@@ -5,6 +5,7 @@
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
 
@@ -110,29 +111,22 @@ struct CameraStats {
 
 // Matches blobs to the visible truth markers of one camera by class and nearest centroid (≤ 3 px).
 void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, CameraStats& st) {
-    std::vector<bool> used(blobs.size(), false);
-    for (const rig::MarkerTruth& m : truth.markers) {
-        if (cam >= static_cast<int>(m.cams.size())) continue;
-        const rig::MarkerCameraTruth& t = m.cams[static_cast<size_t>(cam)];
-        if (!t.visible || t.area_px < 2.0) continue;  // below the reset MIN_AREA
-        int best = -1;
-        double bd = 3.0;
-        for (size_t j = 0; j < blobs.size(); ++j) {
-            if (used[j] || blobs[j].class_id != m.colour_class) continue;
-            const double d = std::hypot(blobs[j].cx_px() - t.centroid_px.x(), blobs[j].cy_px() - t.centroid_px.y());
-            if (d < bd) {
-                bd = d;
-                best = static_cast<int>(j);
+    std::vector<rig::DetectedMarker> det;
+    det.reserve(blobs.size());
+    for (const fpga::Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+    std::vector<bool> used;
+    rig::match_markers(
+        truth, cam, det, 3.0,
+        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
+        [&](const rig::MarkerMatch& m) {  // area ≥ 2: the reset MIN_AREA
+            if (m.detection < 0) {
+                ++st.missed;
+                return;
             }
-        }
-        if (best < 0) {
-            ++st.missed;
-            continue;
-        }
-        used[static_cast<size_t>(best)] = true;
-        st.se += bd * bd;
-        ++st.matched;
-    }
+            st.se += m.distance_px * m.distance_px;
+            ++st.matched;
+        },
+        used);
     for (bool u : used) st.extra += !u;
 }
 

@@ -12,6 +12,7 @@
 #include "eyesim/protocol/stream_parser.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/tracking/rig_adapter.hpp"
@@ -521,39 +522,35 @@ int run_validate(const ValidateOptions& opt) {
             // --- Centroid error against the rendered intensity centroid of each visible marker. ---
             CentroidStats& cs = cstats[std::size_t(c)];
             std::vector<bool> used;
-            std::vector<std::pair<int, Eigen::Vector2d>> got;
+            std::vector<rig::DetectedMarker> got;
             for (std::size_t k = 0; k < nm; ++k)
                 for (int m = 0; m < msgs[k].marker_count; ++m) {
                     const proto::Marker& mk = msgs[k].markers[std::size_t(m)];
                     got.push_back({mk.colour_class, Eigen::Vector2d(double(mk.x_q16) / proto::kCoordScale,
                                                                     double(mk.y_q16) / proto::kCoordScale)});
                 }
-            used.assign(got.size(), false);
             cs.blobs += long(got.size());
-            for (const rig::MarkerTruth& mt : truth[std::size_t(i)].markers) {
-                const rig::MarkerCameraTruth& ct = mt.cams[std::size_t(c)];
-                if (!ct.visible || ct.occluded_fraction > 0.0) continue;
-                int best = -1;
-                double bd = 1.5;
-                for (std::size_t k = 0; k < got.size(); ++k) {
-                    if (used[k] || got[k].first != mt.colour_class) continue;
-                    const double d = (got[k].second - ct.centroid_px).norm();
-                    if (d < bd) { bd = d; best = int(k); }
-                }
-                if (best < 0) {
-                    if (ct.area_px >= 4.0) ++cs.missed;
-                    continue;
-                }
-                used[std::size_t(best)] = true;
-                ++cs.matched;
-                cs.err_px.push_back(bd);
-            }
+            rig::match_markers(
+                truth[std::size_t(i)], c, got, 1.5,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+                    return v.visible && !(v.occluded_fraction > 0.0);
+                },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) {
+                        if (m.view->area_px >= 4.0) ++cs.missed;
+                        return;
+                    }
+                    ++cs.matched;
+                    cs.err_px.push_back(m.distance_px);
+                },
+                used);
             for (std::size_t k = 0; k < got.size(); ++k) {
                 if (used[k]) continue;
                 bool near_truth = false;  // partly occluded markers are not scored but are not spurious either
                 for (const rig::MarkerTruth& mt : truth[std::size_t(i)].markers) {
                     const rig::MarkerCameraTruth& ct = mt.cams[std::size_t(c)];
-                    if (ct.visible && mt.colour_class == got[k].first && (got[k].second - ct.centroid_px).norm() < 3.0)
+                    if (ct.visible && mt.colour_class == got[k].colour_class &&
+                        (got[k].centroid_px - ct.centroid_px).norm() < 3.0)
                         near_truth = true;
                 }
                 if (!near_truth) ++cs.spurious;

@@ -2,6 +2,7 @@
 // push_line copy path: rendered fields through the model must match the truth centroids.
 #include "field_gen.hpp"
 
+#include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
 
@@ -40,30 +41,25 @@ TEST_CASE("rig recording: every visible marker found, centroid RMS within the do
             f.bytes = field;
             const std::vector<Blob> blobs = run_field(p, f), bblobs = run_field(pb, f);
             REQUIRE(blobs.size() == bblobs.size());
-            std::vector<bool> used(blobs.size(), false);
-            for (const rig::MarkerTruth& m : truth[static_cast<size_t>(i)].markers) {
-                const rig::MarkerCameraTruth& t = m.cams[static_cast<size_t>(cam)];
-                if (!t.visible || t.area_px < 4.0) continue;
-                int best = -1;
-                double bd = 3.0;
-                for (size_t j = 0; j < blobs.size(); ++j) {
-                    const double d = std::hypot(blobs[j].cx_px() - t.centroid_px.x(), blobs[j].cy_px() - t.centroid_px.y());
-                    if (!used[j] && blobs[j].class_id == m.colour_class && d < bd) {
-                        bd = d;
-                        best = static_cast<int>(j);
+            std::vector<rig::DetectedMarker> det;
+            for (const Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+            std::vector<bool> used;
+            rig::match_markers(
+                truth[static_cast<size_t>(i)], cam, det, 3.0,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 4.0); },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) {
+                        ++missed;
+                        return;
                     }
-                }
-                if (best < 0) {
-                    ++missed;
-                    continue;
-                }
-                used[static_cast<size_t>(best)] = true;
-                se += bd * bd;
-                // The binary pipeline finds the same blobs (same mask), in the same order.
-                const Blob& bb = bblobs[static_cast<size_t>(best)];
-                se_binary += std::pow(bb.cx_px() - t.centroid_px.x(), 2) + std::pow(bb.cy_px() - t.centroid_px.y(), 2);
-                ++matched;
-            }
+                    se += m.distance_px * m.distance_px;
+                    // The binary pipeline finds the same blobs (same mask), in the same order.
+                    const Blob& bb = bblobs[static_cast<size_t>(m.detection)];
+                    se_binary += std::pow(bb.cx_px() - m.view->centroid_px.x(), 2) +
+                                 std::pow(bb.cy_px() - m.view->centroid_px.y(), 2);
+                    ++matched;
+                },
+                used);
             for (bool u : used) extra += !u;
         }
     }
