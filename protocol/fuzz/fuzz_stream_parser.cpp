@@ -8,6 +8,7 @@
 #include "eyesim/protocol/json.hpp"
 #include "eyesim/protocol/schema.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
+#include "reference_scan.hpp"
 
 #include <cstddef>
 #include <cstdint>
@@ -20,11 +21,8 @@ namespace {
 
 using namespace eyesim::protocol;
 
-struct Got {
-    std::uint16_t seq;
-    Message msg;
-    bool operator==(const Got& o) const { return seq == o.seq && msg == o.msg; }
-};
+using test::brute_force;
+using test::Got;
 
 // Aborts with the failed condition and its line, so libFuzzer keeps the input and the report says why.
 #define require(...)                                                                         \
@@ -34,25 +32,6 @@ struct Got {
             std::abort();                                                                   \
         }                                                                                   \
     } while (0)
-
-std::vector<Got> brute_force(const std::vector<std::uint8_t>& b) {
-    std::vector<Got> got;
-    DecodedFrame f;
-    std::size_t i = 0;
-    while (i < b.size()) {
-        std::size_t used = 0;
-        const DecodeError e = decode_frame(std::span(b).subspan(i), f, used);
-        if (e == DecodeError::None) {
-            got.push_back({f.header.sequence, f.message});
-            i += used;
-        } else if (e == DecodeError::BadPayload) {
-            i += frame_size(f.header.payload_bytes);
-        } else {
-            ++i;
-        }
-    }
-    return got;
-}
 
 void check_frame(const DecodedFrame& f) {
     require(valid_message(f.message));

@@ -1,6 +1,7 @@
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/protocol/schema.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
+#include "reference_scan.hpp"
 #include "test_util.hpp"
 
 #include <catch2/catch.hpp>
@@ -9,12 +10,6 @@ using namespace eyesim::protocol;
 using namespace eyesim::protocol::test;
 
 namespace {
-
-struct Got {
-    std::uint16_t seq;
-    Message msg;
-    bool operator==(const Got& o) const { return seq == o.seq && msg == o.msg; }
-};
 
 struct Stream {
     Bytes bytes;
@@ -61,26 +56,6 @@ std::vector<Got> feed_next_all(const Bytes& bytes, StreamParser& p) {
     }
     p.end_stream();
     while (p.next(f)) got.push_back({f.header.sequence, f.message});
-    return got;
-}
-
-/// Slow reference: at each offset try to decode a whole frame; take it or move on by one byte.
-std::vector<Got> brute_force(const Bytes& bytes) {
-    std::vector<Got> got;
-    std::size_t i = 0;
-    DecodedFrame f;
-    while (i < bytes.size()) {
-        std::size_t used = 0;
-        const DecodeError e = decode_frame(std::span(bytes).subspan(i), f, used);
-        if (e == DecodeError::None) {
-            got.push_back({f.header.sequence, f.message});
-            i += used;
-        } else if (e == DecodeError::BadPayload) {
-            i += frame_size(f.header.payload_bytes);
-        } else {
-            ++i;
-        }
-    }
     return got;
 }
 
