@@ -196,21 +196,29 @@ const char* to_string(SpringKernel kernel) {
     return "?";
 }
 
-void accumulate_scheduled_spring_forces(const SpringSchedule& schedule, const Float4* x_mm, const Float4* v_mm_per_s,
-                                        Float4* f_nN, SpringKernel kernel) {
-    if (!spring_kernel_available(kernel)) kernel = best_spring_kernel();
+namespace {
+
+void run_kernel(SpringKernel kernel, const SpringSchedule& schedule, const Float4* x, const Float4* v, Float4* f) {
     switch (kernel) {
 #if EYESIM_SPRING_SSE
-        case SpringKernel::kSse2: sse2_kernel(schedule, x_mm, v_mm_per_s, f_nN); return;
-        case SpringKernel::kAvx: avx_kernel(schedule, x_mm, v_mm_per_s, f_nN); return;
+        case SpringKernel::kSse2: sse2_kernel(schedule, x, v, f); return;
+        case SpringKernel::kAvx: avx_kernel(schedule, x, v, f); return;
 #endif
-        default: portable_kernel(schedule, x_mm, v_mm_per_s, f_nN); return;
+        default: portable_kernel(schedule, x, v, f); return;
     }
 }
 
+}  // namespace
+
+void accumulate_scheduled_spring_forces(const SpringSchedule& schedule, const Float4* x_mm, const Float4* v_mm_per_s,
+                                        Float4* f_nN, SpringKernel kernel) {
+    run_kernel(spring_kernel_available(kernel) ? kernel : best_spring_kernel(), schedule, x_mm, v_mm_per_s, f_nN);
+}
+
+// The per-step path: the best kernel is known to be available (chosen once).
 void accumulate_scheduled_spring_forces(const SpringSchedule& schedule, const Float4* x_mm, const Float4* v_mm_per_s,
                                         Float4* f_nN) {
-    accumulate_scheduled_spring_forces(schedule, x_mm, v_mm_per_s, f_nN, best_spring_kernel());
+    run_kernel(best_spring_kernel(), schedule, x_mm, v_mm_per_s, f_nN);
 }
 
 }  // namespace eyesim::sim::tissue
