@@ -200,7 +200,11 @@ int main(int argc, char** argv) {
         rows.push_back(row);
     };
 
-    model_row("model: chroma weight 8 bit, edge ring (reset)", [](RegisterMap&) {}, false);
+    model_row("model: chroma weight 8 bit, edge ring, BG_TRACK 4 (reset)", [](RegisterMap&) {}, false);
+    model_row("model: BG_TRACK off, levels 3/3/3/5 (map 1.1 reset)", [](RegisterMap& r) {
+        r.write(reg::kBgTrack, 0);
+        r.write(reg::kWeightBg, 0x05030303u);
+    }, false);
     model_row("model: chroma weight 4 bit, edge ring", [](RegisterMap& r) { r.write(reg::kWeightBits, 4); }, false);
     model_row("model: chroma weight 2 bit, edge ring", [](RegisterMap& r) { r.write(reg::kWeightBits, 2); }, false);
     model_row("model: chroma weight 8 bit, no ring", [](RegisterMap& r) { r.write(reg::kEdgeRing, 0); }, false);
@@ -238,16 +242,18 @@ int main(int argc, char** argv) {
     // Accuracy per marker size (reset registers) beside the OpenCV baselines, and the offline luma estimator.
     std::printf("\nCentroid RMS (px) by marker diameter (frame px), noise sigma %.2f, %d fields each\n\n", noise,
                 n_fields);
-    std::printf("| diameter px | model (reset) | model binary | OpenCV weighted | OpenCV binary | luma, local bg "
-                "(offline) | model + luma (offline) |\n|---:|---:|---:|---:|---:|---:|---:|\n");
+    std::printf("| diameter px | model (reset) | model, map 1.1 | model binary | OpenCV weighted | OpenCV binary | "
+                "luma, local bg (offline) | model + luma (offline) |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for (double d : {4.0, 6.0, 8.0, 10.0, 14.0}) {
-        ErrorStats em, eb, ew, ec, el, emix;
-        RegisterMap reset, bin;
+        ErrorStats em, e11, eb, ew, ec, el, emix;
+        RegisterMap reset, map11, bin;
+        map11.write(reg::kBgTrack, 0);
+        map11.write(reg::kWeightBg, 0x05030303u);
         bin.write(reg::kWeightMode, 0);
-        Pipeline pm(reset), pb(bin);
+        Pipeline pm(reset), p11(map11), pb(bin);
         for (int i = 0; i < n_fields; ++i) {
             const Scene s = make_scene(5000 + static_cast<uint32_t>(i), noise, d, d);
-            for (Pipeline* p : {&pm, &pb}) {
+            for (Pipeline* p : {&pm, &p11, &pb}) {
                 std::vector<Blob> blobs;
                 p->set_sink([](void* c, const Blob& b) { static_cast<std::vector<Blob>*>(c)->push_back(b); }, &blobs);
                 p->process_field(s.field.bytes.data(), 288, 0, 0);
@@ -261,7 +267,7 @@ int main(int argc, char** argv) {
                     eyesim::fpga::bench::mix_centroids(b, l, mx, my);
                     det_mix.push_back({b.class_id, mx, my});
                 }
-                score(s, det, p == &pm ? em : eb);
+                score(s, det, p == &pm ? em : p == &p11 ? e11 : eb);
                 if (p == &pm) {
                     score(s, det_luma, el);
                     score(s, det_mix, emix);
@@ -272,8 +278,8 @@ int main(int argc, char** argv) {
             cvp.weighted = false;
             score(s, cvp.run(s.field.bytes.data(), 288), ec);
         }
-        std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), eb.rms(), ew.rms(), ec.rms(),
-                    el.rms(), emix.rms());
+        std::printf("| %.0f | %.4f | %.4f | %.4f | %.4f | %.4f | %.4f | %.4f |\n", d, em.rms(), e11.rms(), eb.rms(),
+                    ew.rms(), ec.rms(), el.rms(), emix.rms());
     }
     return 0;
 }

@@ -96,7 +96,9 @@ int main(int argc, char** argv) {
                 ids.emplace_back(c, i);
             }
 
-        fpga::RegisterMap reset, binary;
+        fpga::RegisterMap reset, map11, binary;
+        map11.write(fpga::reg::kBgTrack, 0);  // register map 1.1's reset: no background tracking
+        map11.write(fpga::reg::kWeightBg, 0x05030303u);
         binary.write(fpga::reg::kWeightMode, 0);
         struct Method {
             std::string name;
@@ -104,7 +106,7 @@ int main(int argc, char** argv) {
             std::map<int, Acc> bins;
             double fields_per_s = 0;
         };
-        fpga::Pipeline pm(reset), pb(binary);
+        fpga::Pipeline pm(reset), p11(map11), pb(binary);
         std::vector<fpga::Blob> blobs;
         blobs.reserve(256);
         auto model = [&](fpga::Pipeline& p) {
@@ -143,6 +145,7 @@ int main(int argc, char** argv) {
         cvb.weighted = false;
         std::vector<Method> methods;
         methods.push_back({"model (reset registers)", model(pm), {}, 0});
+        methods.push_back({"model, map 1.1 (no BG_TRACK)", model(p11), {}, 0});
         methods.push_back({"model, binary centroid", model(pb), {}, 0});
         methods.push_back({"luma, local bg (offline)", luma(false), {}, 0});
         methods.push_back({"model + luma (offline)", luma(true), {}, 0});

@@ -6,6 +6,7 @@
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
+#include <xmmintrin.h>
 #endif
 
 namespace eyesim::fpga {
@@ -13,6 +14,9 @@ namespace {
 
 constexpr double kTwoPi = 6.283185307179586;
 constexpr int kPairs = static_cast<int>(kActivePixelsPerLine / 2);
+constexpr int kBgCellPairs = kBgCellPixels / 2;
+constexpr int kBgCellLog2 = 2;  // log2(kBgCellPairs)
+static_assert(kBgCellPairs == 1 << kBgCellLog2 && kBgCells * kBgCellPixels == static_cast<int>(kActivePixelsPerLine));
 
 // Hue distance in 1/256 turns, wrapped to [-128, 128).
 double hue_delta(double a, double b) {
@@ -123,20 +127,66 @@ uint8_t Pipeline::classify(uint8_t y, uint8_t cb, uint8_t cr) const {
 }
 
 uint16_t Pipeline::weight2(uint8_t cls, int y, int cb2, int cr2) const {
+    return weight2_bg(cls, y, cb2, cr2, 128 * 128, 128 * 128);
+}
+
+uint16_t Pipeline::weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const {
     if (params_.weight_mode == 0) return 1;
-    // Mode 1: projection of the (doubled) chroma vector on the class hue direction, Q1.9 coefficients, rounded.
-    // Mode 2: luma. Both minus the background level.
+    // Mode 1: projection of the chroma minus the background on the class hue direction, Q1.9 coefficients,
+    // rounded (chroma ×2 as the datapath keeps it, scaled to the background's ×128). Mode 2: luma. Both minus
+    // the background level WEIGHT_BG, clamped to 0..255.
     const int v = params_.weight_mode == 2
                       ? y
-                      : ((cb2 - 256) * dir_cb_q9_[cls] + (cr2 - 256) * dir_cr_q9_[cls] + (1 << 9)) >> 10;
+                      : ((64 * cb2 - bg_cb_q7) * dir_cb_q9_[cls] + (64 * cr2 - bg_cr_q7) * dir_cr_q9_[cls] +
+                         (1 << 15)) >> 16;
     const int w = std::clamp(v - static_cast<int>(params_.weight_bg[cls]), 0, 255);
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
+}
+
+// Background chroma ×128 at pixel x: linear between the centres of the two nearest cells (a cell's chroma
+// samples are co-sited with its even pixels: centre 8·j + 3), the end cells' values beyond the outer centres.
+void Pipeline::background_at(int x, int& cb_q7, int& cr_q7) const {
+    const int u = x - (kBgCellPairs - 1);
+    int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
+    if (j0 >= kBgCells - 1) {
+        j0 = kBgCells - 1;
+        f = 0;
+    }
+    const size_t i = static_cast<size_t>(2 * j0), i1 = f != 0 ? i + 2 : i;
+    cb_q7 = bg_q4_[i] * (kBgCellPixels - f) + bg_q4_[i1] * f;  // ×16 × 8
+    cr_q7 = bg_q4_[i + 1] * (kBgCellPixels - f) + bg_q4_[i1 + 1] * f;
+}
+
+double Pipeline::background_reference_at(int x, bool want_cr) const {
+    const int u = x - (kBgCellPairs - 1);
+    int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
+    if (j0 >= kBgCells - 1) {
+        j0 = kBgCells - 1;
+        f = 0;
+    }
+    const size_t i = static_cast<size_t>(2 * j0) + (want_cr ? 1 : 0), i1 = f != 0 ? i + 2 : i;
+    return (bg_ref_[i] * (kBgCellPixels - f) + bg_ref_[i1] * f) / kBgCellPixels;
+}
+
+// Pixel weight against the tracked background at pixel x (with BG_TRACK off the cells hold neutral 128).
+uint16_t Pipeline::weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const {
+    if (params_.weight_mode != 1) return weight2(cls, luma, cb2, cr2);
+    int bcb, bcr;
+    background_at(x, bcb, bcr);
+    return weight2_bg(cls, luma, cb2, cr2, bcb, bcr);
 }
 
 double Pipeline::weight_reference(uint8_t cls, double y, double cb, double cr) const {
     if (params_.weight_mode == 0) return 1.0;
     const double v =
         params_.weight_mode == 2 ? y : (cb - 128.0) * dir_cb_ref_[cls] + (cr - 128.0) * dir_cr_ref_[cls];
+    return std::clamp(v - params_.weight_bg[cls], 0.0, 255.0);
+}
+
+double Pipeline::weight_reference_at(uint8_t cls, double luma, double cb, double cr, int x) const {
+    if (params_.weight_mode != 1) return weight_reference(cls, luma, cb, cr);
+    const double v = (cb - background_reference_at(x, false)) * dir_cb_ref_[cls] +
+                     (cr - background_reference_at(x, true)) * dir_cr_ref_[cls];
     return std::clamp(v - params_.weight_bg[cls], 0.0, 255.0);
 }
 
@@ -153,6 +203,12 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     n_runs_ = {0, 0};
     stats_ = FieldStats{};
     stats_.field_counter = field_counter;
+    bg_q4_.fill(128 << kBgFracBits);
+    bg_ref_.fill(128.0);
+    bg_seeded_ = {};
+    bg_all_seeded_ = false;
+    occupied_older_ = {};
+    occupied_ = {};  // the first line's "line above" masks are empty, not the previous field's
     return PipelineStatus::kOk;
 }
 
@@ -177,6 +233,7 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
         prev_line_ = nullptr;
     }
     cur_buf_ ^= 1;
+    occupied_older_ = occupied_[cur_buf_];
     occupied_[cur_buf_] = {};
     claimed_[cur_buf_] = {};
     if (config_.float_reference)
@@ -184,9 +241,13 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
     else
         classify_line<false>(uyvy_line, y);
     label_line(y, false, uyvy_line);
+    // The background learns from the previous line once this line has shown which of its pixels are next to a
+    // blob; this line's weights were computed from lines up to y - 2.
+    if (params_.bg_track_shift != 0 && params_.weight_mode == 1 && prev_line_ != nullptr && last_line_ == y - 1)
+        update_background(prev_line_, y - 1);
     // The hardware keeps the previous line in a line buffer for the ring above new blobs; callers of push_line
     // may reuse their buffer, so it is copied unless the whole field is in memory (process_field).
-    if (params_.edge_ring && !stable) {
+    if ((params_.edge_ring || params_.bg_track_shift != 0) && !stable) {
         std::memcpy(prev_line_copy_.data(), uyvy_line, kLineBytes);
         prev_line_ = prev_line_copy_.data();
     } else {
@@ -238,35 +299,7 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
 
     // Processed spans of this line: the whole line, or the union of the ROI windows containing it.
     uint16_t span_x0[kNumRoiWindows + 1], span_x1[kNumRoiWindows + 1];
-    int n_spans = 0;
-    if (params_.roi_enable == 0) {
-        span_x0[0] = 0;
-        span_x1[0] = kActivePixelsPerLine - 1;
-        n_spans = 1;
-    } else {
-        for (int w = 0; w < kNumRoiWindows; ++w) {
-            if (!(params_.roi_enable & (1u << w)) || y < params_.roi_y0[w] || y > params_.roi_y1[w]) continue;
-            int i = n_spans++;  // insertion sort by x0
-            while (i > 0 && span_x0[i - 1] > params_.roi_x0[w]) {
-                span_x0[i] = span_x0[i - 1];
-                span_x1[i] = span_x1[i - 1];
-                --i;
-            }
-            span_x0[i] = params_.roi_x0[w];
-            span_x1[i] = params_.roi_x1[w];
-        }
-        int m = 0;  // merge overlapping or touching spans
-        for (int i = 0; i < n_spans; ++i) {
-            if (m > 0 && span_x0[i] <= span_x1[m - 1] + 1) {
-                span_x1[m - 1] = std::max(span_x1[m - 1], span_x1[i]);
-            } else {
-                span_x0[m] = span_x0[i];
-                span_x1[m] = span_x1[i];
-                ++m;
-            }
-        }
-        n_spans = m;
-    }
+    const int n_spans = processed_spans(y, span_x0, span_x1);
 
     const int T = fast_half_width_;
     // Box test per byte: (c - lo) mod 256 ≤ range. Chroma lanes (even bytes): lo = 128-T, range = 2T; luma lanes
@@ -358,12 +391,12 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
                 }
             }
             if (c != 0) {
-                const uint32_t w = weight2(c, luma, cb2, cr2);
+                const uint32_t w = weight_at(c, luma, cb2, cr2, px);
                 sw += w;
                 swx += w * static_cast<uint32_t>(px);
                 swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
                 if constexpr (kRef) {
-                    const double wr = weight_reference(c, luma, 0.5 * cb2, 0.5 * cr2);
+                    const double wr = weight_reference_at(c, luma, 0.5 * cb2, 0.5 * cr2, px);
                     rw += wr;
                     rwx += wr * px;
                     rwxx += wr * px * px;
@@ -397,6 +430,163 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
     stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
 }
 
+// Spans of line y the datapath processes: the whole line, or the union of the ROI windows containing it, sorted
+// and merged. Returns their number.
+int Pipeline::processed_spans(int y, uint16_t* x0, uint16_t* x1) const {
+    int n_spans = 0;
+    if (params_.roi_enable == 0) {
+        x0[0] = 0;
+        x1[0] = kActivePixelsPerLine - 1;
+        n_spans = 1;
+    } else {
+        for (int w = 0; w < kNumRoiWindows; ++w) {
+            if (!(params_.roi_enable & (1u << w)) || y < params_.roi_y0[w] || y > params_.roi_y1[w]) continue;
+            int i = n_spans++;  // insertion sort by x0
+            while (i > 0 && x0[i - 1] > params_.roi_x0[w]) {
+                x0[i] = x0[i - 1];
+                x1[i] = x1[i - 1];
+                --i;
+            }
+            x0[i] = params_.roi_x0[w];
+            x1[i] = params_.roi_x1[w];
+        }
+        int m = 0;  // merge overlapping or touching spans
+        for (int i = 0; i < n_spans; ++i) {
+            if (m > 0 && x0[i] <= x1[m - 1] + 1) {
+                x1[m - 1] = std::max(x1[m - 1], x1[i]);
+            } else {
+                x0[m] = x0[i];
+                x1[m] = x1[i];
+                ++m;
+            }
+        }
+        n_spans = m;
+    }
+
+    return n_spans;
+}
+
+// Tracks the background chroma per 8-pixel cell from line y (called once line y + 1 is labelled): a cell with a
+// pixel within kBgHoldColumns of a classified pixel on line y - 1, y or y + 1 holds its value; the others move
+// towards the mean chroma of their four pairs by 2^-n of the difference (the first sample of a field seeds the
+// cell). Only cells wholly inside a processed span (ROI) learn.
+void Pipeline::update_background(const uint8_t* line, int y) {
+    std::array<uint64_t, kMaskWords> near;
+    const std::array<uint64_t, kMaskWords>& a = occupied_[cur_buf_];
+    const std::array<uint64_t, kMaskWords>& b = occupied_[cur_buf_ ^ 1];
+    std::array<uint64_t, kMaskWords> m;
+    uint64_t any = 0;
+    for (size_t i = 0; i < static_cast<size_t>(kMaskWords); ++i) {
+        m[i] = a[i] | b[i] | occupied_older_[i];
+        any |= m[i];
+    }
+    for (int i = 0; i < kMaskWords; ++i) {
+        const size_t u = static_cast<size_t>(i);
+        uint64_t v = m[u];
+        if (any == 0) {
+            near[u] = 0;
+            continue;
+        }
+        for (int d = 1; d <= kBgHoldColumns; ++d) {
+            v |= m[u] << d | m[u] >> d;
+            if (i > 0) v |= m[u - 1] >> (64 - d);
+            if (i + 1 < kMaskWords) v |= m[u + 1] << (64 - d);
+        }
+        near[u] = v;
+    }
+    uint16_t sx0[kNumRoiWindows + 1], sx1[kNumRoiWindows + 1];
+    const int n_spans = processed_spans(y, sx0, sx1);
+    const int n = params_.bg_track_shift;
+    const int half = 1 << (n - 1);
+    const double gain = 1.0 / static_cast<double>(1 << n);
+    constexpr int kCellPx = 2 * kBgCellPairs;
+    constexpr uint64_t kCellBits = (1ull << kCellPx) - 1;
+    auto update_cell = [&](int j) {
+        const int x = kCellPx * j;
+        if ((near[static_cast<size_t>(x >> 6)] >> (x & 63)) & kCellBits) return;
+        int scb = 0, scr = 0;
+        for (int k = kBgCellPairs * j; k < kBgCellPairs * (j + 1); ++k) {
+            scb += line[4 * k];
+            scr += line[4 * k + 2];
+        }
+        const size_t i = static_cast<size_t>(2 * j);
+        const int mcb = scb << (4 - kBgCellLog2), mcr = scr << (4 - kBgCellLog2);  // cell mean ×16
+        uint64_t& seeded = bg_seeded_[static_cast<size_t>(j >> 6)];
+        const uint64_t bit = 1ull << (j & 63);
+        if (!(seeded & bit)) {  // first sample of the field: taken as it is
+            seeded |= bit;
+            bg_q4_[i] = static_cast<int16_t>(mcb);
+            bg_q4_[i + 1] = static_cast<int16_t>(mcr);
+            bg_ref_[i] = scb / static_cast<double>(kBgCellPairs);
+            bg_ref_[i + 1] = scr / static_cast<double>(kBgCellPairs);
+            return;
+        }
+        bg_q4_[i] = static_cast<int16_t>(bg_q4_[i] + ((mcb - bg_q4_[i] + half) >> n));
+        bg_q4_[i + 1] = static_cast<int16_t>(bg_q4_[i + 1] + ((mcr - bg_q4_[i + 1] + half) >> n));
+        if (config_.float_reference) {
+            bg_ref_[i] += (scb / static_cast<double>(kBgCellPairs) - bg_ref_[i]) * gain;
+            bg_ref_[i + 1] += (scr / static_cast<double>(kBgCellPairs) - bg_ref_[i + 1]) * gain;
+        }
+    };
+#if defined(__SSE2__)
+    // Four cells (32 pixels, 64 bytes) at once when none is held or unseeded: the same integer arithmetic in
+    // 16-bit lanes (Cb, Cr of four cells), bit-identical to update_cell.
+    const __m128i low_bytes = _mm_set1_epi16(0x00FF);
+    const __m128i v_half = _mm_set1_epi16(static_cast<short>(half));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    auto update_group = [&](int j) {
+        const __m128i* p = reinterpret_cast<const __m128i*>(line + 4 * kBgCellPairs * j);
+        const __m128i a0 = _mm_and_si128(_mm_loadu_si128(p), low_bytes);  // Cb, Cr of cell j's four pairs
+        const __m128i a1 = _mm_and_si128(_mm_loadu_si128(p + 1), low_bytes);
+        const __m128i a2 = _mm_and_si128(_mm_loadu_si128(p + 2), low_bytes);
+        const __m128i a3 = _mm_and_si128(_mm_loadu_si128(p + 3), low_bytes);
+        // Halves added: per cell two (Cb, Cr) partial sums, then the partials of the four cells added pairwise.
+        const __m128i u = _mm_add_epi16(_mm_unpacklo_epi64(a0, a1), _mm_unpackhi_epi64(a0, a1));
+        const __m128i v = _mm_add_epi16(_mm_unpacklo_epi64(a2, a3), _mm_unpackhi_epi64(a2, a3));
+        const __m128 uf = _mm_castsi128_ps(u), vf = _mm_castsi128_ps(v);
+        const __m128i sums = _mm_add_epi16(_mm_castps_si128(_mm_shuffle_ps(uf, vf, _MM_SHUFFLE(2, 0, 2, 0))),
+                                           _mm_castps_si128(_mm_shuffle_ps(uf, vf, _MM_SHUFFLE(3, 1, 3, 1))));
+        const __m128i mean16 = _mm_slli_epi16(sums, 4 - kBgCellLog2);
+        __m128i* bgp = reinterpret_cast<__m128i*>(bg_q4_.data() + 2 * j);
+        const __m128i bgv = _mm_loadu_si128(bgp);
+        const __m128i step = _mm_sra_epi16(_mm_add_epi16(_mm_sub_epi16(mean16, bgv), v_half), v_shift);
+        _mm_storeu_si128(bgp, _mm_add_epi16(bgv, step));
+    };
+#endif
+#if defined(__SSE2__)
+    // The common line: no classified pixel on the three lines, no ROI, every cell seeded.
+    if (any == 0 && params_.roi_enable == 0 && !config_.float_reference && bg_all_seeded_) {
+        int j = 0;
+        for (; j + 4 <= kBgCells; j += 4) update_group(j);
+        for (; j < kBgCells; ++j) update_cell(j);
+        return;
+    }
+#endif
+    for (int s = 0; s < n_spans; ++s) {
+        // Cells wholly inside the span.
+        int j = (sx0[s] + kCellPx - 1) / kCellPx;
+        const int j_end = (sx1[s] + 1) / kCellPx;  // exclusive
+        while (j < j_end) {
+#if defined(__SSE2__)
+            if ((j & 3) == 0 && j + 4 <= j_end && !config_.float_reference) {
+                const int x = kCellPx * j;
+                const bool free = ((near[static_cast<size_t>(x >> 6)] >> (x & 63)) & 0xFFFFFFFFull) == 0;
+                const bool seeded = ((bg_seeded_[static_cast<size_t>(j >> 6)] >> (j & 63)) & 0xFull) == 0xFull;
+                if (free && seeded) {
+                    update_group(j);
+                    j += 4;
+                    continue;
+                }
+            }
+#endif
+            update_cell(j++);
+        }
+    }
+    bool all = true;
+    for (int w = 0; w < kBgCells / 64; ++w) all = all && bg_seeded_[static_cast<size_t>(w)] == ~0ull;
+    bg_all_seeded_ = all && (bg_seeded_[kBgCells / 64] | ~((1ull << (kBgCells % 64)) - 1)) == ~0ull;
+}
+
 bool Pipeline::in_roi(int x, int y) const {
     if (params_.roi_enable == 0) return true;
     for (int w = 0; w < kNumRoiWindows; ++w)
@@ -422,7 +612,7 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
         cb2 = q[0] + q[4];
         cr2 = q[2] + q[6];
     }
-    const uint64_t w = weight2(s.cls, luma, cb2, cr2);
+    const uint64_t w = weight_at(s.cls, luma, cb2, cr2, x);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
     s.sw += w;
     s.swx += w * ux;
@@ -431,7 +621,7 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     s.swyy += w * uy * uy;
     s.swxy += w * ux * uy;
     if (config_.float_reference) {
-        const double wr = weight_reference(s.cls, luma, 0.5 * cb2, 0.5 * cr2);
+        const double wr = weight_reference_at(s.cls, luma, 0.5 * cb2, 0.5 * cr2, x);
         s.rw += wr;
         s.rwx += wr * x;
         s.rwy += wr * y;
@@ -736,6 +926,9 @@ StorageBits Pipeline::storage_bits() const {
     // Edge ring: the previous line's 4:2:2 pixels (Y + alternating Cb/Cr = 16 bits) and, for two lines, one
     // occupied and one claimed bit per pixel.
     s.line_buffer = kActivePixelsPerLine * 16ull + 2ull * 2ull * kActivePixelsPerLine;
+    // Background tracking: per 8-px cell Cb and Cr in 8.4 fixed point and a seeded bit, and a third line of
+    // occupied bits (the hold mask looks at the lines above and below the one it learns from).
+    s.line_buffer += static_cast<uint64_t>(kBgCells) * (2 * (8 + kBgFracBits) + 1) + kActivePixelsPerLine;
     // Per slot: parent, class, flags, live, seen, bbox, last line + its rightmost x, area, six moment sums.
     const uint64_t slot_bits = label_bits + 3 + 6 + 2 + 2 * x_bits + 2 * y_bits + y_bits + x_bits +
                                bits_for(kActivePixelsPerLine * kMaxFieldLines) + kSumWBits + kSumWxBits +

@@ -16,13 +16,13 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     std::array<RegisterInfo, kNumRegisters> t{};
     int i = 0;
     t[i++] = {reg::kId, 32, false, 0x45594650u, "ID"};
-    t[i++] = {reg::kVersion, 16, false, 0x0101u, "VERSION"};
+    t[i++] = {reg::kVersion, 16, false, 0x0102u, "VERSION"};
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
-    // Per class: the tint of the white eye and the grey shafts projected on that class's hue. The eye's warm
-    // tint projects on yellow (class 4) about twice as strongly as on the others.
-    t[i++] = {reg::kWeightBg, 32, true, 0x05030303u, "WEIGHT_BG"};
+    // Per class, after BG_TRACK has removed the local background: a noise margin, one level higher for yellow
+    // (class 4), whose markers sit on the eye's warm white (map 1.1, without tracking: 3 / 3 / 3 / 5).
+    t[i++] = {reg::kWeightBg, 32, true, 0x03020202u, "WEIGHT_BG"};
     t[i++] = {reg::kWeightBits, 4, true, 8u, "WEIGHT_BITS"};
     t[i++] = {reg::kMinArea, 18, true, 2u, "MIN_AREA"};
     t[i++] = {reg::kMaxArea, 18, true, 4096u, "MAX_AREA"};
@@ -31,6 +31,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     t[i++] = {reg::kRoiEnable, 4, true, 0u, "ROI_ENABLE"};
     t[i++] = {reg::kFastPath, 1, true, 1u, "FAST_PATH"};
     t[i++] = {reg::kEdgeRing, 1, true, 1u, "EDGE_RING"};
+    t[i++] = {reg::kBgTrack, 3, true, 4u, "BG_TRACK"};
     const char* roi_names[2 * kNumRoiWindows] = {"ROI0_X", "ROI0_Y", "ROI1_X", "ROI1_Y",
                                                  "ROI2_X", "ROI2_Y", "ROI3_X", "ROI3_Y"};
     for (int w = 0; w < kNumRoiWindows; ++w) {
@@ -163,6 +164,7 @@ PipelineParams decode(const RegisterMap& m) {
     p.roi_enable = static_cast<uint8_t>(m.get(reg::kRoiEnable));
     p.fast_path = m.get(reg::kFastPath) != 0;
     p.edge_ring = m.get(reg::kEdgeRing) != 0;
+    p.bg_track_shift = static_cast<uint8_t>(m.get(reg::kBgTrack));
     for (int w = 0; w < kNumRoiWindows; ++w) {
         const uint32_t x = m.get(reg::roi_x(w)), y = m.get(reg::roi_y(w));
         p.roi_x0[w] = static_cast<uint16_t>(x & 0x3FFu);

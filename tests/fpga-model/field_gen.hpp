@@ -112,13 +112,88 @@ inline bool roi_contains(const PipelineParams& par, int x, int y) {
     return false;
 }
 
-/// Adds pixel (x, y) with the weight of class c to b (fixed and floating reference weights).
-inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, RefBlob& b) {
+/// BG_TRACK, modelled independently for a whole field: the cell backgrounds in effect while line y is labelled
+/// (state[y]). Line y's pixels, and the ring pixels of line y - 1 first claimed from line y, are weighted with
+/// state[y], which has learnt from lines up to y - 2: state[0] = state[1] = neutral, and state[y] is state[y - 1]
+/// after learning line y - 2, whose cells hold where a classified pixel lies within kBgHoldColumns on lines
+/// y - 3 .. y - 1 or a pixel of the cell is outside the ROI windows containing line y - 2.
+struct BgReference {
+    bool on = false;
+    std::vector<std::array<int, 2 * kBgCells>> q4;      ///< per line: Cb, Cr ×16 of every cell
+    std::vector<std::array<double, 2 * kBgCells>> fl;   ///< floating counterpart
+
+    /// Background ×128 at pixel x under state[y]: linear between cell centres 8j + 3, clamped at the ends.
+    void at(int y, int x, int& cb_q7, int& cr_q7, double& cb, double& cr) const {
+        const double pos = std::clamp((x - 3) / 8.0, 0.0, static_cast<double>(kBgCells - 1));
+        const int j0 = std::min(static_cast<int>(pos), kBgCells - 2);
+        const int f8 = static_cast<int>(std::lround((pos - j0) * 8));
+        const auto& s = q4[static_cast<size_t>(y)];
+        const auto& d = fl[static_cast<size_t>(y)];
+        const size_t i = static_cast<size_t>(2 * j0);
+        cb_q7 = s[i] * (8 - f8) + s[i + 2] * f8;
+        cr_q7 = s[i + 1] * (8 - f8) + s[i + 3] * f8;
+        cb = (d[i] * (8 - f8) + d[i + 2] * f8) / 8;
+        cr = (d[i + 1] * (8 - f8) + d[i + 3] * f8) / 8;
+    }
+};
+
+inline BgReference background_reference(const Pipeline& p, const Field& f, const cv::Mat1b& cls_mask) {
+    BgReference r;
+    const PipelineParams& par = p.params();
+    const int n = par.bg_track_shift;
+    r.on = n != 0 && par.weight_mode == 1;
+    std::array<int, 2 * kBgCells> s;
+    std::array<double, 2 * kBgCells> d;
+    s.fill(128 * 16);
+    d.fill(128.0);
+    std::vector<bool> seeded(kBgCells, false);
+    cv::Mat1b hold;
+    cv::dilate(cls_mask != 0, hold, cv::getStructuringElement(cv::MORPH_RECT, {2 * kBgHoldColumns + 1, 3}));
+    for (int y = 0; y < f.height; ++y) {
+        const int yl = y - 2;  // the line state[y] has last learnt
+        if (r.on && yl >= 0) {
+            for (int j = 0; j < kBgCells; ++j) {
+                bool learn = true;
+                for (int x = 8 * j; x < 8 * j + 8; ++x) learn = learn && !hold(yl, x) && roi_contains(par, x, yl);
+                if (!learn) continue;
+                int scb = 0, scr = 0;
+                for (int k = 4 * j; k < 4 * j + 4; ++k) {
+                    scb += f.line(yl)[4 * k];
+                    scr += f.line(yl)[4 * k + 2];
+                }
+                const size_t i = static_cast<size_t>(2 * j);
+                if (!seeded[static_cast<size_t>(j)]) {
+                    seeded[static_cast<size_t>(j)] = true;
+                    s[i] = 4 * scb;
+                    s[i + 1] = 4 * scr;
+                    d[i] = scb / 4.0;
+                    d[i + 1] = scr / 4.0;
+                    continue;
+                }
+                s[i] += (4 * scb - s[i] + (1 << (n - 1))) >> n;  // the rounding step the register defines
+                s[i + 1] += (4 * scr - s[i + 1] + (1 << (n - 1))) >> n;
+                d[i] += (scb / 4.0 - d[i]) / (1 << n);
+                d[i + 1] += (scr / 4.0 - d[i + 1]) / (1 << n);
+            }
+        }
+        r.q4.push_back(s);
+        r.fl.push_back(d);
+    }
+    return r;
+}
+
+/// Adds pixel (x, y) with the weight of class c to b (fixed and floating reference weights), against the
+/// background state of line sy when BG_TRACK is on.
+inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, RefBlob& b, const BgReference& bg,
+                      int sy) {
     const uint8_t* px = f.line(y) + 4 * (x >> 1);
     const int yy = px[1 + 2 * (x & 1)];
     const bool interp = (x & 1) && (x >> 1) < W / 2 - 1;
     const int cb2 = interp ? px[0] + px[4] : 2 * px[0], cr2 = interp ? px[2] + px[6] : 2 * px[2];
-    const uint64_t w = p.weight2(static_cast<uint8_t>(c), yy, cb2, cr2);
+    int bcb_q7 = 128 * 128, bcr_q7 = 128 * 128;
+    double bcb = 128.0, bcr = 128.0;
+    if (bg.on) bg.at(sy, x, bcb_q7, bcr_q7, bcb, bcr);
+    const uint64_t w = p.weight2_bg(static_cast<uint8_t>(c), yy, cb2, cr2, bcb_q7, bcr_q7);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
     b.sw += w;
     b.swx += w * ux;
@@ -126,14 +201,14 @@ inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, Re
     b.swxx += w * ux * ux;
     b.swyy += w * uy * uy;
     b.swxy += w * ux * uy;
-    // Floating reference: exact mean of the neighbouring chroma pairs.
+    // Floating reference: exact mean of the neighbouring chroma pairs, minus the floating background.
     const uint8_t* q = f.line(y) + 4 * (x >> 1);
     double cbd = q[0], crd = q[2];
     if ((x & 1) && (x >> 1) < W / 2 - 1) {
         cbd = 0.5 * (q[0] + q[4]);
         crd = 0.5 * (q[2] + q[6]);
     }
-    const double wr = p.weight_reference(static_cast<uint8_t>(c), yy, cbd, crd);
+    const double wr = p.weight_reference(static_cast<uint8_t>(c), yy, cbd - bcb + 128.0, crd - bcr + 128.0);
     b.rw += wr;
     b.rwx += wr * x;
     b.rwy += wr * y;
@@ -144,6 +219,7 @@ inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, Re
 /// columns and one line).
 inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, const cv::Mat1b& cls_mask) {
     std::vector<RefBlob> out;
+    const BgReference bg = background_reference(p, f, cls_mask);
     cv::Mat1i comp(f.height, W, -1);
     for (int c = 1; c <= kNumClasses; ++c) {
         cv::Mat1b mask = (cls_mask == c) / 255;
@@ -165,7 +241,7 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
                 const int l = labels.at<int>(y, x);
                 if (l == 0) continue;
                 comp(y, x) = base + l - 1;
-                add_pixel(p, f, c, x, y, out[static_cast<size_t>(base + l - 1)]);
+                add_pixel(p, f, c, x, y, out[static_cast<size_t>(base + l - 1)], bg, y);
             }
     }
     const PipelineParams& par = p.params();
@@ -183,7 +259,15 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
                     }
                 if (n == 1) {
                     RefBlob& b = out[static_cast<size_t>(ids[0])];
-                    add_pixel(p, f, b.cls, x, y, b);
+                    // Claimed while line y is labelled when the blob has pixels beside it or on the line above,
+                    // else (only above the blob) while line y + 1 is.
+                    bool now = false;
+                    for (int dy = -1; dy <= 0; ++dy)
+                        for (int dx = -kRingColumns; dx <= kRingColumns; ++dx) {
+                            const int yy = y + dy, xx = x + dx;
+                            now = now || (yy >= 0 && xx >= 0 && xx < W && comp(yy, xx) == ids[0]);
+                        }
+                    add_pixel(p, f, b.cls, x, y, b, bg, now ? y : y + 1);
                     ++b.ring_pixels;
                 } else {
                     for (int i = 0; i < n; ++i) out[static_cast<size_t>(ids[i])].ring_shared = true;

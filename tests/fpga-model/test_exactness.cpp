@@ -238,6 +238,18 @@ TEST_CASE("anti-aliased noisy markers: exact sums, fast path on and off identica
     REQUIRE(off.write(reg::kFastPath, 0) == RegWriteResult::kOk);
     Pipeline pon(on), poff(off);
     const auto a = run_field(pon, f), b = run_field(poff, f);
+    // The background tracker's vector path (taken without the floating reference) equals its scalar path.
+    PipelineConfig with_ref;
+    with_ref.float_reference = true;
+    Pipeline pref(on, with_ref);
+    REQUIRE(pon.params().bg_track_shift != 0);
+    const auto c = run_field(pref, f);
+    REQUIRE(c.size() == a.size());
+    for (size_t i = 0; i < a.size(); ++i) {
+        CHECK(a[i].sum_w == c[i].sum_w);
+        CHECK(a[i].sum_wx == c[i].sum_wx);
+        CHECK(a[i].sum_wy == c[i].sum_wy);
+    }
     REQUIRE(pon.fast_path_half_width() > 0);
     REQUIRE(poff.fast_path_half_width() == 0);
     REQUIRE(pon.field_stats().fast_path_pixels > 100000);

@@ -4,6 +4,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <cstring>
 #include <set>
 
 using namespace eyesim::fpga;
@@ -31,7 +32,7 @@ TEST_CASE("register writes are validated: address, alignment, width, read-only, 
     CHECK(r.write(reg::kMinArea + 2, 1) == RegWriteResult::kMisaligned);
     CHECK(r.write(reg::kMinArea, 1, 2) == RegWriteResult::kBadWidth);
     CHECK(r.write(reg::kId, 0) == RegWriteResult::kReadOnly);
-    CHECK(r.write(reg::kVersion, 0x0101) == RegWriteResult::kReadOnly);
+    CHECK(r.write(reg::kVersion, 0x0102) == RegWriteResult::kReadOnly);
     CHECK(r.write(reg::kClassEnable, 0x1F) == RegWriteResult::kTooWide);
     CHECK(r.write(reg::kEnable, 2) == RegWriteResult::kTooWide);
     CHECK(r.write(reg::kWeightMode, 3) == RegWriteResult::kOutOfRange);
@@ -149,7 +150,7 @@ TEST_CASE("per-class enables and area/shape filters", "[fpga][regs]") {
 
 TEST_CASE("WEIGHT_BG holds one background level per class (byte c-1 for class c)", "[fpga][regs]") {
     RegisterMap r;
-    CHECK(decode(r).weight_bg == std::array<uint8_t, kNumClasses + 1>{0, 3, 3, 3, 5});  // reset 0x05030303
+    CHECK(decode(r).weight_bg == std::array<uint8_t, kNumClasses + 1>{0, 2, 2, 2, 3});  // reset 0x03020202
     REQUIRE(r.write(reg::kWeightBg, 0x04030201u) == RegWriteResult::kOk);
     CHECK(decode(r).weight_bg == std::array<uint8_t, kNumClasses + 1>{0, 1, 2, 3, 4});
     // A level reaches only its own class: raise one byte at a time and compare every blob's Σw with level 0.
@@ -227,4 +228,63 @@ TEST_CASE("pipeline call order is checked", "[fpga][regs]") {
     CHECK(p.push_line(line.data(), 4) == PipelineStatus::kLineOutOfOrder);
     CHECK(p.end_field() == PipelineStatus::kOk);
     CHECK_FALSE(p.in_field());
+}
+
+namespace {
+// Noise-free yellow markers (8 px wide, 4 lines tall) at random subpixel positions, the left half of the field on
+// a warm white (the eye's), the right half on a cool grey-blue: RMS centroid error against the coverage centroid.
+double tinted_background_rms(const RegisterMap& regs) {
+    std::mt19937 rng(21);
+    std::uniform_real_distribution<double> phase(0, 1);
+    std::vector<Marker> left, right;
+    for (int i = 0; i < 24; ++i) {  // a 4 × 6 grid in each half, random subpixel phase
+        left.push_back({4, 40 + 80 * (i % 4) + phase(rng), 24 + 44 * (i / 4) + phase(rng), 4.0, 2.0});
+        right.push_back({4, 400 + 80 * (i % 4) + phase(rng), 24 + 44 * (i / 4) + phase(rng), 4.0, 2.0});
+    }
+    std::vector<std::array<double, 2>> tl, tr;
+    const Field fl = render_markers(left, 0.0, 1, 288, 8, {236, 234, 226}, &tl);
+    const Field fr = render_markers(right, 0.0, 1, 288, 8, {170, 175, 190}, &tr);
+    Field f = fl;
+    for (int y = 0; y < 288; ++y)
+        std::memcpy(f.line(y) + 720, fr.line(y) + 720, 720);  // pixels 360..719 from the right field
+    std::vector<std::array<double, 2>> truth = tl;
+    truth.insert(truth.end(), tr.begin(), tr.end());
+    std::vector<Marker> all = left;
+    all.insert(all.end(), right.begin(), right.end());
+    Pipeline p(regs);
+    const std::vector<Blob> got = run_field(p, f);
+    double se = 0;
+    int n = 0;
+    for (size_t i = 0; i < all.size(); ++i) {
+        double best = 1e9;
+        for (const Blob& b : got) {
+            const double dx = b.cx_px() - truth[i][0], dy = b.cy_px() - truth[i][1];
+            best = std::min(best, dx * dx + dy * dy);
+        }
+        if (best < 1.0) {
+            se += best;
+            ++n;
+        }
+    }
+    REQUIRE(n == static_cast<int>(all.size()));
+    return std::sqrt(se / n);
+}
+}  // namespace
+
+TEST_CASE("BG_TRACK: a tinted background that changes across the field does not bias the centroids", "[fpga][regs]") {
+    // Without tracking no single level fits both halves: level 0 leaves the tint in every edge and ring pixel,
+    // map 1.1's reset level (5 for yellow) cuts into the marker's own edge weights.
+    RegisterMap off, off_map11, on;
+    for (RegisterMap* r : {&off, &on}) REQUIRE(r->write(reg::kWeightBg, 0) == RegWriteResult::kOk);
+    REQUIRE(off_map11.write(reg::kWeightBg, 0x05030303u) == RegWriteResult::kOk);
+    for (RegisterMap* r : {&off, &off_map11}) REQUIRE(r->write(reg::kBgTrack, 0) == RegWriteResult::kOk);
+    REQUIRE(on.write(reg::kBgTrack, 4) == RegWriteResult::kOk);
+    const double e_off = tinted_background_rms(off), e_map11 = tinted_background_rms(off_map11);
+    const double e_on = tinted_background_rms(on);
+    INFO("rms: no tracking, level 0: " << e_off << "; level 5: " << e_map11 << "; tracked, level 0: " << e_on);
+    CHECK(e_off > 0.02);
+    CHECK(e_map11 > 0.01);
+    CHECK(e_on < 0.3 * e_off);
+    CHECK(e_on < 0.6 * e_map11);
+    CHECK(e_on < 0.008);
 }

@@ -108,7 +108,7 @@ TEST_CASE("storage does not grow with field height", "[fpga][storage]") {
     const StorageBits s = p.storage_bits();
     CHECK(s.chroma_lut == 4096u * 3u);
     CHECK(s.run_buffers == 2u * 720u * (10u + 10u + 3u + 9u));
-    CHECK(s.line_buffer == 720u * 16u + 4u * 720u);
+    CHECK(s.line_buffer == 720u * 16u + 4u * 720u + 90u * (2u * 12u + 1u) + 720u);
     CHECK(s.total() < 400'000u);
 }
 

@@ -44,6 +44,15 @@ inline constexpr int kOutputRingCapacity = 64;
 inline constexpr int kLutChromaBits = 6;
 /// Edge ring: background pixels within this many columns (and one line) of a blob count in its moments.
 inline constexpr int kRingColumns = 2;
+/// Background tracking (BG_TRACK): the background chroma is kept per cell of this many pixels (4 chroma pairs).
+inline constexpr int kBgCellPixels = 8;
+/// Cells per line.
+inline constexpr int kBgCells = static_cast<int>(kActivePixelsPerLine) / kBgCellPixels;
+/// A cell learns only from lines whose pixels within this many columns of it are unclassified on that line and
+/// the lines above and below (so a marker's own colour and its ring never reach its background).
+inline constexpr int kBgHoldColumns = kRingColumns + 1;
+/// Fractional bits of a cell's background chroma (12-bit values: 8.4).
+inline constexpr int kBgFracBits = 4;
 /// Modelled clocks from a pixel on the wire to its run being labelled (classify 3, run close 1, label 4).
 inline constexpr uint32_t kPipelineDepthClocks = 8;
 /// Modelled clocks between two blob emissions (serial output through one pipelined divider).
@@ -142,6 +151,11 @@ public:
     /// as the datapath keeps it: 2·Cb for an even pixel, Cb_k + Cb_k+1 (the sum of its neighbours) for an odd one.
     uint16_t weight2(uint8_t cls, int y, int cb2, int cr2) const;
 
+    /// Weight of the same pixel against an explicit background chroma given ×128 (`bg_cb_q7`, `bg_cr_q7`; 128·128
+    /// is neutral grey, which gives weight2). This is the datapath's arithmetic with BG_TRACK on; the background
+    /// at pixel x is the linear interpolation of the two nearest cells' values (see docs/fpga-pipeline.md).
+    uint16_t weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const;
+
     /// Floating reference weight for the same pixel (no quantisation of direction, weight or width).
     double weight_reference(uint8_t cls, double y, double cb, double cr) const;
 
@@ -180,6 +194,12 @@ private:
     void label_line(int y, bool end_of_field, const uint8_t* line);
     PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
     void add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y);
+    int processed_spans(int y, uint16_t* x0, uint16_t* x1) const;
+    void update_background(const uint8_t* line, int y);
+    void background_at(int x, int& cb_q7, int& cr_q7) const;
+    double background_reference_at(int x, bool want_cr) const;
+    uint16_t weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const;
+    double weight_reference_at(uint8_t cls, double luma, double cb, double cr, int x) const;
     bool in_roi(int x, int y) const;
     uint16_t find_root(uint16_t s);
     uint16_t alloc_slot();
@@ -212,6 +232,13 @@ private:
     const uint8_t* prev_line_ = nullptr;                          // previous pushed line, or null
     std::array<int16_t, kNumClasses + 1> luma_min_{}, luma_max_{};
     std::array<double, kNumClasses + 1> dir_cb_ref_{}, dir_cr_ref_{};
+    // Background tracking (BG_TRACK): per chroma pair, Cb and Cr ×16 interleaved, the seeded bit, and the
+    // occupied mask of the line before the previous one (pixels near a blob do not update the background).
+    std::array<int16_t, 2 * kBgCells> bg_q4_{};
+    std::array<double, 2 * kBgCells> bg_ref_{};
+    std::array<uint64_t, (kBgCells + 63) / 64> bg_seeded_{};
+    bool bg_all_seeded_ = false;
+    std::array<uint64_t, kMaskWords> occupied_older_{};
 
     // Blob table.
     std::array<Slot, kMaxBlobSlots> slots_{};
