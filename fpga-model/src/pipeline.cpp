@@ -471,6 +471,9 @@ int Pipeline::processed_spans(int y, uint16_t* x0, uint16_t* x1) const {
 // towards the mean chroma of their four pairs by 2^-n of the difference (the first sample of a field seeds the
 // cell). Only cells wholly inside a processed span (ROI) learn.
 void Pipeline::update_background(const uint8_t* line, int y) {
+    uint16_t sx0[kNumRoiWindows + 1], sx1[kNumRoiWindows + 1];
+    const int n_spans = processed_spans(y, sx0, sx1);
+    if (n_spans == 0) return;  // outside every ROI window
     std::array<uint64_t, kMaskWords> near;
     const std::array<uint64_t, kMaskWords>& a = occupied_[cur_buf_];
     const std::array<uint64_t, kMaskWords>& b = occupied_[cur_buf_ ^ 1];
@@ -494,8 +497,6 @@ void Pipeline::update_background(const uint8_t* line, int y) {
         }
         near[u] = v;
     }
-    uint16_t sx0[kNumRoiWindows + 1], sx1[kNumRoiWindows + 1];
-    const int n_spans = processed_spans(y, sx0, sx1);
     const int n = params_.bg_track_shift;
     const int half = 1 << (n - 1);
     const double gain = 1.0 / static_cast<double>(1 << n);
