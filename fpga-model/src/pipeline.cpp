@@ -33,6 +33,24 @@ uint64_t bits_for(uint64_t n) {
     return b;
 }
 
+// Where pixel x's background comes from: linear between the centres of the two nearest cells (a cell's chroma
+// samples are co-sited with its even pixels: centre 8·j + 3), the end cells' values beyond the outer centres.
+// i, i1: Cb indices of the left and right cell (Cr follows each); f: weight of the right cell in 1/8.
+struct CellLerp {
+    size_t i, i1;
+    int f;
+};
+CellLerp cell_lerp(int x) {
+    const int u = x - (kBgCellPairs - 1);
+    int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
+    if (j0 >= kBgCells - 1) {
+        j0 = kBgCells - 1;
+        f = 0;
+    }
+    const size_t i = static_cast<size_t>(2 * j0);
+    return {i, f != 0 ? i + 2 : i, f};
+}
+
 }  // namespace
 
 Pipeline::Pipeline(const RegisterMap& snapshot, const PipelineConfig& config) : own_(snapshot) { init(config); }
@@ -143,29 +161,17 @@ uint16_t Pipeline::weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
 }
 
-// Background chroma ×128 at pixel x: linear between the centres of the two nearest cells (a cell's chroma
-// samples are co-sited with its even pixels: centre 8·j + 3), the end cells' values beyond the outer centres.
+// Background chroma ×128 (×16 per cell, ×8 from the interpolation) at pixel x.
 void Pipeline::background_at(int x, int& cb_q7, int& cr_q7) const {
-    const int u = x - (kBgCellPairs - 1);
-    int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
-    if (j0 >= kBgCells - 1) {
-        j0 = kBgCells - 1;
-        f = 0;
-    }
-    const size_t i = static_cast<size_t>(2 * j0), i1 = f != 0 ? i + 2 : i;
-    cb_q7 = bg_q4_[i] * (kBgCellPixels - f) + bg_q4_[i1] * f;  // ×16 × 8
-    cr_q7 = bg_q4_[i + 1] * (kBgCellPixels - f) + bg_q4_[i1 + 1] * f;
+    const CellLerp l = cell_lerp(x);
+    cb_q7 = bg_q4_[l.i] * (kBgCellPixels - l.f) + bg_q4_[l.i1] * l.f;
+    cr_q7 = bg_q4_[l.i + 1] * (kBgCellPixels - l.f) + bg_q4_[l.i1 + 1] * l.f;
 }
 
-double Pipeline::background_reference_at(int x, bool want_cr) const {
-    const int u = x - (kBgCellPairs - 1);
-    int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
-    if (j0 >= kBgCells - 1) {
-        j0 = kBgCells - 1;
-        f = 0;
-    }
-    const size_t i = static_cast<size_t>(2 * j0) + (want_cr ? 1 : 0), i1 = f != 0 ? i + 2 : i;
-    return (bg_ref_[i] * (kBgCellPixels - f) + bg_ref_[i1] * f) / kBgCellPixels;
+void Pipeline::background_reference_at(int x, double& cb, double& cr) const {
+    const CellLerp l = cell_lerp(x);
+    cb = (bg_ref_[l.i] * (kBgCellPixels - l.f) + bg_ref_[l.i1] * l.f) / kBgCellPixels;
+    cr = (bg_ref_[l.i + 1] * (kBgCellPixels - l.f) + bg_ref_[l.i1 + 1] * l.f) / kBgCellPixels;
 }
 
 // Pixel weight against the tracked background at pixel x (with BG_TRACK off the cells hold neutral 128).
@@ -185,8 +191,9 @@ double Pipeline::weight_reference(uint8_t cls, double y, double cb, double cr) c
 
 double Pipeline::weight_reference_at(uint8_t cls, double luma, double cb, double cr, int x) const {
     if (params_.weight_mode != 1) return weight_reference(cls, luma, cb, cr);
-    const double v = (cb - background_reference_at(x, false)) * dir_cb_ref_[cls] +
-                     (cr - background_reference_at(x, true)) * dir_cr_ref_[cls];
+    double bcb, bcr;
+    background_reference_at(x, bcb, bcr);
+    const double v = (cb - bcb) * dir_cb_ref_[cls] + (cr - bcr) * dir_cr_ref_[cls];
     return std::clamp(v - params_.weight_bg[cls], 0.0, 255.0);
 }
 
@@ -483,14 +490,10 @@ void Pipeline::update_background(const uint8_t* line, int y) {
         m[i] = a[i] | b[i] | occupied_older_[i];
         any |= m[i];
     }
-    for (int i = 0; i < kMaskWords; ++i) {
+    for (int i = 0; i < kMaskWords; ++i) {  // m dilated by kBgHoldColumns (nothing to dilate on most lines)
         const size_t u = static_cast<size_t>(i);
         uint64_t v = m[u];
-        if (any == 0) {
-            near[u] = 0;
-            continue;
-        }
-        for (int d = 1; d <= kBgHoldColumns; ++d) {
+        for (int d = 1; any != 0 && d <= kBgHoldColumns; ++d) {
             v |= m[u] << d | m[u] >> d;
             if (i > 0) v |= m[u - 1] >> (64 - d);
             if (i + 1 < kMaskWords) v |= m[u + 1] << (64 - d);
@@ -512,21 +515,22 @@ void Pipeline::update_background(const uint8_t* line, int y) {
         }
         const size_t i = static_cast<size_t>(2 * j);
         const int mcb = scb << (4 - kBgCellLog2), mcr = scr << (4 - kBgCellLog2);  // cell mean ×16
+        const double rcb = scb / static_cast<double>(kBgCellPairs), rcr = scr / static_cast<double>(kBgCellPairs);
         uint64_t& seeded = bg_seeded_[static_cast<size_t>(j >> 6)];
         const uint64_t bit = 1ull << (j & 63);
         if (!(seeded & bit)) {  // first sample of the field: taken as it is
             seeded |= bit;
             bg_q4_[i] = static_cast<int16_t>(mcb);
             bg_q4_[i + 1] = static_cast<int16_t>(mcr);
-            bg_ref_[i] = scb / static_cast<double>(kBgCellPairs);
-            bg_ref_[i + 1] = scr / static_cast<double>(kBgCellPairs);
+            bg_ref_[i] = rcb;
+            bg_ref_[i + 1] = rcr;
             return;
         }
         bg_q4_[i] = static_cast<int16_t>(bg_q4_[i] + ((mcb - bg_q4_[i] + half) >> n));
         bg_q4_[i + 1] = static_cast<int16_t>(bg_q4_[i + 1] + ((mcr - bg_q4_[i + 1] + half) >> n));
         if (config_.float_reference) {
-            bg_ref_[i] += (scb / static_cast<double>(kBgCellPairs) - bg_ref_[i]) * gain;
-            bg_ref_[i + 1] += (scr / static_cast<double>(kBgCellPairs) - bg_ref_[i + 1]) * gain;
+            bg_ref_[i] += (rcb - bg_ref_[i]) * gain;
+            bg_ref_[i + 1] += (rcr - bg_ref_[i + 1]) * gain;
         }
     };
 #if defined(__SSE2__)

@@ -197,7 +197,7 @@ private:
     int processed_spans(int y, uint16_t* x0, uint16_t* x1) const;
     void update_background(const uint8_t* line, int y);
     void background_at(int x, int& cb_q7, int& cr_q7) const;
-    double background_reference_at(int x, bool want_cr) const;
+    void background_reference_at(int x, double& cb, double& cr) const;
     uint16_t weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const;
     double weight_reference_at(uint8_t cls, double luma, double cb, double cr, int x) const;
     bool in_roi(int x, int y) const;
