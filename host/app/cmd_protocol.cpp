@@ -63,7 +63,7 @@ int run_decode(const DecodeOptions& opt) {
     std::fflush(stdout);
 
     const proto::ParserStats& s = replay->stats();
-    const bool capture_ok = status == proto::CaptureStatus::End;
+    const bool capture_ok = status == proto::CaptureStatus::End && reader->corrupt_regions() == 0;
     const bool clean = s.errors() == 0 && s.skipped_bytes == 0 && capture_ok;
     if (opt.json) {
         char buf[proto::kMaxJsonBytes];
@@ -78,7 +78,9 @@ int run_decode(const DecodeOptions& opt) {
             j["capture"] = {{"records", records},
                             {"status", status_name(status)},
                             {"bad_offset", reader->bad_offset()},
-                            {"dropped_bytes", reader->dropped_bytes()}};
+                            {"dropped_bytes", reader->dropped_bytes()},
+                            {"corrupt_regions", reader->corrupt_regions()},
+                            {"corrupt_bytes", reader->corrupt_bytes()}};
         }
         std::fprintf(stderr, "%s\n", j.dump().c_str());
     } else {
@@ -93,10 +95,13 @@ int run_decode(const DecodeOptions& opt) {
                      static_cast<unsigned long long>(s.bad_length), static_cast<unsigned long long>(s.crc_errors),
                      static_cast<unsigned long long>(s.truncated), static_cast<unsigned long long>(s.bad_payload),
                      static_cast<unsigned long long>(s.sequence_gaps));
-        if (is_capture)
-            std::fprintf(stderr, "; %llu records, %s", static_cast<unsigned long long>(records), status_name(status));
-        if (!capture_ok)
-            std::fprintf(stderr, " record at offset %llu (%llu bytes skipped)",
+        if (is_capture) std::fprintf(stderr, "; %llu good records", static_cast<unsigned long long>(records));
+        if (reader->corrupt_regions() > 0)
+            std::fprintf(stderr, ", damaged stretches skipped: %llu (%llu bytes)",
+                         static_cast<unsigned long long>(reader->corrupt_regions()),
+                         static_cast<unsigned long long>(reader->corrupt_bytes()));
+        if (status == proto::CaptureStatus::Torn)
+            std::fprintf(stderr, ", torn tail at offset %llu (%llu bytes skipped)",
                          static_cast<unsigned long long>(reader->bad_offset()),
                          static_cast<unsigned long long>(reader->dropped_bytes()));
         std::fprintf(stderr, "\n");

@@ -219,12 +219,18 @@ int run_track(const TrackOptions& opt) {
             const proto::CaptureStatus st = reader.next(rec);
             if (st == proto::CaptureStatus::Torn) {  // a crash mid-write: earlier records are good
                 torn = true;
-                std::fprintf(stderr, "eyesim: warning: %s: last record torn (skipped)\n", opt.capture.c_str());
+                std::fprintf(stderr, "eyesim: warning: %s: torn tail at byte %llu (%llu bytes) skipped\n",
+                             opt.capture.c_str(), static_cast<unsigned long long>(reader.bad_offset()),
+                             static_cast<unsigned long long>(reader.dropped_bytes()));
                 break;
             }
             if (st == proto::CaptureStatus::End) break;
-            if (st == proto::CaptureStatus::Corrupt)
-                throw Error(fmt::format("{}: record at offset {}: corrupt", opt.capture, reader.bad_offset()));
+            if (st == proto::CaptureStatus::Corrupt) {  // skipped; the records after it are good
+                std::fprintf(stderr, "eyesim: warning: %s: damaged stretch at byte %llu (%llu bytes) skipped\n",
+                             opt.capture.c_str(), static_cast<unsigned long long>(reader.bad_offset()),
+                             static_cast<unsigned long long>(reader.last_skipped_bytes()));
+                continue;
+            }
             if (st == proto::CaptureStatus::IoError) throw Error(opt.capture + ": read error");
             last_us = rec.has_time ? double(rec.host_rx_us) : last_us;
             session->bytes(rec.bytes, last_us);

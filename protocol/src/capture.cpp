@@ -3,6 +3,7 @@
 #include "eyesim/protocol/crc32c.hpp"
 #include "wire_io.hpp"
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <system_error>
@@ -61,7 +62,7 @@ bool CaptureReader::open(const char* path) noexcept {
 void CaptureReader::close() noexcept {
     if (f_) std::fclose(f_);
     f_ = nullptr;
-    offset_ = size_ = dropped_ = bad_offset_ = 0;
+    offset_ = size_ = dropped_ = bad_offset_ = last_skipped_ = corrupt_regions_ = corrupt_bytes_ = 0;
     done_ = false;
 }
 
@@ -82,28 +83,83 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
         done_ = true;
         return CaptureStatus::End;
     }
-    auto stop = [&](CaptureStatus s) {
-        done_ = true;
+    // A record that fails a check: scan on to the next good record (Corrupt, reading goes on there) or, when
+    // none follows, treat the rest as a torn tail (a crash mid-write leaves exactly that).
+    auto damaged = [&]() {
+        const std::uint64_t next_good = resync_from(offset_ + 1);
         bad_offset_ = offset_;
-        dropped_ = left;
-        return s;
+        if (next_good >= size_) {
+            done_ = true;
+            dropped_ = left;
+            return CaptureStatus::Torn;
+        }
+        last_skipped_ = next_good - offset_;
+        ++corrupt_regions_;
+        corrupt_bytes_ += last_skipped_;
+        offset_ = next_good;
+        if (std::fseek(f_, static_cast<long>(offset_), SEEK_SET) != 0) {
+            done_ = true;
+            return CaptureStatus::IoError;
+        }
+        return CaptureStatus::Corrupt;
     };
-    if (left < kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes) return stop(CaptureStatus::Torn);
-    if (std::fread(buf_.data(), 1, kCaptureRecordHeaderBytes, f_) != kCaptureRecordHeaderBytes)
-        return stop(CaptureStatus::IoError);
+    if (left < kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes) return damaged();
+    if (std::fread(buf_.data(), 1, kCaptureRecordHeaderBytes, f_) != kCaptureRecordHeaderBytes) {
+        done_ = true;
+        return CaptureStatus::IoError;
+    }
     const std::size_t len = get_u16(buf_.data());
     const std::size_t total = kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes;
-    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(buf_.data() + 2) != 0)
-        return stop(total >= left ? CaptureStatus::Torn : CaptureStatus::Corrupt);
-    if (total > left) return stop(CaptureStatus::Torn);
+    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(buf_.data() + 2) != 0 || total > left) return damaged();
     const std::size_t rest = len + kCaptureRecordCrcBytes;
-    if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) return stop(CaptureStatus::IoError);
+    if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) {
+        done_ = true;
+        return CaptureStatus::IoError;
+    }
     const std::uint32_t crc = get_u32(buf_.data() + kCaptureRecordHeaderBytes + len);
-    if (crc != crc32c({buf_.data(), kCaptureRecordHeaderBytes + len}))
-        return stop(total == left ? CaptureStatus::Torn : CaptureStatus::Corrupt);
+    if (crc != crc32c({buf_.data(), kCaptureRecordHeaderBytes + len})) return damaged();
     rec = CaptureRecord{get_u64(buf_.data() + 4), true, offset_, {buf_.data() + kCaptureRecordHeaderBytes, len}};
     offset_ += total;
     return CaptureStatus::Ok;
+}
+
+std::size_t CaptureReader::read_record_at(std::uint64_t at) noexcept {
+    if (at > size_ || size_ - at < kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes) return 0;
+    if (std::fseek(f_, static_cast<long>(at), SEEK_SET) != 0) return 0;
+    if (std::fread(buf_.data(), 1, kCaptureRecordHeaderBytes, f_) != kCaptureRecordHeaderBytes) return 0;
+    const std::size_t len = get_u16(buf_.data());
+    const std::size_t total = kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes;
+    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(buf_.data() + 2) != 0 || total > size_ - at) return 0;
+    if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, len + kCaptureRecordCrcBytes, f_) !=
+        len + kCaptureRecordCrcBytes)
+        return 0;
+    const std::uint32_t crc = get_u32(buf_.data() + kCaptureRecordHeaderBytes + len);
+    return crc == crc32c({buf_.data(), kCaptureRecordHeaderBytes + len}) ? len : 0;
+}
+
+std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
+    // Headers are screened in a window (length in range, reserved 0, fits the file); only a plausible one costs
+    // a read and a CRC. A false match needs a 32-bit CRC to agree as well.
+    constexpr std::uint64_t kMinRecord = kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes;
+    if (size_ < kMinRecord) return size_;
+    const std::uint64_t last = size_ - kMinRecord;  // last offset a record can start at
+    std::uint64_t p = from;
+    while (p <= last) {
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(scan_.size(), size_ - p));
+        if (std::fseek(f_, static_cast<long>(p), SEEK_SET) != 0 || std::fread(scan_.data(), 1, n, f_) != n)
+            return size_;
+        const std::size_t candidates = n - kCaptureRecordHeaderBytes + 1;  // headers wholly in the window
+        for (std::size_t i = 0; i < candidates && p + i <= last; ++i) {
+            const std::uint8_t* h = scan_.data() + i;
+            const std::size_t len = get_u16(h);
+            if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(h + 2) != 0 ||
+                kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes > size_ - (p + i))
+                continue;
+            if (read_record_at(p + i) != 0) return p + i;
+        }
+        p += candidates;
+    }
+    return size_;
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -148,7 +204,8 @@ bool CaptureWriter::append(const char* path) noexcept {
         CaptureRecord rec;
         CaptureStatus s;
         good_end = kCaptureHeaderBytes;
-        while ((s = reader.next(rec)) == CaptureStatus::Ok) {
+        while ((s = reader.next(rec)) == CaptureStatus::Ok || s == CaptureStatus::Corrupt) {
+            if (s == CaptureStatus::Corrupt) continue;  // damaged stretches between good records stay
             ++recovered_;
             good_end = rec.file_offset + kCaptureRecordHeaderBytes + rec.bytes.size() + kCaptureRecordCrcBytes;
         }

@@ -30,6 +30,7 @@ bool CaptureReplay::next(DecodedFrame& out, std::uint64_t& host_rx_us) noexcept 
             pending_ = rec.bytes;
             continue;
         }
+        if (s == CaptureStatus::Corrupt) continue;  // a damaged stretch was skipped; the reader counts it
         status_ = s;
         ended_ = true;
         parser_.end_stream();  // frames still in the buffer come out of the next parser_.next() calls

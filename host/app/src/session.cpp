@@ -153,18 +153,15 @@ void run_capture(const std::string& path, HostRun& run, std::string& warning) {
     while (replay->next(f, rx_us)) run.on_frame(f, double(rx_us));
     run.set_parse_errors(replay->stats().errors());
     run.finish();
-    switch (replay->status()) {
-        case proto::CaptureStatus::Torn:
-            warning = fmt::format("{}: torn last record at byte {} skipped; {} records before it used", path,
-                                  replay->reader().bad_offset(), replay->records());
-            break;
-        case proto::CaptureStatus::Corrupt:
-            warning = fmt::format("{}: corrupt record at byte {}; {} records before it used", path,
-                                  replay->reader().bad_offset(), replay->records());
-            break;
-        case proto::CaptureStatus::IoError: throw Error(path + ": read error");
-        default: break;
-    }
+    if (replay->status() == proto::CaptureStatus::IoError) throw Error(path + ": read error");
+    const proto::CaptureReader& reader = replay->reader();
+    std::string what;
+    if (reader.corrupt_regions() > 0)
+        what = fmt::format("{} damaged stretch(es), {} bytes, skipped", reader.corrupt_regions(), reader.corrupt_bytes());
+    if (replay->status() == proto::CaptureStatus::Torn)
+        what += fmt::format("{}torn tail at byte {} ({} bytes) skipped", what.empty() ? "" : "; ", reader.bad_offset(),
+                            reader.dropped_bytes());
+    if (!what.empty()) warning = fmt::format("{}: {}; {} good records used", path, what, replay->records());
 }
 
 namespace {

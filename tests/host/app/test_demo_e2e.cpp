@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 namespace {
@@ -111,6 +112,25 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     REQUIRE(rc == 0);
     CHECK(torn["frames"].get<int>() >= sim["frames"].get<int>() - 1);
     REQUIRE(torn["warnings"].size() == 1);
-    CHECK(torn["warnings"][0].get<std::string>().find("torn last record") != std::string::npos);
+    CHECK(torn["warnings"][0].get<std::string>().find("torn tail") != std::string::npos);
+
+    // A damaged byte in the middle costs that record only: replay goes on after it, with a warning.
+    {
+        std::fstream f(dir + "/cap.bin", std::ios::in | std::ios::out | std::ios::binary);
+        const auto at = static_cast<std::streamoff>(std::filesystem::file_size(dir + "/cap.bin") / 2);
+        f.seekg(at);
+        const int c = f.get();
+        f.seekp(at);
+        f.put(static_cast<char>(c ^ 0x5a));
+    }
+    auto damaged = nlohmann::json::parse(run(exe + " sim --scene " + EYESIM_SOURCE_DIR +
+                                                 "/scenes/membrane-peel.json --capture " + dir + "/cap.bin --rig " +
+                                                 dir + "/rec/rig.yaml --json",
+                                             rc));
+    REQUIRE(rc == 0);
+    CHECK(damaged["frames"].get<int>() >= sim["frames"].get<int>() - 2);
+    REQUIRE(damaged["warnings"].size() == 1);
+    CHECK(damaged["warnings"][0].get<std::string>().find("1 damaged stretch") != std::string::npos);
+    CHECK(damaged["warnings"][0].get<std::string>().find("torn tail") != std::string::npos);
     std::filesystem::remove_all(dir);
 }

@@ -8,6 +8,8 @@
 ///           u32 CRC-32C over the 12 record-header bytes and the L bytes
 ///
 /// A record normally holds one frame; it may hold any received chunk (the reader feeds it to a StreamParser).
+/// A damaged record in the middle of a file is skipped: the reader scans on to the next offset that holds a whole
+/// record with a good CRC and goes on from there, so one bad byte costs one record, not the rest of the file.
 /// A file that does not start with the magic is read as a raw byte stream (chunks without timestamps).
 /// Host-side code: uses stdio (the codec and parser stay heap-free), never throws.
 
@@ -44,8 +46,9 @@ struct CaptureRecord {
 enum class CaptureStatus : std::uint8_t {
     Ok,       ///< a record was read
     End,      ///< clean end of file
-    Torn,     ///< the last record is incomplete or fails its CRC at the end of the file (skipped; reading ends)
-    Corrupt,  ///< a record in the middle of the file is damaged (reading stops there; earlier records are good)
+    Torn,     ///< the file ends in a damaged or incomplete record (no good record follows it; skipped, reading ends)
+    Corrupt,  ///< damaged bytes [bad_offset(), + last_skipped_bytes()) were skipped and a good record follows:
+              ///< call next() again for it (not terminal)
     IoError,  ///< read error
 };
 
@@ -71,10 +74,15 @@ public:
     CaptureKind kind() const noexcept { return kind_; }
     /// Reads the next record (raw streams: the next chunk of up to kMaxCaptureRecordBytes).
     CaptureStatus next(CaptureRecord& rec) noexcept;
-    /// Bytes of the file that were not returned in records (the torn or corrupt tail), after End/Torn/Corrupt.
+    /// Bytes of the torn tail (after Torn; 0 otherwise).
     std::uint64_t dropped_bytes() const noexcept { return dropped_; }
-    /// Offset where a Torn or Corrupt record starts.
+    /// Offset where the last Torn or Corrupt stretch starts.
     std::uint64_t bad_offset() const noexcept { return bad_offset_; }
+    /// Length of the stretch the last Corrupt status skipped.
+    std::uint64_t last_skipped_bytes() const noexcept { return last_skipped_; }
+    /// Damaged stretches skipped in the middle of the file so far, and their bytes (the torn tail not included).
+    std::uint64_t corrupt_regions() const noexcept { return corrupt_regions_; }
+    std::uint64_t corrupt_bytes() const noexcept { return corrupt_bytes_; }
 
 private:
     std::FILE* f_ = nullptr;
@@ -83,8 +91,16 @@ private:
     std::uint64_t size_ = 0;       // file size at open()
     std::uint64_t dropped_ = 0;
     std::uint64_t bad_offset_ = 0;
+    std::uint64_t last_skipped_ = 0;
+    std::uint64_t corrupt_regions_ = 0;
+    std::uint64_t corrupt_bytes_ = 0;
     bool done_ = false;
+    // Reads the record at `at` (whole, CRC checked) into buf_; its payload length, or 0 when none is there.
+    std::size_t read_record_at(std::uint64_t at) noexcept;
+    // First offset after `from` that holds a good record, or size_ when there is none.
+    std::uint64_t resync_from(std::uint64_t from) noexcept;
     std::array<std::uint8_t, kCaptureRecordHeaderBytes + kMaxCaptureRecordBytes + kCaptureRecordCrcBytes> buf_{};
+    std::array<std::uint8_t, 4096 + kCaptureRecordHeaderBytes> scan_{};  // header window for resync_from()
 };
 
 /// Writes capture files: creates a new one, or appends to an existing one after dropping its torn tail.
@@ -98,7 +114,8 @@ public:
     /// Creates (truncates) `path` and writes the file header.
     bool create(const char* path) noexcept;
     /// Opens `path` for appending: creates it if missing; otherwise checks the header, keeps every good record
-    /// and cuts a torn or corrupt tail off (see recovered_records() / dropped_bytes()).
+    /// (damaged stretches between good records stay; readers skip them) and cuts a torn tail off (see
+    /// recovered_records() / dropped_bytes()).
     bool append(const char* path) noexcept;
     /// Appends one record (1..kMaxCaptureRecordBytes bytes) and, with flush_each (default), flushes it to the OS.
     bool write(std::uint64_t host_rx_us, std::span<const std::uint8_t> bytes) noexcept;

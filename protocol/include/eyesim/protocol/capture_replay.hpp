@@ -19,16 +19,17 @@ public:
     bool open(const char* path) noexcept;
 
     /// The next decoded frame and the receive time (µs) of the record that completed it (0 for raw streams);
-    /// false at the end of the file, after a torn or corrupt record, or on a read error (see status()).
+    /// false at the end of the file (after a torn tail) or on a read error (see status()). Damaged stretches in
+    /// the middle are skipped (reader().corrupt_regions()) and replay goes on after them.
     bool next(DecodedFrame& out, std::uint64_t& host_rx_us) noexcept;
 
-    /// How reading ended: End, Torn, Corrupt or IoError (Ok while records remain).
+    /// How reading ended: End, Torn or IoError (Ok while records remain).
     CaptureStatus status() const noexcept { return status_; }
     /// Capture or raw stream.
     CaptureKind kind() const noexcept { return reader_.kind(); }
     /// Records (or raw chunks) read so far.
     std::uint64_t records() const noexcept { return records_; }
-    /// The reader (bad_offset(), dropped_bytes() after a torn or corrupt record).
+    /// The reader (bad_offset(), dropped_bytes() after a torn tail; corrupt_regions(), corrupt_bytes()).
     const CaptureReader& reader() const noexcept { return reader_; }
     /// Parser counters (final once next() returned false).
     const ParserStats& stats() const noexcept { return parser_.stats(); }
