@@ -189,6 +189,7 @@ Recording Recording::open(const std::string& dir) {
         } catch (const nlohmann::json::parse_error& e) {
             d->fail("manifest.json", "file", fmt::format("malformed JSON at byte {}", e.byte));
         }
+        if (!j.is_object()) d->fail("manifest.json", "file", "not a JSON object");
         auto num = [&](const char* key, double expect) {
             if (!j.contains(key)) return;
             if (!j[key].is_number()) d->fail("manifest.json", key, "not a number");
@@ -198,12 +199,29 @@ Recording Recording::open(const std::string& dir) {
         num("field_width", kFieldWidth);
         num("field_height", kFieldHeight);
         num("field_rate_hz", kFieldRateHz);
+        num("field_bytes", kFieldBytes);
+        if (j.contains("format")) {
+            // The streams found decide how fields are read; a manifest saying otherwise describes other files.
+            const bool raw = d->streams[0].format == StreamFormat::kRawUyvy;
+            if (!j["format"].is_string() || (j["format"] != "uyvy" && j["format"] != "video"))
+                d->fail("manifest.json", "format", fmt::format("is {}, expected \"uyvy\" or \"video\"", j["format"].dump()));
+            if ((j["format"] == "uyvy") != raw)
+                d->fail("manifest.json", "format",
+                        fmt::format("says {}, but {} is {}", j["format"].dump(),
+                                    fs::path(d->streams[0].path).filename().string(), raw ? "raw UYVY" : "video"));
+        }
         if (j.contains("cameras")) {
             const auto& cj = j["cameras"];
             if (!cj.is_array() || cj.size() != d->cams.size())
                 d->fail("manifest.json", "cameras",
                         fmt::format("must list {} cameras (rig.yaml camera_count)", d->cams.size()));
             for (size_t c = 0; c < cj.size(); ++c) {
+                const std::string at = fmt::format("cameras[{}]", c);
+                if (!cj[c].is_object()) d->fail("manifest.json", at, "not a JSON object");
+                const std::string found = fs::path(d->streams[c].path).filename().string();
+                if (cj[c].contains("file") && (!cj[c]["file"].is_string() || cj[c]["file"] != found))
+                    d->fail("manifest.json", at + ".file",
+                            fmt::format("says {}, but camera {}'s stream is {}", cj[c]["file"].dump(), c, found));
                 if (cj[c].contains("fields")) {
                     if (!cj[c]["fields"].is_number_integer())
                         d->fail("manifest.json", fmt::format("cameras[{}].fields", c), "not an integer");

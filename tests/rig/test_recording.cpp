@@ -5,6 +5,7 @@
 #include "eyesim/rig/truth.hpp"
 
 #include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
 #include <opencv2/videoio.hpp>
 
 #include <unistd.h>
@@ -12,6 +13,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 using namespace eyesim::rig;
@@ -210,6 +212,32 @@ TEST_CASE("malformed recordings give one-line errors", "[rig][recording][errors]
         copy_dir(base, d);
         fs::resize_file(fs::path(d) / "cam2.uyvy", 4 * static_cast<uintmax_t>(kFieldBytes));
         expect_open_error(d, "manifest.json: cameras[2].fields: says 10, cam2.uyvy holds 4");
+    }
+    SECTION("manifest describing other files") {
+        copy_dir(base, d);
+        const fs::path m = fs::path(d) / "manifest.json";
+        std::ifstream in(m);
+        nlohmann::json j = nlohmann::json::parse(in);
+        in.close();
+        struct Edit {
+            const char* what;
+            std::function<void(nlohmann::json&)> edit;
+        };
+        const Edit edits[] = {
+            {"manifest.json: field_bytes: is 1, expected 414720", [](nlohmann::json& x) { x["field_bytes"] = 1; }},
+            {"manifest.json: format: is 7, expected", [](nlohmann::json& x) { x["format"] = 7; }},
+            {"manifest.json: format: says \"video\", but cam0.uyvy is raw UYVY", [](nlohmann::json& x) { x["format"] = "video"; }},
+            {"manifest.json: cameras[1].file: says \"../cam1.uyvy\", but camera 1's stream is cam1.uyvy",
+             [](nlohmann::json& x) { x["cameras"][1]["file"] = "../cam1.uyvy"; }},
+            {"manifest.json: cameras[0]: not a JSON object", [](nlohmann::json& x) { x["cameras"][0] = 3; }},
+            {"manifest.json: file: not a JSON object", [](nlohmann::json& x) { x = nlohmann::json::array({1, 2}); }},
+        };
+        for (const Edit& e : edits) {
+            nlohmann::json x = j;
+            e.edit(x);
+            std::ofstream(m) << x.dump();
+            expect_open_error(d, e.what);
+        }
     }
     SECTION("manifest is optional") {
         copy_dir(base, d);
