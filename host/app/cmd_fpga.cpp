@@ -17,6 +17,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -137,7 +138,10 @@ int run(const FpgaOptions& opt) {
     if (opt.max_fields >= 0) n_fields = std::min(n_fields, opt.max_fields);
 
     std::vector<rig::FieldTruth> truth;
-    if (!rec.truth_path().empty()) truth = rig::read_truth(rec.truth_path());
+    if (!rec.truth_path().empty()) {
+        truth = rig::read_truth(rec.truth_path());
+        if (truth.empty()) throw eyesim::app::Error(rec.truth_path() + ": no lines");  // present but empty: not a truth file
+    }
 
     proto::CaptureWriter capture;
     const bool capture_on = !opt.out.empty();
@@ -290,7 +294,8 @@ eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording
     sub.add_option("--cameras", opt->cameras, "comma-separated camera indices (default: all)");
     sub.add_option("--out", opt->out, "capture file of protocol FieldMarkers packets (device-time stamps)");
     sub.add_option("--csv", opt->csv, "CSV file with one row per blob");
-    sub.add_option("--fields", opt->max_fields, "process at most this many fields per camera");
+    sub.add_option("--fields", opt->max_fields, "process at most this many fields per camera")
+        ->check(CLI::Range(int64_t{1}, std::numeric_limits<int64_t>::max()));
     sub.add_option("--reg", opt->regs, "register write ADDRESS=VALUE before the first field (repeatable)");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     return [opt]() -> int {

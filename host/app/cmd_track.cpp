@@ -273,6 +273,9 @@ int run_track(const TrackOptions& opt) {
     if (progress) std::fprintf(stderr, "\n");
     const double wall_s = (host_now_us() - t0) * 1e-6;
     nlohmann::json j = session->summary();
+    if (j["parser"]["frames"].get<std::uint64_t>() == 0)  // garbage or silence is not a result
+        throw Error(fmt::format("{}: no protocol frames received ({} bytes skipped)", source,
+                                j["parser"]["skipped_bytes"].get<std::uint64_t>()));
     j["source"] = source;
     if (!opt.capture.empty()) j["capture_torn"] = torn;
     j["fields_per_s"] = double(session->fields()) / std::max(wall_s, 1e-9);

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <exception>
 #include <map>
+#include <string>
 
 int main(int argc, char** argv) {
     using namespace eyesim::app;
@@ -30,13 +31,28 @@ int main(int argc, char** argv) {
         actions[sub] = spec.setup(*sub);
     }
 
+    if (argc > 1 && argv[1][0] != '-' &&
+        std::none_of(specs.begin(), specs.end(), [&](const CommandSpec& c) { return c.name == argv[1]; })) {
+        std::string names;
+        for (const auto& c : specs) names += (names.empty() ? "" : ", ") + c.name;
+        std::fprintf(stderr, "eyesim: error: '%s': unknown command (commands: %s)\n", argv[1], names.c_str());
+        return 2;
+    }
     try {
         app.parse(argc, argv);
         for (auto& [sub, action] : actions)
             if (sub->parsed()) return action();
         return 2;
-    } catch (const CLI::ParseError& e) {
+    } catch (const CLI::CallForHelp& e) {
         return app.exit(e);
+    } catch (const CLI::CallForAllHelp& e) {
+        return app.exit(e);
+    } catch (const CLI::CallForVersion& e) {
+        return app.exit(e);
+    } catch (const CLI::ParseError& e) {
+        // Usage errors: one line, exit 2 (CLI11 would add a second line and its own exit codes).
+        std::fprintf(stderr, "eyesim: error: %s (see --help)\n", e.what());
+        return 2;
     } catch (const Error& e) {
         std::fprintf(stderr, "eyesim: error: %s\n", e.what());
         return e.exit_code();

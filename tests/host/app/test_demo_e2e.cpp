@@ -10,6 +10,8 @@
 #include <fstream>
 #include <string>
 
+#include <sys/wait.h>
+
 namespace {
 std::string run(const std::string& cmd, int& rc) {
     std::string out;
@@ -132,5 +134,37 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     REQUIRE(damaged["warnings"].size() == 1);
     CHECK(damaged["warnings"][0].get<std::string>().find("1 damaged stretch") != std::string::npos);
     CHECK(damaged["warnings"][0].get<std::string>().find("torn tail") != std::string::npos);
+    std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("usage errors, garbage captures and empty truth are one line and a non-zero exit", "[host][e2e]") {
+    const std::string exe = EYESIM_EXE;
+    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_test_usage").string();
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    int rc = -1;
+    auto one_line_error = [&](const std::string& args, int want_rc, const std::string& starts) {
+        const std::string err = run(exe + " " + args + " 2>&1 >/dev/null", rc);
+        INFO(args << " -> " << err);
+        CHECK(WEXITSTATUS(rc) == want_rc);
+        CHECK(err.rfind("eyesim: error: " + starts, 0) == 0);
+        CHECK(std::count(err.begin(), err.end(), '\n') == 1);
+    };
+    one_line_error("bogus", 2, "'bogus': unknown command");
+    one_line_error("synth --scenario nope --out " + dir + "/x", 2, "--scenario: nope not in");
+    run(exe + " synth --scenario static --seconds 0.06 --out " + dir + "/rec 2>&1", rc);
+    REQUIRE(rc == 0);
+    one_line_error("fpga --recording " + dir + "/rec --fields 0", 2, "--fields: Value 0 not in range");
+    // A file of random bytes is a raw stream without a single frame: an error, not an empty result.
+    {
+        std::ofstream f(dir + "/garbage.bin", std::ios::binary);
+        unsigned x = 12345;
+        for (int i = 0; i < 5000; ++i) f.put(static_cast<char>((x = x * 1103515245u + 12345u) >> 24));
+    }
+    one_line_error("track --capture " + dir + "/garbage.bin --rig " + dir + "/rec/rig.yaml", 1,
+                   dir + "/garbage.bin: no protocol frames received");
+    // A truth file that is present but empty is not silently ignored.
+    std::ofstream(dir + "/rec/truth.jsonl", std::ios::trunc).close();
+    one_line_error("fpga --recording " + dir + "/rec --json", 1, dir + "/rec/truth.jsonl: no lines");
     std::filesystem::remove_all(dir);
 }
