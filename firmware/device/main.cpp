@@ -21,6 +21,7 @@
 #include <csignal>
 #include <cstdio>
 #include <exception>
+#include <limits>
 #include <memory>
 #include <string>
 #include <thread>
@@ -281,17 +282,27 @@ int main(int argc, char** argv) {
         ->capture_default_str();
     app.add_flag("--realtime", opt.realtime, "play at PAL pace (50 fields/s) instead of as fast as possible");
     app.add_flag("--loop", opt.loop, "start the recording again at its end (field counters keep counting)");
-    app.add_option("--fields", opt.max_fields, "stop after this many fields per camera");
+    app.add_option("--fields", opt.max_fields, "stop after this many fields per camera")
+        ->check(CLI::Range(1LL, std::numeric_limits<long long>::max()));
     app.add_flag("--free-run", opt.free_run, "run the cameras from start-up, whether or not a host listens");
     app.add_flag("--stream", opt.stream, "stream without waiting for a stream_start command");
     app.add_flag("--low-latency", opt.low_latency, "start in per-blob (low-latency) mode");
     app.add_flag("--allow-drops", opt.allow_drops,
                  "as-fast-as-possible mode: let the queue drop for a slow host instead of pausing the player");
-    app.add_option("--send-buffer", opt.send_buffer, "kernel send buffer of the host socket, bytes");
+    app.add_option("--send-buffer", opt.send_buffer, "kernel send buffer of the host socket, bytes")
+        ->check(CLI::Range(1, std::numeric_limits<int>::max()));
     app.add_option("--linger-ms", opt.linger_ms, "after the recording ends, wait this long for the host to finish")
+        ->check(CLI::Range(0, 3600000))
         ->capture_default_str();
     app.add_flag("--json", opt.json, "print one JSON summary on stdout at exit");
-    CLI11_PARSE(app, argc, argv);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::Success& e) {  // --help
+        return app.exit(e);
+    } catch (const CLI::ParseError& e) {  // usage error: one line, exit 2
+        std::fprintf(stderr, "eyesim-device: error: %s (see --help)\n", e.what());
+        return 2;
+    }
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
     std::signal(SIGPIPE, SIG_IGN);

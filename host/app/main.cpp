@@ -43,11 +43,7 @@ int main(int argc, char** argv) {
         for (auto& [sub, action] : actions)
             if (sub->parsed()) return action();
         return 2;
-    } catch (const CLI::CallForHelp& e) {
-        return app.exit(e);
-    } catch (const CLI::CallForAllHelp& e) {
-        return app.exit(e);
-    } catch (const CLI::CallForVersion& e) {
+    } catch (const CLI::Success& e) {  // --help, --version
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
         // Usage errors: one line, exit 2 (CLI11 would add a second line and its own exit codes).

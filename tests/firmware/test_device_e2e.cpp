@@ -258,6 +258,7 @@ TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero ex
     struct Case {
         std::vector<std::string> args;
         std::string expect;
+        int rc = 1;  // 1: bad input; 2: usage error
     };
     const std::vector<Case> cases = {
         {{"--recording", recording_dir(), "--address", "0.0.0.0", "--port", "0"}, "not loopback"},
@@ -265,6 +266,10 @@ TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero ex
         {{"--recording", std::string(EYESIM_TEST_TMP) + "/no_such_recording", "--port", "0"}, "no_such_recording"},
         {{"--scenario", "no_such_scenario", "--port", "0"}, "no_such_scenario"},
         {{"--port", "0"}, "exactly one of --recording DIR or --scenario NAME"},
+        {{"--recording", recording_dir(), "--port", "70000"}, "--port: Value 70000 not in range", 2},
+        {{"--recording", recording_dir(), "--fields", "0"}, "--fields: Value 0 not in range", 2},
+        {{"--recording", recording_dir(), "--linger-ms", "-1"}, "--linger-ms: Value -1 not in range", 2},
+        {{"--recording", recording_dir(), "--no-such-option"}, "--no-such-option", 2},
     };
     for (const auto& c : cases) {
         std::vector<std::string> argv{kDevice};
@@ -274,7 +279,7 @@ TEST_CASE("eyesim-device refuses bad input with one clear line and a non-zero ex
         const int rc = child.wait(10000);
         const std::string err = child.drain_stderr();
         INFO(err);
-        REQUIRE(rc == 1);
+        REQUIRE(rc == c.rc);
         REQUIRE(err.rfind("eyesim-device: error: ", 0) == 0);
         REQUIRE(err.find(c.expect) != std::string::npos);
         REQUIRE(std::count(err.begin(), err.end(), '\n') == 1);

@@ -12,7 +12,14 @@ int main(int argc, char** argv) {
     CLI::App app{"eyesim-usb-probe: find the eyesim tracking device on USB and open its bulk interface"};
     std::string uri = "usb";
     app.add_option("--device", uri, "usb (default ids 1209:0001) or usb://VID:PID in hex")->capture_default_str();
-    CLI11_PARSE(app, argc, argv);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::Success& e) {  // --help
+        return app.exit(e);
+    } catch (const CLI::ParseError& e) {  // usage error: one line, exit 2
+        std::fprintf(stderr, "eyesim-usb-probe: error: %s (see --help)\n", e.what());
+        return 2;
+    }
     try {
         using namespace eyesim::transport;
         const UsbIds ids = parse_usb_uri(uri);
