@@ -68,14 +68,15 @@ eyesim::app::Registrar reg{"bench", "Benchmarks: `bench latency` is the frame-bu
     lat->add_option("--baseline", o->baseline, "baseline JSON to compare with (e.g. bench/latency-baseline.json)");
     lat->add_option("--write-baseline", o->write_baseline, "write this run as a new baseline");
     lat->add_option("--tolerance", o->tolerance, "allowed growth of a scene's ratio (0.3 = 30 %)")
-        ->capture_default_str()->check(CLI::Range(0.0, 10.0));
+        ->capture_default_str()->check(eyesim::app::finite_in(0.0, 10.0));
     lat->add_option("--scene", o->bench.scenes, "scene files (default: the four shipped scenes)");
     lat->add_option("--seconds", o->bench.seconds, "simulated seconds per scene")->capture_default_str()
-        ->check(CLI::Range(0.2, 60.0));
+        ->check(eyesim::app::finite_in(0.2, 60.0));
     lat->add_option("--repeats", o->bench.repeats, "runs per scene (median kept)")->capture_default_str()
         ->check(CLI::Range(1, 50));
     lat->add_option("--inject-collision-us", o->bench.inject_collision_us,
-                    "fault injection: busy time added to every collision stage (to test the harness)");
+                    "fault injection: busy time added to every collision stage (to test the harness)")
+        ->check(eyesim::app::finite_in(0.0, 1e6));
     lat->add_flag("--json", o->json, "one JSON object on stdout");
     return [o]() -> int { return run_latency(*o); };
 }};

@@ -5,6 +5,7 @@
 #include "eyesim/app/run_scene.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/synth.hpp"
+#include "eyesim/sim/scenes/scene.hpp"
 
 #include <fmt/format.h>
 
@@ -101,6 +102,13 @@ int run_demo(const DemoOptions& opt) {
     const std::string report_dir = opt.out + "/report";
     const std::string scene = opt.scene.empty() ? std::string(EYESIM_SCENES_DIR) + "/membrane-peel.json" : opt.scene;
 
+    // 0. The scene first: a bad scene file fails before anything is synthesised or started.
+    try {
+        (void)eyesim::sim::scenes::load_scene(scene);
+    } catch (const eyesim::sim::scenes::SceneError& e) {
+        throw Error(e.what());
+    }
+
     // 1. A short synthetic surgery recording (three PAL cameras, noise on, with truth).
     eyesim::rig::SynthRequest sreq;
     sreq.out_dir = rec_dir;
@@ -143,7 +151,7 @@ eyesim::app::Registrar reg{
         sub.add_option("--out", opt->out, "folder for the recording and the report")->capture_default_str();
         sub.add_option("--scene", opt->scene, "scene file (default: scenes/membrane-peel.json)");
         sub.add_option("--seconds", opt->seconds, "length of the synthetic recording")->capture_default_str()
-            ->check(CLI::Range(0.5, 60.0));
+            ->check(eyesim::app::finite_in(0.5, 60.0));
         sub.add_option("--seed", opt->seed, "scenario and noise seed")->capture_default_str();
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");
         sub.add_flag("--json", opt->json, "one JSON object on stdout");

@@ -18,10 +18,13 @@ eyesim::app::Registrar reg{
         src->require_option(1);
         sub.add_option("--rig", req->rig_path, "rig.yaml for --connect/--capture (default: the synthetic rig)");
         sub.add_option("--truth", req->truth_path, "truth.jsonl to score tracking against");
-        sub.add_option("--seconds", req->seconds, "run length for --connect/--scenario; fields for --recording / 50");
+        sub.add_option("--seconds", req->seconds, "run length for --connect/--scenario; fields for --recording / 50")
+            ->check(eyesim::app::finite_in(0.02, 3600.0));
         sub.add_option("--seed", req->seed, "scenario seed");
         sub.add_option("--report", req->report_dir, "write a report folder (index.html, stereo snapshots, plots)");
-        sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")->capture_default_str();
+        sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")
+            ->check(CLI::Range(0, 100))
+            ->capture_default_str();
         sub.add_flag("--json", req->json, "one JSON object on stdout");
         return [req]() -> int { return eyesim::app::run_scene(*req); };
     }};

@@ -304,8 +304,10 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
     sub.add_option("--instruments", opt->instruments, "instrument kinds to fit, comma separated (default: all)");
     sub.add_option("--sync", opt->sync, "camera time alignment: interpolate | extrapolate | nearest")
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest"}));
-    sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)");
-    sub.add_option("--max-frames", opt->max_frames, "stop after this many tracking frames (0: no limit)");
+    sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)")
+        ->check(eyesim::app::finite_in(0.0, 1e6));
+    sub.add_option("--max-frames", opt->max_frames, "stop after this many tracking frames (0: no limit)")
+        ->check(eyesim::app::finite_in(0.0, 1e9));
     return [opt]() -> int { return run_track(*opt); };
 }};
 

@@ -732,14 +732,17 @@ eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets
     sub.add_option("--recording", opt->dir, "recording directory with rig.yaml, cam*.uyvy and truth.jsonl")->required();
     sub.add_option("--report", opt->report, "write report.md and PNG plots into this directory");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
-    sub.add_option("--max-fields", opt->max_fields, "use at most this many fields (0: all)");
+    sub.add_option("--max-fields", opt->max_fields, "use at most this many fields (0: all)")
+        ->check(eyesim::app::finite_in(0.0, 1e9));
     sub.add_option("--sync", opt->sync, "camera time alignment: interpolate | extrapolate | nearest")
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest"}));
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
-    sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run");
+    sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run")
+        ->check(eyesim::app::finite_in(0.0, 10.0));
     sub.add_flag("--truth-projected", opt->truth_projected,
                  "comparison run from projected marker centres instead of rendered centroids");
-    sub.add_option("--sigma-px", opt->sigma_px, "centroid noise assumed for the covariance (frame px)");
+    sub.add_option("--sigma-px", opt->sigma_px, "centroid noise assumed for the covariance (frame px)")
+        ->check(eyesim::app::finite_in(1e-4, 10.0));
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise");
     sub.add_option("--write-capture", opt->write_capture,

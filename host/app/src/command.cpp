@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 
 namespace eyesim::app {
@@ -13,6 +14,18 @@ std::vector<CommandSpec>& registry() {
 
 Registrar::Registrar(std::string name, std::string help, Setup setup) {
     registry().push_back({std::move(name), std::move(help), std::move(setup)});
+}
+
+CLI::Validator finite_in(double lo, double hi) {
+    return CLI::Validator(
+        [lo, hi](std::string& text) -> std::string {
+            double v = 0;
+            if (!CLI::detail::lexical_cast(text, v) || !std::isfinite(v) || v < lo || v > hi)
+                return "Value " + text + " not a finite number in [" + CLI::detail::to_string(lo) + ", " +
+                       CLI::detail::to_string(hi) + "]";
+            return {};
+        },
+        "FINITE in [" + CLI::detail::to_string(lo) + " - " + CLI::detail::to_string(hi) + "]");
 }
 
 bool show_progress(bool json) { return !json && ::isatty(STDERR_FILENO) == 1; }

@@ -155,6 +155,18 @@ TEST_CASE("usage errors, garbage captures and empty truth are one line and a non
     run(exe + " synth --scenario static --seconds 0.06 --out " + dir + "/rec 2>&1", rc);
     REQUIRE(rc == 0);
     one_line_error("fpga --recording " + dir + "/rec --fields 0", 2, "--fields: Value 0 not in range");
+    one_line_error("validate --recording " + dir + "/rec --truth-noise-px nan", 2,
+                   "--truth-noise-px: Value nan not a finite number");  // CLI::Range alone lets NaN through
+    one_line_error("validate --recording " + dir + "/rec --max-fields -3", 2, "--max-fields: Value -3 not a finite");
+    one_line_error("sim --scene " + std::string(EYESIM_SOURCE_DIR) + "/scenes/membrane-peel.json --recording " + dir +
+                       "/rec --seconds -1",
+                   2, "--seconds: Value -1 not a finite number");
+    // demo checks its scene before it synthesises anything or starts the device (whose exit line would follow).
+    {
+        std::ofstream(dir + "/bad_scene.json") << "{\"duration_s\": ";
+    }
+    one_line_error("demo --out " + dir + "/demo --scene " + dir + "/bad_scene.json", 1, dir + "/bad_scene.json: not valid JSON");
+    CHECK_FALSE(std::filesystem::exists(dir + "/demo/recording"));
     // A file of random bytes is a raw stream without a single frame: an error, not an empty result.
     {
         std::ofstream f(dir + "/garbage.bin", std::ios::binary);

@@ -44,6 +44,9 @@ private:
     int exit_code_;
 };
 
+/// CLI validator: a finite number in [lo, hi]. (CLI::Range lets "nan" through: every comparison with NaN is false.)
+CLI::Validator finite_in(double lo, double hi);
+
 /// True when progress lines should go to stderr: stderr is a terminal and `--json` was not given.
 bool show_progress(bool json);
 
