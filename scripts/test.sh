@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs what is missing, builds (release preset) and runs the tests: every `unit` test, then the bounded
-# `fuzz` run of the protocol stream parser (clang + libFuzzer).
+# `fuzz` runs (protocol stream parser, capture reader, device commands; clang + libFuzzer).
 #   --stress   also run the `stress` label (long numerical stress runs)
 #   --asan     build and run the unit tests under AddressSanitizer + UBSan instead of release
 #   --no-fuzz  skip the fuzz run
