@@ -8,6 +8,7 @@
 // reading goes on at the next offset that holds a good record). Any disagreement aborts.
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/crc32c.hpp"
+#include "fuzz_require.hpp"
 
 #include <unistd.h>
 
@@ -23,14 +24,6 @@
 namespace {
 
 using namespace eyesim::protocol;
-
-#define require(...)                                                                       \
-    do {                                                                                   \
-        if (!(__VA_ARGS__)) {                                                              \
-            std::fprintf(stderr, "fuzz check failed at line %d: %s\n", __LINE__, #__VA_ARGS__); \
-            std::abort();                                                                  \
-        }                                                                                  \
-    } while (0)
 
 std::uint16_t u16(const std::vector<std::uint8_t>& b, std::size_t at) {
     return static_cast<std::uint16_t>(b[at] | b[at + 1] << 8);

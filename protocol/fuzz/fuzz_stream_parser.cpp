@@ -8,6 +8,7 @@
 #include "eyesim/protocol/json.hpp"
 #include "eyesim/protocol/schema.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
+#include "fuzz_require.hpp"
 #include "reference_scan.hpp"
 
 #include <cstddef>
@@ -23,15 +24,6 @@ using namespace eyesim::protocol;
 
 using test::brute_force;
 using test::Got;
-
-// Aborts with the failed condition and its line, so libFuzzer keeps the input and the report says why.
-#define require(...)                                                                         \
-    do {                                                                                    \
-        if (!(__VA_ARGS__)) {                                                                    \
-            std::fprintf(stderr, "fuzz check failed at line %d: %s\n", __LINE__, #__VA_ARGS__);   \
-            std::abort();                                                                   \
-        }                                                                                   \
-    } while (0)
 
 void check_frame(const DecodedFrame& f) {
     require(valid_message(f.message));
