@@ -42,6 +42,8 @@ namespace {
 
 using nlohmann::json;
 
+constexpr double kMaxLengthMm = 10000.0;
+
 struct Reader {
     std::string path;
     [[noreturn]] void fail(const std::string& ptr, const std::string& why) const {
@@ -56,6 +58,8 @@ struct Reader {
         if (!v.is_number()) fail(ptr + "/" + key, "not a number");
         const double d = v.get<double>();
         if (!std::isfinite(d)) fail(ptr + "/" + key, "not finite");
+        // Lengths are mm on a bench rig; beyond 10 m a value is a typo, and squares of it would overflow.
+        if (std::abs(d) > kMaxLengthMm) fail(ptr + "/" + key, fmt::format("out of range, |{}| > {} mm", d, kMaxLengthMm));
         return d;
     }
     double positive(const json& j, const std::string& ptr, const char* key) const {
@@ -76,6 +80,8 @@ struct Reader {
             if (!v[i].is_number()) fail(fmt::format("{}/{}/{}", ptr, key, i), "not a number");
             r[i] = v[i].get<double>();
             if (!std::isfinite(r[i])) fail(fmt::format("{}/{}/{}", ptr, key, i), "not finite");
+            if (std::abs(r[i]) > kMaxLengthMm)
+                fail(fmt::format("{}/{}/{}", ptr, key, i), fmt::format("out of range, |{}| > {} mm", r[i], kMaxLengthMm));
         }
         return r;
     }
@@ -112,6 +118,8 @@ Bodies load_bodies(const std::string& path) {
         m.radius_mm = rd.positive(em[i], p, "radius_mm");
         b.eye.markers.push_back(m);
     }
+    // The eye's pose needs three markers; fewer and it would never be measured.
+    if (b.eye.markers.size() < 3) rd.fail("/eye/markers", fmt::format("needs at least 3 markers, has {}", b.eye.markers.size()));
     const json& tr = rd.array(eye, "/eye", "trocars");
     for (size_t i = 0; i < tr.size(); ++i) {
         Trocar t;
@@ -149,6 +157,9 @@ Bodies load_bodies(const std::string& path) {
             m.radius_mm = rd.positive(mk[j], pm, "radius_mm");
             ib.markers.push_back(m);
         }
+        // Acquiring an instrument takes all its markers and at least two define its axis.
+        if (ib.markers.size() < 2)
+            rd.fail(p + "/markers", fmt::format("needs at least 2 markers, has {}", ib.markers.size()));
         b.instruments.push_back(ib);
     }
     return b;

@@ -83,6 +83,18 @@ TEST_CASE("malformed bodies.json gives one-line errors naming the JSON pointer",
     j = good;
     j["eye"]["markers"][0]["position_eye_mm"] = {1.0, 2.0};
     expect(j, "/eye/markers/0/position_eye_mm: must be an array of 3 numbers");
+    j = good;
+    j["eye"]["radius_mm"] = 1e308;  // finite, but its square overflows
+    expect(j, "/eye/radius_mm: out of range");
+    j = good;
+    j["eye"]["markers"][3]["position_eye_mm"][1] = -2e4;
+    expect(j, "/eye/markers/3/position_eye_mm/1: out of range");
+    j = good;
+    j["eye"]["markers"] = nlohmann::json::array({j["eye"]["markers"][0], j["eye"]["markers"][1]});
+    expect(j, "/eye/markers: needs at least 3 markers, has 2");
+    j = good;
+    j["instruments"][2]["markers"] = nlohmann::json::array({j["instruments"][2]["markers"][0]});
+    expect(j, "/instruments/2/markers: needs at least 2 markers, has 1");
     std::ofstream(p) << "{ not json";
     CHECK_THROWS_WITH(load_bodies(p.string()), Catch::Contains("malformed JSON"));
     fs::remove(p);
