@@ -20,6 +20,9 @@ eyesim::app::Registrar reg{
         sub.add_option("--truth", req->truth_path, "truth.jsonl to score tracking against");
         sub.add_option("--seconds", req->seconds, "run length for --connect/--scenario; fields for --recording / 50")
             ->check(eyesim::app::finite_in(0.02, 3600.0));
+        sub.add_option("--stall-s", req->stall_seconds, "--connect: end the run when the device sends nothing for this long")
+            ->check(eyesim::app::finite_in(0.1, 3600.0))
+            ->capture_default_str();
         sub.add_option("--seed", req->seed, "scenario seed");
         sub.add_option("--report", req->report_dir, "write a report folder (index.html, stereo snapshots, plots)");
         sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")

@@ -1,5 +1,6 @@
 // `eyesim track`: FieldMarkers from a device (TCP or USB) or a capture file → tracking frames → poses.jsonl.
 #include "eyesim/app/command.hpp"
+#include "eyesim/app/session.hpp"
 
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
@@ -44,6 +45,7 @@ struct TrackOptions {
     std::string instruments;
     std::string sync = "interpolate";
     double seconds = 0.0;
+    double stall_s = eyesim::app::kDefaultStallSeconds;
     long max_frames = 0;
 };
 
@@ -208,6 +210,7 @@ int run_track(const TrackOptions& opt) {
     const double t0 = host_now_us();
     std::string source;
     bool torn = false;
+    std::string stall;  // why a live run ended early
 
     if (!opt.capture.empty()) {
         source = opt.capture;
@@ -250,16 +253,25 @@ int run_track(const TrackOptions& opt) {
             throw Error(source + ": cannot send StreamStart: " + link->last_error());
         std::array<std::uint8_t, 8192> buf{};
         double next_ping = 0;
+        double last_rx = host_now_us();
         for (;;) {
             const double now = host_now_us();
             if (opt.seconds > 0 && now - t0 > opt.seconds * 1e6) break;
+            if (now - last_rx > opt.stall_s * 1e6) {  // a live device answers the pings even between fields
+                stall = fmt::format("no bytes for {:.1f} s: device stalled", opt.stall_s);
+                std::fprintf(stderr, "eyesim: warning: %s: %s, run ended\n", source.c_str(), stall.c_str());
+                break;
+            }
             if (session->done(opt.max_frames)) break;
             if (now >= next_ping) {  // ping/pong for the clock offset, 5 per second
                 send_command(*link, proto::Opcode::Ping, id++, std::uint64_t(now));
                 next_ping = now + 200000.0;
             }
             const auto r = link->read(buf, 50);
-            if (r.bytes) session->bytes(std::span<const std::uint8_t>(buf.data(), r.bytes), host_now_us());
+            if (r.bytes) {
+                last_rx = host_now_us();
+                session->bytes(std::span<const std::uint8_t>(buf.data(), r.bytes), last_rx);
+            }
             if (r.status == eyesim::transport::IoStatus::closed) break;
             if (r.status == eyesim::transport::IoStatus::error)
                 throw Error(source + ": " + link->last_error());
@@ -274,8 +286,9 @@ int run_track(const TrackOptions& opt) {
     const double wall_s = (host_now_us() - t0) * 1e-6;
     nlohmann::json j = session->summary();
     if (j["parser"]["frames"].get<std::uint64_t>() == 0)  // garbage or silence is not a result
-        throw Error(fmt::format("{}: no protocol frames received ({} bytes skipped)", source,
-                                j["parser"]["skipped_bytes"].get<std::uint64_t>()));
+        throw Error(fmt::format("{}: no protocol frames received ({} bytes skipped{})", source,
+                                j["parser"]["skipped_bytes"].get<std::uint64_t>(), stall.empty() ? "" : "; " + stall));
+    if (!stall.empty()) j["stalled"] = stall;
     j["source"] = source;
     if (!opt.capture.empty()) j["capture_torn"] = torn;
     j["fields_per_s"] = double(session->fields()) / std::max(wall_s, 1e-9);
@@ -306,6 +319,9 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest"}));
     sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)")
         ->check(eyesim::app::finite_in(0.0, 1e6));
+    sub.add_option("--stall-s", opt->stall_s, "live: end the run when the device sends nothing for this long")
+        ->check(eyesim::app::finite_in(0.1, 3600.0))
+        ->capture_default_str();
     sub.add_option("--max-frames", opt->max_frames, "stop after this many tracking frames (0: no limit)")
         ->check(eyesim::app::finite_in(0.0, 1e9));
     return [opt]() -> int { return run_track(*opt); };

@@ -172,7 +172,9 @@ int run_scene(const SceneRunRequest& req) {
             if (!warning.empty()) report.warnings.push_back(warning);
         } else {
             report.source = "device " + req.source.connect;
-            run_live(req.source.connect, run, req.seconds);
+            std::string warning;
+            run_live(req.source.connect, run, req.seconds, warning, req.stall_seconds);
+            if (!warning.empty()) report.warnings.push_back(warning);
         }
         report.accuracy = acc.summary();
         if (run.stats().frames == 0) throw Error(report.source + ": no tracking frames (no markers received)");

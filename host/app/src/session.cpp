@@ -172,7 +172,7 @@ bool send_command(transport::Transport& t, const proto::Command& cmd, uint16_t& 
 }
 }  // namespace
 
-double run_live(const std::string& uri, HostRun& run, double max_seconds) {
+double run_live(const std::string& uri, HostRun& run, double max_seconds, std::string& warning, double stall_seconds) {
     std::unique_ptr<transport::Transport> link;
     try {
         link = transport::open_transport(uri, 3000);
@@ -209,9 +209,14 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds) {
     if (!send_command(*link, start, seq)) throw Error(uri + ": cannot send stream_start: " + link->last_error());
     const double t0 = host_now_us();
     double last_ping = 0.0;
+    double last_rx = t0;
     while (true) {
         const double now0 = host_now_us();
         if (max_seconds > 0 && now0 - t0 > max_seconds * 1e6) break;
+        if (now0 - last_rx > stall_seconds * 1e6) {  // a live device answers pings even between fields
+            warning = fmt::format("{}: no bytes for {:.1f} s: device stalled, run ended", uri, stall_seconds);
+            break;
+        }
         if (now0 - last_ping > (now0 - t0 < 500000.0 ? 50000.0 : 500000.0)) {
             ping();
             last_ping = now0;
@@ -219,6 +224,7 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds) {
         const auto r = link->read(buf, 100);
         if (r.bytes) {
             const double now = host_now_us();
+            last_rx = now;
             parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), [&](const proto::DecodedFrame& df) { handle(df, now); });
         }
         if (r.status == transport::IoStatus::closed) break;

@@ -4,13 +4,21 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
+#include <thread>
+#include <vector>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 namespace {
 std::string run(const std::string& cmd, int& rc) {
@@ -178,5 +186,114 @@ TEST_CASE("usage errors, garbage captures and empty truth are one line and a non
     // A truth file that is present but empty is not silently ignored.
     std::ofstream(dir + "/rec/truth.jsonl", std::ios::trunc).close();
     one_line_error("fpga --recording " + dir + "/rec --json", 1, dir + "/rec/truth.jsonl: no lines");
+    std::filesystem::remove_all(dir);
+}
+
+namespace {
+// A device that accepts one host, sends `bytes`, then keeps the link open and silent until the host hangs up.
+class StalledDevice {
+public:
+    explicit StalledDevice(std::vector<char> bytes) : bytes_(std::move(bytes)) {
+        fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+        sockaddr_in a{};
+        a.sin_family = AF_INET;
+        a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        a.sin_port = 0;
+        REQUIRE(::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+        REQUIRE(::listen(fd_, 1) == 0);
+        socklen_t n = sizeof a;
+        ::getsockname(fd_, reinterpret_cast<sockaddr*>(&a), &n);
+        port_ = ntohs(a.sin_port);
+        thread_ = std::thread([this] {
+            const int c = ::accept(fd_, nullptr, nullptr);
+            if (c < 0) return;
+            for (size_t off = 0; off < bytes_.size();) {
+                const ssize_t w = ::send(c, bytes_.data() + off, bytes_.size() - off, MSG_NOSIGNAL);
+                if (w <= 0) break;
+                off += size_t(w);
+            }
+            char sink[4096];
+            while (::recv(c, sink, sizeof sink, 0) > 0) {  // swallow the host's commands, answer none
+            }
+            ::close(c);
+        });
+    }
+    ~StalledDevice() {
+        ::shutdown(fd_, SHUT_RDWR);
+        ::close(fd_);
+        if (thread_.joinable()) thread_.join();
+    }
+    std::string uri() const { return "tcp://127.0.0.1:" + std::to_string(port_); }
+
+private:
+    std::vector<char> bytes_;
+    int fd_ = -1;
+    int port_ = 0;
+    std::thread thread_;
+};
+
+// The received bytes of every record of a capture file (docs/protocol.md, section 6).
+std::vector<char> capture_stream(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::vector<char> file((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::vector<char> out;
+    for (size_t p = 16; p + 12 <= file.size();) {
+        const size_t len = size_t(uint8_t(file[p])) | size_t(uint8_t(file[p + 1])) << 8;
+        out.insert(out.end(), file.begin() + std::ptrdiff_t(p + 12), file.begin() + std::ptrdiff_t(p + 12 + len));
+        p += 12 + len + 4;
+    }
+    return out;
+}
+}  // namespace
+
+TEST_CASE("a device that stops sending ends a live run with a warning, not a hang", "[host][e2e]") {
+    const std::string exe = EYESIM_EXE;
+    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_test_stall").string();
+    std::filesystem::remove_all(dir);
+    int rc = -1;
+    run(exe + " synth --scenario surgery --seconds 0.3 --out " + dir + "/rec 2>&1", rc);
+    REQUIRE(rc == 0);
+    run(exe + " fpga --recording " + dir + "/rec --out " + dir + "/cap.bin 2>&1", rc);
+    REQUIRE(rc == 0);
+    const std::vector<char> stream = capture_stream(dir + "/cap.bin");
+    REQUIRE(stream.size() > 1000);
+
+    {  // frames, then silence: the frames are used, the run ends after --stall-s with a warning
+        StalledDevice dev(stream);
+        const auto t0 = std::chrono::steady_clock::now();
+        const std::string out = run(exe + " track --connect " + dev.uri() + " --rig " + dir +
+                                        "/rec/rig.yaml --stall-s 1 --json 2>" + dir + "/err.txt",
+                                    rc);
+        const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        REQUIRE(WEXITSTATUS(rc) == 0);
+        const auto j = nlohmann::json::parse(out);
+        CHECK(j["frames"].get<int>() >= 10);
+        CHECK(j["stalled"].get<std::string>().find("device stalled") != std::string::npos);
+        CHECK(wall_s < 10.0);
+        std::ifstream err(dir + "/err.txt");
+        const std::string e((std::istreambuf_iterator<char>(err)), std::istreambuf_iterator<char>());
+        CHECK(e.find("eyesim: warning: " + dev.uri() + ": no bytes for 1.0 s: device stalled") != std::string::npos);
+    }
+    {  // silence from the start: an error naming the stall
+        StalledDevice dev({});
+        const std::string err = run(exe + " track --connect " + dev.uri() + " --rig " + dir +
+                                        "/rec/rig.yaml --stall-s 0.5 2>&1 >/dev/null",
+                                    rc);
+        CHECK(WEXITSTATUS(rc) == 1);
+        CHECK(err.find("eyesim: error: " + dev.uri() + ": no protocol frames received (0 bytes skipped; no bytes for 0.5 s: device stalled)") !=
+              std::string::npos);
+    }
+    {  // the simulator's live path: the scene runs on what arrived, the report carries the warning
+        StalledDevice dev(stream);
+        const std::string out = run(exe + " sim --scene " + std::string(EYESIM_SOURCE_DIR) +
+                                        "/scenes/membrane-peel.json --connect " + dev.uri() + " --rig " + dir +
+                                        "/rec/rig.yaml --stall-s 1 --json 2>/dev/null",
+                                    rc);
+        REQUIRE(WEXITSTATUS(rc) == 0);
+        const auto j = nlohmann::json::parse(out);
+        CHECK(j["frames"].get<int>() >= 10);
+        REQUIRE(j["warnings"].size() >= 1);
+        CHECK(j["warnings"].back().get<std::string>().find("device stalled, run ended") != std::string::npos);
+    }
     std::filesystem::remove_all(dir);
 }

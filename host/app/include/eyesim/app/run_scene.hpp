@@ -4,6 +4,7 @@
 /// score against truth when there is one, take stereo snapshots, print and write the report.
 
 #include "eyesim/app/report.hpp"
+#include "eyesim/app/session.hpp"
 
 #include <string>
 #include <vector>
@@ -25,6 +26,7 @@ struct SceneRunRequest {
     std::string rig_path;              ///< rig.yaml (live/capture; default: the recording's, else the default rig)
     std::string truth_path;            ///< truth.jsonl to score against (default: the recording's)
     double seconds = 0;                ///< live / scenario: run length (0: scene duration, or until the link closes)
+    double stall_seconds = kDefaultStallSeconds;  ///< live: no byte for this long ends the run with a warning
     double expected_s = 0;             ///< length the snapshots are spread over (0: `seconds`, else the scene's)
     uint64_t seed = 1;                 ///< scenario seed
     std::string report_dir;            ///< write a report folder here ("" = none)

@@ -85,13 +85,19 @@ private:
 /// device would) into `run`; receive times follow the modelled device timing. `max_fields` ≤ 0: all.
 void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields = 0);
 
-/// Replays a capture file (or raw stream) into `run`. Throws Error on an unreadable file; a torn last record
-/// is reported through `warning` and everything before it is used.
+/// Replays a capture file (or raw stream) into `run`. Throws Error on an unreadable file; a torn tail or a
+/// damaged stretch is reported through `warning` and every good record is used.
 void run_capture(const std::string& path, HostRun& run, std::string& warning);
 
+/// A device that keeps its link open but sends nothing (not even the replies to the pings sent every 0.5 s)
+/// for this long is taken as stalled.
+inline constexpr double kDefaultStallSeconds = 5.0;
+
 /// Connects to a device (`tcp://HOST:PORT`, `usb`, `usb://VID:PID`), estimates the clock offset by ping/pong,
-/// starts the stream and feeds `run` until the device closes the link or `max_seconds` pass. Throws Error on a
-/// connection failure. Returns the clock offset used (device − host, µs).
-double run_live(const std::string& uri, HostRun& run, double max_seconds);
+/// starts the stream and feeds `run` until the device closes the link, `max_seconds` pass, or no byte arrives for
+/// `stall_seconds` (then `warning` says so and what came before is used). Throws Error on a connection failure.
+/// Returns the clock offset used (device − host, µs).
+double run_live(const std::string& uri, HostRun& run, double max_seconds, std::string& warning,
+                double stall_seconds = kDefaultStallSeconds);
 
 }  // namespace eyesim::app
