@@ -32,6 +32,19 @@ std::uint64_t file_size(std::FILE* f) noexcept {
     return s < 0 ? 0 : static_cast<std::uint64_t>(s);
 }
 
+// Payload length of the record whose 12-byte header is `h` when the header is plausible (length 1..16384,
+// reserved 0, the whole record within the `room` bytes left in the file), else 0. The CRC is checked separately.
+std::size_t plausible_length(const std::uint8_t* h, std::uint64_t room) noexcept {
+    const std::size_t len = get_u16(h);
+    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(h + 2) != 0) return 0;
+    return kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes <= room ? len : 0;
+}
+
+// The CRC of a whole record (header and payload, then the CRC) read into `r`.
+bool crc_matches(const std::uint8_t* r, std::size_t len) noexcept {
+    return get_u32(r + kCaptureRecordHeaderBytes + len) == crc32c({r, kCaptureRecordHeaderBytes + len});
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -108,33 +121,27 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
         done_ = true;
         return CaptureStatus::IoError;
     }
-    const std::size_t len = get_u16(buf_.data());
-    const std::size_t total = kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes;
-    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(buf_.data() + 2) != 0 || total > left) return damaged();
+    const std::size_t len = plausible_length(buf_.data(), left);
+    if (len == 0) return damaged();
     const std::size_t rest = len + kCaptureRecordCrcBytes;
     if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) {
         done_ = true;
         return CaptureStatus::IoError;
     }
-    const std::uint32_t crc = get_u32(buf_.data() + kCaptureRecordHeaderBytes + len);
-    if (crc != crc32c({buf_.data(), kCaptureRecordHeaderBytes + len})) return damaged();
+    if (!crc_matches(buf_.data(), len)) return damaged();
     rec = CaptureRecord{get_u64(buf_.data() + 4), true, offset_, {buf_.data() + kCaptureRecordHeaderBytes, len}};
-    offset_ += total;
+    offset_ += kCaptureRecordHeaderBytes + rest;
     return CaptureStatus::Ok;
 }
 
 std::size_t CaptureReader::read_record_at(std::uint64_t at) noexcept {
-    if (at > size_ || size_ - at < kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes) return 0;
-    if (std::fseek(f_, static_cast<long>(at), SEEK_SET) != 0) return 0;
+    if (at > size_ || std::fseek(f_, static_cast<long>(at), SEEK_SET) != 0) return 0;
     if (std::fread(buf_.data(), 1, kCaptureRecordHeaderBytes, f_) != kCaptureRecordHeaderBytes) return 0;
-    const std::size_t len = get_u16(buf_.data());
-    const std::size_t total = kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes;
-    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(buf_.data() + 2) != 0 || total > size_ - at) return 0;
-    if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, len + kCaptureRecordCrcBytes, f_) !=
-        len + kCaptureRecordCrcBytes)
-        return 0;
-    const std::uint32_t crc = get_u32(buf_.data() + kCaptureRecordHeaderBytes + len);
-    return crc == crc32c({buf_.data(), kCaptureRecordHeaderBytes + len}) ? len : 0;
+    const std::size_t len = plausible_length(buf_.data(), size_ - at);
+    if (len == 0) return 0;
+    const std::size_t rest = len + kCaptureRecordCrcBytes;
+    if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) return 0;
+    return crc_matches(buf_.data(), len) ? len : 0;
 }
 
 std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
@@ -149,14 +156,8 @@ std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
         if (std::fseek(f_, static_cast<long>(p), SEEK_SET) != 0 || std::fread(scan_.data(), 1, n, f_) != n)
             return size_;
         const std::size_t candidates = n - kCaptureRecordHeaderBytes + 1;  // headers wholly in the window
-        for (std::size_t i = 0; i < candidates && p + i <= last; ++i) {
-            const std::uint8_t* h = scan_.data() + i;
-            const std::size_t len = get_u16(h);
-            if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(h + 2) != 0 ||
-                kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes > size_ - (p + i))
-                continue;
-            if (read_record_at(p + i) != 0) return p + i;
-        }
+        for (std::size_t i = 0; i < candidates && p + i <= last; ++i)
+            if (plausible_length(scan_.data() + i, size_ - (p + i)) != 0 && read_record_at(p + i) != 0) return p + i;
         p += candidates;
     }
     return size_;
