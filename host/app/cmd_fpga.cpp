@@ -1,9 +1,11 @@
 // `eyesim fpga`: run the FPGA pipeline model over a recording; write protocol FieldMarkers packets and/or CSV.
 #include "eyesim/app/command.hpp"
 #include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/fpga/wire.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
+#include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
@@ -37,6 +39,7 @@ struct FpgaOptions {
     int64_t max_fields = -1;
     std::vector<std::string> regs;
     bool json = false;
+    bool refine = false;
 };
 
 // Applies "ADDR=VALUE" register writes (C integer syntax: 0x14=3) through the map's validation.
@@ -104,6 +107,7 @@ struct CameraStats {
     int64_t fields = 0;
     int64_t blobs = 0;
     int64_t overflows = 0;
+    int64_t refined = 0;
     double se = 0;
     int64_t matched = 0, missed = 0, extra = 0;
     std::vector<double> latency_us;        // blob: emission after its last pixel
@@ -178,7 +182,15 @@ int run(const FpgaOptions& opt) {
     };
     std::vector<Record> records;
     uint16_t sequence = 0;
-    double model_s = 0;
+    double model_s = 0, refine_s = 0;
+    // Refinement stage: a sphere fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
+    fpga::SphereFitConfig fit_cfg;
+    for (int c = 1; c <= 4; ++c) {
+        const auto rgb = rig::marker_class_rgb(c);
+        fit_cfg.colour[static_cast<size_t>(c)] = fpga::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+    }
+    std::unique_ptr<fpga::SphereFitWorkspace> fit_work;
+    if (opt.refine) fit_work = std::make_unique<fpga::SphereFitWorkspace>();
     const bool progress = eyesim::app::show_progress(opt.json);
 
     for (int64_t i = 0; i < n_fields; ++i) {
@@ -204,6 +216,17 @@ int run(const FpgaOptions& opt) {
                                                      i, static_cast<int>(s)));
             const fpga::FieldStats& fs = p.field_stats();
             CameraStats& st = stats[k];
+            if (opt.refine) {
+                const auto r0 = std::chrono::steady_clock::now();
+                for (fpga::Blob& b : blobs) {
+                    const fpga::SphereFitResult r = fpga::fit_sphere(field.data(), rig::kFieldHeight, b, fit_cfg, *fit_work);
+                    if (!r.ok || r.cx_px < 0 || r.cy_px < 0) continue;
+                    b.cx_q16 = static_cast<uint32_t>(std::llround(r.cx_px * 65536.0));
+                    b.cy_q16 = static_cast<uint32_t>(std::llround(r.cy_px * 65536.0));
+                    ++st.refined;
+                }
+                refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
+            }
             ++st.fields;
             st.blobs += static_cast<int64_t>(blobs.size());
             st.overflows += fs.table_overflows;
@@ -246,19 +269,21 @@ int run(const FpgaOptions& opt) {
         if (!csv) throw eyesim::app::Error(fmt::format("{}: write failed", opt.csv));
     }
 
-    int64_t total_fields = 0, total_blobs = 0, matched = 0;
+    int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0;
     double se = 0;
     std::vector<double> all_latency;
     nlohmann::json per_cam = nlohmann::json::array();
     for (const CameraStats& st : stats) {
         total_fields += st.fields;
         total_blobs += st.blobs;
+        refined += st.refined;
         matched += st.matched;
         se += st.se;
         all_latency.insert(all_latency.end(), st.latency_us.begin(), st.latency_us.end());
         nlohmann::json j{{"camera", st.camera}, {"fields", st.fields}, {"blobs", st.blobs},
                          {"blob_table_overflows", st.overflows}, {"latency_us", latency_json(st.latency_us)},
                          {"field_last_blob_latency_us", latency_json(st.field_latency_us)}};
+        if (opt.refine) j["refined"] = st.refined;
         if (!truth.empty()) {
             j["centroid_rms_px"] = st.matched ? std::sqrt(st.se / st.matched) : 0.0;
             j["matched"] = st.matched;
@@ -273,12 +298,20 @@ int run(const FpgaOptions& opt) {
                          {"blobs", total_blobs}, {"latency_us", latency_json(all_latency)}, {"cameras", per_cam},
                          {"truth", !truth.empty()}, {"errors", 0}};
         if (!truth.empty()) j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
+        if (opt.refine) {
+            j["refined"] = refined;
+            j["refine_fields_per_s"] = refine_s > 0 ? total_fields / refine_s : 0.0;
+        }
         if (!opt.out.empty()) j["out"] = opt.out;
         if (!opt.csv.empty()) j["csv"] = opt.csv;
         std::printf("%s\n", j.dump().c_str());
     } else {
         std::printf("%s: %lld fields, %lld blobs, %.0f fields/s (model)\n", opt.recording.c_str(),
                     static_cast<long long>(total_fields), static_cast<long long>(total_blobs), fps);
+        if (opt.refine)
+            std::printf("  refinement: %lld of %lld blobs refined by the sphere fit, %.0f fields/s\n",
+                        static_cast<long long>(refined), static_cast<long long>(total_blobs),
+                        refine_s > 0 ? total_fields / refine_s : 0.0);
         for (const CameraStats& st : stats)
             if (!truth.empty())
                 std::printf("  cam%d: centroid RMS %.4f px over %lld markers, %lld missed, %lld extra\n", st.camera,
@@ -298,6 +331,9 @@ eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording
         ->check(CLI::Range(int64_t{1}, std::numeric_limits<int64_t>::max()));
     sub.add_option("--reg", opt->regs, "register write ADDRESS=VALUE before the first field (repeatable)");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
+    sub.add_flag("--refine", opt->refine,
+                 "refine each blob's centroid by a shaded-sphere fit on its patch (refinement stage; kept where the fit "
+                 "is refused)");
     return [opt]() -> int {
         try {
             return run(*opt);

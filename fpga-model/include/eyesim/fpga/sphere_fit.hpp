@@ -1,0 +1,73 @@
+// Refinement stage after the streaming pipeline: a least-squares fit of a shaded-sphere marker model to the
+// Y, Cb and Cr samples of a small patch around one blob (docs/fpga-pipeline.md §"Refinement stage").
+//
+// Why: the pipeline's centroid weights come from chroma alone, which 4:2:2 samples once per pixel pair and
+// spreads two columns past the marker; at σ = 1 DN even the best estimator from chroma alone is ≈ 0.017 px off for
+// a 9-px marker (Cramér–Rao bound, docs/bench/fpga-model.md). The luma edge of a shaded sphere (a dark rim against
+// the eye white, at full horizontal resolution) carries most of the position information, but only a model can
+// use it: the luma contrast changes sign with the shading, so no per-pixel weight does.
+//
+// The patch is what the device's line buffers still hold when the blob is emitted plus two more lines; the fit
+// runs on fixed-size storage (no heap, no exceptions) so that it can run on the device's CPU as it does here.
+#pragma once
+
+#include "eyesim/fpga/blob.hpp"
+
+#include <array>
+#include <cstdint>
+
+namespace eyesim::fpga {
+
+/// A marker class's colour at full shade as offset-free BT.601 studio-swing YCbCr (DN).
+struct MarkerColour {
+    double y_dn = 0, cb_dn = 0, cr_dn = 0;
+    static MarkerColour from_rgb(double r, double g, double b);
+};
+
+struct SphereFitConfig {
+    std::array<MarkerColour, 5> colour{};  ///< per class 1..4 (index 0 unused)
+    double shade_ambient = 0.35;           ///< marker shading: ambient + diffuse·cos(angle to the view ray)
+    double shade_diffuse = 0.65;
+    double noise_dn = 1.0;                 ///< sensor noise σ on Y, Cb, Cr (DN)
+    double shot_gain = 0.02;               ///< luma shot-noise variance per DN above black
+    int supersample = 4;                   ///< sub-samples per pixel side for coverage and shading
+    int max_iterations = 12;
+    double max_reduced_chi2 = 5.0;         ///< a worse fit is refused (another object in the patch, occlusion)
+    double outline_step_dn = 40.0;         ///< luma range on the patch border that adds the outline (step) term
+    double max_shift_px = 0.15;            ///< a fit further than this from the pipeline's centroid is refused
+    int margin_px = 4;                     ///< patch margin beside the blob's box, columns
+    int margin_lines = 2;                  ///< patch margin above and below, field lines
+};
+
+struct SphereFitResult {
+    bool ok = false;              ///< false: keep the pipeline's centroid
+    double cx_px = 0, cy_px = 0;  ///< intensity centroid of the fitted marker (field px, the pipeline's frame)
+    double centre_x_px = 0;       ///< fitted sphere centre (field px)
+    double centre_y_px = 0;
+    double radius_px = 0;         ///< fitted radius in frame px (a field line is two frame px tall)
+    double reduced_chi2 = 0;      ///< residual Σ(r/σ)² per degree of freedom
+    bool outline = false;         ///< the background model had a step (eye outline, shaft edge)
+    int iterations = 0;
+};
+
+/// Largest patch the fit accepts: wider or taller blobs keep the pipeline's centroid.
+inline constexpr int kFitMaxCols = 40;
+inline constexpr int kFitMaxLines = 18;
+
+/// Working storage for one fit (about 100 KiB; allocate once, reuse).
+struct SphereFitWorkspace {
+    static constexpr int kCols = kFitMaxCols + 2, kLines = kFitMaxLines;
+    static constexpr int kPx = kCols * kLines;
+    std::array<double, kPx> cov{}, shade{};        // marker coverage and coverage × shading per pixel
+    std::array<double, kPx * 3> dcov{}, dshade{};  // their derivatives by centre x, centre v, radius
+    std::array<double, kPx * 3> trial{};           // model pixels (Y, Cb, Cr) at a trial point
+    std::array<double, kPx> obs_y{}, var_y{};
+    std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
+};
+
+/// Fits the blob's marker in `field` (UYVY, 720 × `height` lines). The field must hold the blob's lines and
+/// `margin_lines` more either side where the image has them.
+SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, const SphereFitConfig& config,
+                           SphereFitWorkspace& work);
+
+}  // namespace eyesim::fpga
