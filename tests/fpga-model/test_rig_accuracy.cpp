@@ -1,6 +1,7 @@
 // Accuracy against the rig's rendered truth (independent renderer with exact coverage, shading, noise) and the
 // push_line copy path: rendered fields through the model must match the truth centroids.
 #include "field_gen.hpp"
+#include "rig_fixture.hpp"
 
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
@@ -15,16 +16,9 @@ using namespace eyesim::fpga::test;
 namespace rig = eyesim::rig;
 
 TEST_CASE("rig recording: every visible marker found, centroid RMS within the documented bias", "[fpga][rig]") {
-    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fpga_rig_test").string();
-    std::filesystem::remove_all(dir);
-    rig::SynthRequest req;
-    req.out_dir = dir;
-    req.scenario = "static";
-    req.seconds = 0.1;  // 5 fields × 3 cameras
-    req.render.noise_sigma = 1.0;
-    rig::write_recording(req);
-    rig::Recording rec = rig::Recording::open(dir);
-    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    RigRecording rr("eyesim_fpga_rig_test", "static", 0.1, 1.0);  // 5 fields × 3 cameras
+    rig::Recording& rec = rr.rec;
+    const std::vector<rig::FieldTruth>& truth = rr.truth;
     REQUIRE(truth.size() == 5);
 
     Pipeline p{RegisterMap{}};
@@ -63,7 +57,6 @@ TEST_CASE("rig recording: every visible marker found, centroid RMS within the do
             for (bool u : used) extra += !u;
         }
     }
-    std::filesystem::remove_all(dir);
     const double rms = std::sqrt(se / matched), rms_binary = std::sqrt(se_binary / matched);
     INFO("rms " << rms << " binary " << rms_binary << " matched " << matched);
     CHECK(matched > 100);

@@ -1,6 +1,7 @@
 // Refinement stage (sphere fit on a blob's patch) against the rig's rendered truth — an independent renderer with
 // perspective, lens distortion, exact edge coverage, motion blur, shot noise and an eye outline — and its refusals.
 #include "field_gen.hpp"
+#include "rig_fixture.hpp"
 
 #include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/rig/bodies.hpp"
@@ -31,16 +32,9 @@ SphereFitConfig rig_config() {
 }  // namespace
 
 TEST_CASE("sphere fit: rig surgery recording at sigma 1 beats the pipeline and meets 0.02 px", "[fpga][rig][fit]") {
-    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fpga_fit_test").string();
-    std::filesystem::remove_all(dir);
-    rig::SynthRequest req;
-    req.out_dir = dir;
-    req.scenario = "surgery";
-    req.seconds = 0.2;  // 10 fields × 3 cameras
-    req.render.noise_sigma = 1.0;
-    rig::write_recording(req);
-    rig::Recording rec = rig::Recording::open(dir);
-    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    RigRecording rr("eyesim_fpga_fit_test", "surgery", 0.2, 1.0);  // 10 fields × 3 cameras
+    rig::Recording& rec = rr.rec;
+    const std::vector<rig::FieldTruth>& truth = rr.truth;
     REQUIRE(truth.size() == 10);
 
     const SphereFitConfig cfg = rig_config();
@@ -85,7 +79,6 @@ TEST_CASE("sphere fit: rig surgery recording at sigma 1 beats the pipeline and m
                 },
                 used);
         }
-    std::filesystem::remove_all(dir);
     const double rms_model = std::sqrt(se_model / matched), rms_fit = std::sqrt(se_fit / matched);
     const double rms_fit_only = std::sqrt(se_fit_only / refined), rms_model_on = std::sqrt(se_model_on_fitted / refined);
     INFO("matched " << matched << " refined " << refined << " (outline " << outline << "); RMS model " << rms_model
