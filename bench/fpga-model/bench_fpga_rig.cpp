@@ -200,6 +200,65 @@ int main(int argc, char** argv) {
         std::printf("| fields/s | |");
         for (const Method& m : methods) std::printf(" %.0f |", m.fields_per_s);
         std::printf("\n");
+
+        // Where the refinement stage helps and why it refuses: unoccluded markers by size and body.
+        struct Split {
+            int n = 0, refined = 0;
+            int refusals[7] = {};
+            double se_model_refined = 0, se_fit_refined = 0, se_model_refused = 0;
+        };
+        std::map<std::pair<int, bool>, Split> split;
+        for (size_t k = 0; k < fields.size(); ++k) {
+            const uint8_t* f = fields[k].data();
+            blobs.clear();
+            pm.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); },
+                        &blobs);
+            pm.process_field(f, rig::kFieldHeight, 0, 0);
+            std::vector<rig::DetectedMarker> found;
+            std::vector<fpga::SphereFitResult> fits;
+            for (const fpga::Blob& b : blobs) {
+                found.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+                fits.push_back(fpga::fit_sphere(f, rig::kFieldHeight, b, fit_cfg, *fit_work));
+            }
+            std::vector<bool> used;
+            rig::match_markers(
+                truth[static_cast<size_t>(ids[k].second)], ids[k].first, found, 3.0,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+                    return v.visible && !(v.area_px < 2.0) && !(v.occluded_fraction > 0.0);
+                },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) return;
+                    Split& sp = split[{size_bin(m.view->radius_px), m.marker->body == "eye"}];
+                    const fpga::Blob& b = blobs[static_cast<size_t>(m.detection)];
+                    const fpga::SphereFitResult& r = fits[static_cast<size_t>(m.detection)];
+                    const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
+                    ++sp.n;
+                    ++sp.refusals[static_cast<int>(r.refusal)];
+                    if (r.ok) {
+                        ++sp.refined;
+                        sp.se_model_refined += (pipe - t).squaredNorm();
+                        sp.se_fit_refined += (Eigen::Vector2d(r.cx_px, r.cy_px) - t).squaredNorm();
+                    } else {
+                        sp.se_model_refused += (pipe - t).squaredNorm();
+                    }
+                },
+                used);
+        }
+        std::printf("\nRefinement by marker size and body (unoccluded, matched): RMS px of the refined markers before "
+                    "and after the fit, of the refused ones, and the refusals by reason\n\n");
+        std::printf("| diameter px | body | markers | refined | refined: model | refined: fit | refused: model | "
+                    "chi2 | implausible | outliers | shift | storage |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+        auto rms = [](double se, int cnt) { return cnt ? std::sqrt(se / cnt) : 0.0; };
+        for (const auto& [key, sp] : split)
+            std::printf("| %d–%d | %s | %d | %d | %.4f | %.4f | %.4f | %d | %d | %d | %d | %d |\n", key.first,
+                        key.first == 12 ? 99 : key.first + 2, key.second ? "eye" : "instrument", sp.n, sp.refined,
+                        rms(sp.se_model_refined, sp.refined), rms(sp.se_fit_refined, sp.refined),
+                        rms(sp.se_model_refused, sp.n - sp.refined),
+                        sp.refusals[static_cast<int>(fpga::FitRefusal::kChi2)],
+                        sp.refusals[static_cast<int>(fpga::FitRefusal::kImplausible)],
+                        sp.refusals[static_cast<int>(fpga::FitRefusal::kOutliers)],
+                        sp.refusals[static_cast<int>(fpga::FitRefusal::kShift)],
+                        sp.refusals[static_cast<int>(fpga::FitRefusal::kStorage)]);
     } catch (const rig::RigError& e) {
         std::fprintf(stderr, "%s\n", e.what());
         return 1;

@@ -10,6 +10,19 @@ MarkerColour MarkerColour::from_rgb(double r, double g, double b) {
     return {219.0 / 255.0 * l, 224.0 / 255.0 * (b - l) / 1.772, 224.0 / 255.0 * (r - l) / 1.402};
 }
 
+const char* to_string(FitRefusal r) {
+    switch (r) {
+        case FitRefusal::kNone: return "none";
+        case FitRefusal::kInput: return "input";
+        case FitRefusal::kStorage: return "storage";
+        case FitRefusal::kChi2: return "chi2";
+        case FitRefusal::kImplausible: return "implausible";
+        case FitRefusal::kOutliers: return "outliers";
+        case FitRefusal::kShift: return "shift";
+    }
+    return "?";
+}
+
 namespace {
 
 constexpr int kMaxPar = 18;
@@ -60,30 +73,36 @@ struct Patch {
 
 class Fitter {
 public:
-    Fitter(const SphereFitConfig& cfg, const Patch& p, SphereFitWorkspace& w) : cfg_(cfg), p_(p), w_(w) {}
+    Fitter(const SphereFitConfig& cfg, const Patch& p, SphereFitWorkspace& w) : cfg_(cfg), p_(p), w_(w) {
+        for (int i = 0; i < p_.cols; ++i) xrel_[static_cast<size_t>(i)] = (p_.x0 - 1 + i) - p_.xc;
+        for (int j = 0; j < p_.lines; ++j) vrel_[static_cast<size_t>(j)] = 2.0 * (p_.j0 + j) + p_.parity - p_.vc;
+        m_[0] = p_.colour.y_dn;
+        m_[1] = p_.colour.cb_dn;
+        m_[2] = p_.colour.cr_dn;
+    }
 
     // Coverage and coverage × shading of the sphere per model pixel.
     void render(double x0, double v0, double r, double* cov, double* shade) const {
         const int ss = cfg_.supersample;
-        const double h = 1.0 / ss, rr = std::max(r, 0.25), inv_r2 = 1.0 / (rr * rr);
+        const double h = 1.0 / ss, rr = std::max(r, 0.25), inv_r2 = 1.0 / (rr * rr), ap = cfg_.aperture_lines_px;
+        const double reach = rr + 0.25 + 0.5 * std::max(1.0, ap), amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
         for (int j = 0; j < p_.lines; ++j) {
-            const double v = 2.0 * (p_.j0 + j) + p_.parity;
+            const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
             for (int i = 0; i < p_.cols; ++i) {
                 const int k = j * p_.cols + i;
-                const double dx = (p_.x0 - 1 + i) - x0, dv = v - v0;
+                const double dx = (p_.x0 - 1 + i) - x0;
                 double c = 0, s = 0;
-                if (dx * dx + dv * dv < (rr + 0.75) * (rr + 0.75)) {
+                if (dx * dx + dv * dv < reach * reach) {
                     for (int sy = 0; sy < ss; ++sy) {
-                        const double yy = dv - 0.5 + (sy + 0.5) * h;
+                        const double yy = dv + ap * (-0.5 + (sy + 0.5) * h);
                         for (int sx = 0; sx < ss; ++sx) {
                             const double xx = dx - 0.5 + (sx + 0.5) * h;
                             const double d2 = xx * xx + yy * yy;
                             // Straight-edge coverage of the sub-cell: a ramp one sub-cell wide keeps the model smooth.
-                            const double rad = std::sqrt(d2);
-                            const double cs = std::clamp((rr - rad) / h + 0.5, 0.0, 1.0);
+                            const double cs = std::clamp((rr - std::sqrt(d2)) / h + 0.5, 0.0, 1.0);
                             if (cs <= 0) continue;
                             c += cs;
-                            s += cs * (cfg_.shade_ambient + cfg_.shade_diffuse * std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2)));
+                            s += cs * (amb + dif * std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2)));
                         }
                     }
                     c *= h * h;
@@ -95,107 +114,111 @@ public:
         }
     }
 
-    // Background of channel ch at model pixel (i, j), its level inside the outline and the outline weight.
-    void background(const Vec& t, int ch, int i, int j, double& bg, double& inside, double& we, double& dwe_dphi,
-                    bool& ramp) const {
-        const double x = (p_.x0 - 1 + i) - p_.xc, v = 2.0 * (p_.j0 + j) + p_.parity - p_.vc;
-        inside = t[kB0 + 3 * ch] + t[kB0 + 3 * ch + 1] * x + t[kB0 + 3 * ch + 2] * v;
-        we = 1.0;
-        dwe_dphi = 0.0;
-        ramp = false;
-        bg = inside;
-        if (!p_.outline) return;
-        const double cp = std::cos(t[kPhi]), sp = std::sin(t[kPhi]);
-        const double dist = cp * x + sp * v - t[kD];
-        we = std::clamp(0.5 - dist, 0.0, 1.0);
-        ramp = we > 0.0 && we < 1.0;
-        dwe_dphi = ramp ? -(-sp * x + cp * v) : 0.0;
-        bg = we * inside + (1.0 - we) * t[kB2 + ch];
-    }
-
-    double pixel_value(const Vec& t, const double* cov, const double* shade, int ch, int i, int j) const {
-        const int k = j * p_.cols + i;
-        double bg, inside, we, dphi;
-        bool ramp;
-        background(t, ch, i, j, bg, inside, we, dphi, ramp);
-        const double m = ch == 0 ? p_.colour.y_dn : ch == 1 ? p_.colour.cb_dn : p_.colour.cr_dn;
-        return kOffset[ch] + t[kA] * shade[k] * m + (1.0 - cov[k]) * (bg - kOffset[ch]);
-    }
-
-    // Adds the derivative row of the model pixel (ch, i, j) times `scale` to `row`.
-    void pixel_row(const Vec& t, int ch, int i, int j, double scale, Vec& row) const {
-        const int k = j * p_.cols + i, n = p_.lines * p_.cols;
-        double bg, inside, we, dphi;
-        bool ramp;
-        background(t, ch, i, j, bg, inside, we, dphi, ramp);
-        const double m = ch == 0 ? p_.colour.y_dn : ch == 1 ? p_.colour.cb_dn : p_.colour.cr_dn;
-        const double cov = w_.cov[k], open = 1.0 - cov, under = bg - kOffset[ch];
-        for (int q = 0; q < 3; ++q) row[q] += scale * (t[kA] * m * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under);
-        row[kA] += scale * w_.shade[k] * m;
-        const double x = (p_.x0 - 1 + i) - p_.xc, v = 2.0 * (p_.j0 + j) + p_.parity - p_.vc;
-        row[kB0 + 3 * ch] += scale * open * we;
-        row[kB0 + 3 * ch + 1] += scale * open * we * x;
-        row[kB0 + 3 * ch + 2] += scale * open * we * v;
-        if (p_.outline) {
-            const double step = open * (inside - t[kB2 + ch]);
-            row[kPhi] += scale * step * dphi;
-            row[kD] += scale * (ramp ? step : 0.0);
-            row[kB2 + ch] += scale * open * (1.0 - we);
+    // Model value of every model pixel and channel at t, from a render (cov, shade) of t's sphere.
+    void model(const Vec& t, const double* cov, const double* shade, double* val) const {
+        const int n = p_.lines * p_.cols;
+        outline_weights(t, w_.edge_w.data());
+        for (int ch = 0; ch < 3; ++ch) {
+            const double b0 = t[kB0 + 3 * ch], bx = t[kB0 + 3 * ch + 1], bv = t[kB0 + 3 * ch + 2];
+            const double beyond = p_.outline ? t[kB2 + ch] : 0.0, am = t[kA] * m_[ch];
+            double* out = val + ch * n;
+            for (int j = 0; j < p_.lines; ++j)
+                for (int i = 0; i < p_.cols; ++i) {
+                    const int k = j * p_.cols + i;
+                    const double inside = b0 + bx * xrel_[static_cast<size_t>(i)] + bv * vrel_[static_cast<size_t>(j)];
+                    const double we = w_.edge_w[k];
+                    const double bg = we * inside + (1.0 - we) * beyond;
+                    out[k] = kOffset[ch] + am * shade[k] + (1.0 - cov[k]) * (bg - kOffset[ch]);
+                }
         }
     }
 
-    // Σ (r/σ)² at t (renders into the workspace's trial arrays).
-    double cost(const Vec& t) {
-        double* cov = w_.trial.data();
-        double* shade = cov + SphereFitWorkspace::kPx;
-        render(t[kX0], t[kV0], t[kR], cov, shade);
-        return residuals(t, cov, shade, nullptr, nullptr);
-    }
-
-    // Σ (r/σ)²; with a and g, also accumulates JᵀWJ and JᵀWr (derivatives from the workspace's base render).
-    double residuals(const Vec& t, const double* cov, const double* shade, Mat* a, Vec* g) const {
-        double chi2 = 0;
-        const int nx = p_.x1 - p_.x0 + 1;
-        Vec row;
-        auto add = [&](double r, double wgt) {
-            chi2 += r * r * wgt;
-            if (!a) return;
-            for (int q = 0; q < np(); ++q) {
-                if (row[q] == 0.0) continue;
-                (*g)[q] += wgt * row[q] * r;
-                for (int s = 0; s <= q; ++s) (*a)[q * kMaxPar + s] += wgt * row[q] * row[s];
-            }
-        };
+    // Σ (r/σ)² of the observations against model values `val`.
+    double chi2(const double* val) const {
+        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const double wc = 1.0 / var_c();
+        double sum = 0;
         for (int j = 0; j < p_.lines; ++j) {
+            const double* vy = val + j * p_.cols;
             for (int x = 0; x < nx; ++x) {
-                const int i = x + 1, o = j * nx + x;
-                const double r = w_.obs_y[o] - pixel_value(t, cov, shade, 0, i, j);
-                if (a) {
-                    row.fill(0.0);
-                    pixel_row(t, 0, i, j, 1.0, row);
-                }
-                add(r, 1.0 / w_.var_y[o]);
+                const int o = j * nx + x;
+                const double r = w_.obs_y[o] - vy[x + 1];
+                sum += w_.keep_y[o] * r * r / w_.var_y[o];
             }
-            const double wc = 1.0 / var_c();
             int s = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
                 const int i = x - p_.x0 + 1, o = j * nx + s;
                 for (int ch = 1; ch <= 2; ++ch) {
-                    const double mod = 0.25 * (pixel_value(t, cov, shade, ch, i - 1, j) +
-                                               2.0 * pixel_value(t, cov, shade, ch, i, j) +
-                                               pixel_value(t, cov, shade, ch, i + 1, j));
-                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod;
-                    if (a) {
-                        row.fill(0.0);
-                        pixel_row(t, ch, i - 1, j, 0.25, row);
-                        pixel_row(t, ch, i, j, 0.5, row);
-                        pixel_row(t, ch, i + 1, j, 0.25, row);
-                    }
-                    add(r, wc);
+                    const double* vc = val + ch * n + j * p_.cols;
+                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(vc, i);
+                    sum += (ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o]) * r * r * wc;
                 }
             }
         }
-        return chi2;
+        return sum;
+    }
+
+    // Σ (r/σ)² at t (renders into the workspace's trial arrays).
+    double cost(const Vec& t) {
+        const int n = SphereFitWorkspace::kPx;
+        double* cov = w_.trial.data();
+        double* shade = cov + n;
+        render(t[kX0], t[kV0], t[kR], cov, shade);
+        model(t, cov, shade, w_.val.data());
+        return chi2(w_.val.data());
+    }
+
+    // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise()).
+    void normal_equations(const Vec& t, Mat& a, Vec& g) const {
+        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        double* val = w_.val.data();
+        model(t, w_.cov.data(), w_.shade.data(), val);
+        const double wc = 1.0 / var_c();
+        const int nr = p_.outline ? kRow : kRow - 3;
+        // Per channel, the normal equations over the row's compact parameters; scattered at the end.
+        double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {};
+        auto add = [&](int ch, const double* row, double r, double wgt) {
+            double* am = acc[ch];
+            for (int q = 0; q < nr; ++q) {
+                const double wq = wgt * row[q];
+                acc_g[ch][q] += wq * r;
+                for (int s = 0; s <= q; ++s) am[q * kRow + s] += wq * row[s];
+            }
+        };
+        double row[kRow], r0[kRow], r1[kRow], r2[kRow];
+        for (int j = 0; j < p_.lines; ++j) {
+            for (int x = 0; x < nx; ++x) {
+                const int o = j * nx + x, k = j * p_.cols + x + 1;
+                if (!w_.keep_y[o]) continue;
+                pixel_row(t, 0, x + 1, j, row);
+                add(0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+            }
+            int s = 0;
+            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
+                const int i = x - p_.x0 + 1, o = j * nx + s;
+                for (int ch = 1; ch <= 2; ++ch) {
+                    if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
+                    pixel_row(t, ch, i - 1, j, r0);
+                    pixel_row(t, ch, i, j, r1);
+                    pixel_row(t, ch, i + 1, j, r2);
+                    for (int q = 0; q < nr; ++q) row[q] = 0.25 * (r0[q] + r2[q]) + 0.5 * r1[q];
+                    const double mod = filtered(val + ch * n + j * p_.cols, i);
+                    add(ch, row, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
+                }
+            }
+        }
+        a.fill(0.0);
+        g.fill(0.0);
+        for (int ch = 0; ch < 3; ++ch) {
+            int idx[kRow];
+            row_params(ch, idx);
+            for (int q = 0; q < nr; ++q) {
+                g[static_cast<size_t>(idx[q])] += acc_g[ch][q];
+                for (int s = 0; s <= q; ++s) a[static_cast<size_t>(idx[q] * kMaxPar + idx[s])] += acc[ch][q * kRow + s];
+            }
+        }
+        for (int q = 0; q < np(); ++q)
+            for (int s = q + 1; s < np(); ++s) a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
     }
 
     // Base render with finite-difference derivatives by centre x, centre v and radius.
@@ -216,15 +239,130 @@ public:
 
     int np() const { return p_.outline ? kMaxPar : kPhi; }
     double var_c() const { return cfg_.noise_dn * cfg_.noise_dn + 1.0 / 12.0; }
+    // Observations still in the fit.
     int observations() const {
+        const int nx = p_.x1 - p_.x0 + 1, nc = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
+        int n = 0;
+        for (int j = 0; j < p_.lines; ++j) {
+            for (int x = 0; x < nx; ++x) n += w_.keep_y[j * nx + x];
+            for (int c = 0; c < nc; ++c) n += w_.keep_cb[j * nx + c] + w_.keep_cr[j * nx + c];
+        }
+        return n;
+    }
+
+    // Where the left-out observations lie about the fitted centre: |mean of e^{iθ}| (one-sided: near 1) and
+    // |mean of e^{2iθ}| (on one line through the centre: near 1), over those outside the fitted disc.
+    void outlier_spread(const Vec& t, double& r1, double& r2) const {
         const int nx = p_.x1 - p_.x0 + 1;
-        return p_.lines * (nx + 2 * ((p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1));
+        double c1 = 0, s1 = 0, c2 = 0, s2 = 0;
+        int n = 0;
+        auto add = [&](int x, int j) {
+            const double dx = (p_.x0 + x) - t[kX0], dv = 2.0 * (p_.j0 + j) + p_.parity - t[kV0];
+            const double d = std::hypot(dx, dv);
+            if (d < t[kR] + 0.5) return;
+            const double c = dx / d, s = dv / d;
+            c1 += c;
+            s1 += s;
+            c2 += c * c - s * s;
+            s2 += 2 * c * s;
+            ++n;
+        };
+        for (int j = 0; j < p_.lines; ++j) {
+            for (int x = 0; x < nx; ++x)
+                if (!w_.keep_y[j * nx + x]) add(x, j);
+            int c = 0;
+            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++c)
+                for (int rep = 0; rep < 2 - w_.keep_cb[j * nx + c] - w_.keep_cr[j * nx + c]; ++rep) add(x - p_.x0, j);
+        }
+        r1 = n ? std::hypot(c1, s1) / n : 1.0;
+        r2 = n ? std::hypot(c2, s2) / n : 0.0;
+    }
+
+    // Leaves out of the fit exactly the observations whose residual at t exceeds k σ; returns how many.
+    int drop_outliers(const Vec& t, double k) {
+        cost(t);
+        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const double* val = w_.val.data();
+        const double k2 = k * k, wc = 1.0 / var_c();
+        int dropped = 0;
+        for (int j = 0; j < p_.lines; ++j) {
+            for (int x = 0; x < nx; ++x) {
+                const int o = j * nx + x;
+                const double r = w_.obs_y[o] - val[j * p_.cols + x + 1];
+                w_.keep_y[o] = r * r / w_.var_y[o] <= k2;
+                dropped += !w_.keep_y[o];
+            }
+            int s = 0;
+            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
+                const int i = x - p_.x0 + 1, o = j * nx + s;
+                for (int ch = 1; ch <= 2; ++ch) {
+                    uint8_t& keep = ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o];
+                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(val + ch * n + j * p_.cols, i);
+                    keep = r * r * wc <= k2;
+                    dropped += !keep;
+                }
+            }
+        }
+        return dropped;
     }
 
 private:
+    // A model pixel's derivatives touch 10 parameters: centre x, v, radius, amplitude, its channel's background
+    // level and slopes, and (with an outline) the outline's angle, offset and its channel's level beyond it.
+    static constexpr int kRow = 10;
+    static void row_params(int ch, int* idx) {
+        const int p[kRow] = {kX0, kV0, kR, kA, kB0 + 3 * ch, kB0 + 3 * ch + 1, kB0 + 3 * ch + 2, kPhi, kD, kB2 + ch};
+        for (int q = 0; q < kRow; ++q) idx[q] = p[q];
+    }
+
+    // The camera's [1 2 1] co-sited chroma filter at model column i.
+    static double filtered(const double* line, int i) { return 0.25 * (line[i - 1] + line[i + 1]) + 0.5 * line[i]; }
+
+    // Weight of the background inside the outline per model pixel (1 everywhere without an outline).
+    void outline_weights(const Vec& t, double* we) const {
+        const int n = p_.lines * p_.cols;
+        if (!p_.outline) {
+            std::fill(we, we + n, 1.0);
+            return;
+        }
+        cp_ = std::cos(t[kPhi]);
+        sp_ = std::sin(t[kPhi]);
+        const double cp = cp_, sp = sp_;
+        for (int j = 0; j < p_.lines; ++j)
+            for (int i = 0; i < p_.cols; ++i) {
+                const double dist = cp * xrel_[static_cast<size_t>(i)] + sp * vrel_[static_cast<size_t>(j)] - t[kD];
+                we[j * p_.cols + i] = std::clamp(0.5 - dist, 0.0, 1.0);
+            }
+    }
+
+    // Compact derivative row of model pixel (ch, i, j); edge_w must hold t's outline weights.
+    void pixel_row(const Vec& t, int ch, int i, int j, double* row) const {
+        const int k = j * p_.cols + i, n = p_.lines * p_.cols;
+        const double x = xrel_[static_cast<size_t>(i)], v = vrel_[static_cast<size_t>(j)];
+        const double inside = t[kB0 + 3 * ch] + t[kB0 + 3 * ch + 1] * x + t[kB0 + 3 * ch + 2] * v;
+        const double we = w_.edge_w[k];
+        const double bg = p_.outline ? we * inside + (1.0 - we) * t[kB2 + ch] : inside;
+        const double open = 1.0 - w_.cov[k], under = bg - kOffset[ch], am = t[kA] * m_[ch];
+        for (int q = 0; q < 3; ++q) row[q] = am * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under;
+        row[3] = w_.shade[k] * m_[ch];
+        row[4] = open * we;
+        row[5] = open * we * x;
+        row[6] = open * we * v;
+        if (!p_.outline) return;
+        const bool ramp = we > 0.0 && we < 1.0;
+        const double step = open * (inside - t[kB2 + ch]);
+        row[7] = ramp ? -step * (-sp_ * x + cp_ * v) : 0.0;
+        row[8] = ramp ? step : 0.0;
+        row[9] = open * (1.0 - we);
+    }
+
     const SphereFitConfig& cfg_;
     const Patch& p_;
     SphereFitWorkspace& w_;
+    std::array<double, SphereFitWorkspace::kCols> xrel_{};
+    std::array<double, SphereFitWorkspace::kLines> vrel_{};
+    double m_[3] = {};
+    mutable double cp_ = 1.0, sp_ = 0.0;  // cos, sin of the outline angle of the last outline_weights()
 };
 
 // Intensity centroid of the fitted sphere over the field's pixels (pixel centres weighted by the coverage ×
@@ -232,7 +370,7 @@ private:
 void intensity_centroid(const SphereFitConfig& cfg, double x0, double v0, double r, int parity, double& cx,
                         double& cy) {
     constexpr int S = 16;
-    const double h = 1.0 / S, inv_r2 = 1.0 / (r * r);
+    const double h = 1.0 / S, inv_r2 = 1.0 / (r * r), ap = cfg.aperture_lines_px;
     double si = 0, sx = 0, sv = 0;
     const int lo_v = static_cast<int>(std::floor(v0 - r - 1)), hi_v = static_cast<int>(std::ceil(v0 + r + 1));
     const int lo_x = static_cast<int>(std::floor(x0 - r - 1)), hi_x = static_cast<int>(std::ceil(x0 + r + 1));
@@ -241,7 +379,7 @@ void intensity_centroid(const SphereFitConfig& cfg, double x0, double v0, double
         for (int x = lo_x; x <= hi_x; ++x) {
             double in = 0;
             for (int sy = 0; sy < S; ++sy) {
-                const double yy = v - 0.5 + (sy + 0.5) * h - v0;
+                const double yy = v + ap * (-0.5 + (sy + 0.5) * h) - v0;
                 for (int sx2 = 0; sx2 < S; ++sx2) {
                     const double xx = x - 0.5 + (sx2 + 0.5) * h - x0;
                     const double q = 1.0 - (xx * xx + yy * yy) * inv_r2;
@@ -272,6 +410,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     p.parity = blob.parity & 1;
     p.cols = p.x1 - p.x0 + 3;
     p.lines = p.j1 - p.j0 + 1;
+    res.refusal = FitRefusal::kStorage;
     if (p.x1 - p.x0 + 1 > kFitMaxCols || p.lines > kFitMaxLines || p.x1 <= p.x0) return res;
     p.colour = cfg.colour[blob.class_id];
     const double cx0 = blob.cx_px(), cy0 = blob.cy_px();
@@ -279,6 +418,9 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     p.vc = 2.0 * cy0 + p.parity;
 
     // Observations and the border's levels.
+    std::fill(w.keep_y.begin(), w.keep_y.end(), uint8_t{1});
+    std::fill(w.keep_cb.begin(), w.keep_cb.end(), uint8_t{1});
+    std::fill(w.keep_cr.begin(), w.keep_cr.end(), uint8_t{1});
     const int nx = p.x1 - p.x0 + 1;
     const double shot = cfg.shot_gain, n2 = cfg.noise_dn * cfg.noise_dn;
     for (int j = 0; j < p.lines; ++j) {
@@ -372,55 +514,87 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
 
     Fitter f(cfg, p, w);
     const int np = f.np();
-    double chi2 = f.cost(t), lambda = 1e-3;
+    double chi2 = 0;
     int it = 0;
-    for (; it < cfg.max_iterations; ++it) {
-        f.linearise(t);
-        Mat a{};
-        Vec g{};
-        f.residuals(t, w.cov.data(), w.shade.data(), &a, &g);
-        for (int q = 0; q < np; ++q)
-            for (int s = q + 1; s < np; ++s) a[q * kMaxPar + s] = a[s * kMaxPar + q];
-        bool improved = false;
-        double gain = 0;
-        for (int tries = 0; tries < 8 && !improved; ++tries) {
-            Vec d;
-            if (solve_damped(a, g, np, lambda, d)) {
-                Vec tt = t;
-                for (int q = 0; q < np; ++q) tt[q] += d[q];
-                const double c1 = f.cost(tt);
-                if (c1 < chi2) {
-                    gain = chi2 - c1;
-                    t = tt;
-                    chi2 = c1;
-                    lambda = std::max(1e-7, lambda * 0.3);
-                    improved = true;
-                    break;
+    // Levenberg–Marquardt from t; stops early on a fit that stays hopeless (another object in the patch).
+    auto solve = [&](int max_it, bool give_up) {
+        chi2 = f.cost(t);
+        double lambda = 1e-3;
+        const int dof = std::max(1, f.observations() - np);
+        for (int k = 0; k < max_it; ++k, ++it) {
+            f.linearise(t);
+            Mat a;
+            Vec g;
+            f.normal_equations(t, a, g);
+            bool improved = false;
+            double gain = 0;
+            for (int tries = 0; tries < 8 && !improved; ++tries) {
+                Vec d;
+                if (solve_damped(a, g, np, lambda, d)) {
+                    Vec tt = t;
+                    for (int q = 0; q < np; ++q) tt[q] += d[q];
+                    const double c1 = f.cost(tt);
+                    if (c1 < chi2) {
+                        gain = chi2 - c1;
+                        t = tt;
+                        chi2 = c1;
+                        lambda = std::max(1e-7, lambda * 0.3);
+                        improved = true;
+                        break;
+                    }
                 }
+                lambda *= 10.0;
             }
-            lambda *= 10.0;
+            if (!improved || gain < 1e-6 * chi2) break;
+            if (give_up && k >= 3 && chi2 > 4.0 * cfg.max_reduced_chi2 * dof) break;
         }
-        if (!improved || gain < 1e-6 * chi2) break;
-        // A fit still far off after a few steps is another object in the patch: stop paying for it.
-        if (it >= 3 && chi2 > 4.0 * cfg.max_reduced_chi2 * std::max(1, f.observations() - np)) break;
+    };
+    // Observations of something the model does not hold (a shaft beside an instrument marker) are taken out and
+    // the fit is run again on the rest, as long as they are few. Not with an outline: there the misfit is the
+    // outline model's own (a curved, shaded limb), which leaving pixels out does not mend.
+    const bool may_drop = cfg.max_outlier_fraction > 0 && !p.outline;
+    solve(cfg.max_iterations, !may_drop);
+    if (may_drop && chi2 > cfg.max_reduced_chi2 * std::max(1, f.observations() - np)) {
+        const int before = f.observations();
+        // The first fit is pulled by what it cannot model: tighten the cut over rounds (3, 2, 1 × outlier_sigma)
+        // so that the first cut takes only the grossest misfits.
+        for (int round = 3; round >= 1; --round) {
+            res.outliers = f.drop_outliers(t, round * cfg.outlier_sigma);
+            if (res.outliers > cfg.max_outlier_fraction * before) break;
+            solve(cfg.max_iterations, true);
+        }
+        // Only a band through the marker is a shaft; left-out pixels on one side (an eye limb the background
+        // model cannot follow) or all round it are not mended by leaving them out.
+        double r1 = 1, r2 = 0;
+        f.outlier_spread(t, r1, r2);
+        res.outlier_band = r1 < 0.5 && r2 > 0.6;
     }
     res.iterations = it;
     res.outline = p.outline;
-    const int dof = std::max(1, f.observations() - np);
-    res.reduced_chi2 = chi2 / dof;
+    res.reduced_chi2 = f.cost(t) / std::max(1, f.observations() - np);
     res.radius_px = t[kR];
     res.centre_x_px = t[kX0];
     res.centre_y_px = 0.5 * (t[kV0] - p.parity);
     const double box_r = 0.5 * (blob.x_max - blob.x_min + 1);
-    const bool sane = std::isfinite(chi2) && res.reduced_chi2 <= cfg.max_reduced_chi2 && t[kR] > 0.5 &&
-                      t[kR] < 2.0 * box_r + 2.0 && t[kA] > 0.2 && t[kA] < 5.0 &&
+    res.refusal = FitRefusal::kChi2;
+    if (!(res.reduced_chi2 <= cfg.max_reduced_chi2)) return res;
+    res.refusal = FitRefusal::kImplausible;
+    const bool sane = t[kR] > 0.5 && t[kR] < 2.0 * box_r + 2.0 && t[kA] > 0.2 && t[kA] < 5.0 &&
                       std::fabs(t[kX0] - cx0) < 1.5 && std::fabs(t[kV0] - p.vc) < 2.0;
     if (!sane) return res;
     intensity_centroid(cfg, t[kX0], t[kV0], t[kR], p.parity, res.cx_px, res.cy_px);
+    if (!std::isfinite(res.cx_px) || !std::isfinite(res.cy_px)) return res;
     // Both estimate the same centroid; a fit that moves far from the pipeline's has modelled something else (a
     // partly occluded marker's hidden half, a neighbour in the patch).
-    res.ok = std::isfinite(res.cx_px) && std::isfinite(res.cy_px) &&
-             std::hypot(res.cx_px - cx0, res.cy_px - cy0) <= cfg.max_shift_px;
+    res.refusal = FitRefusal::kShift;
+    // A fit that left observations out has less to stand on: it must agree more closely.
+    res.refusal = FitRefusal::kOutliers;
+    if (res.outliers > 0 && !res.outlier_band) return res;
+    res.refusal = FitRefusal::kShift;
+    const double max_shift = res.outliers > 0 ? cfg.max_shift_outliers_px : cfg.max_shift_px;
+    if (std::hypot(res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
+    res.refusal = FitRefusal::kNone;
+    res.ok = true;
     return res;
 }
 

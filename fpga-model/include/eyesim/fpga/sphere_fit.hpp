@@ -37,10 +37,29 @@ struct SphereFitConfig {
     double max_shift_px = 0.15;            ///< a fit further than this from the pipeline's centroid is refused
     int margin_px = 4;                     ///< patch margin beside the blob's box, columns
     int margin_lines = 2;                  ///< patch margin above and below, field lines
+    double max_outlier_fraction = 0.3;     ///< observations a refit may leave out (0: no refit)
+    double outlier_sigma = 4.0;            ///< residual (in σ) beyond which an observation is left out
+    double max_shift_outliers_px = 0.06;   ///< max_shift_px for a fit that left observations out
+    double aperture_lines_px = 1.0;        ///< a pixel's height in frame px (1: one frame row; 2: a whole field line)
 };
+
+/// Why a fit was refused (the pipeline's centroid then stands).
+enum class FitRefusal : uint8_t {
+    kNone = 0,     ///< accepted
+    kInput,        ///< not a marker class, or an empty blob
+    kStorage,      ///< the patch exceeds kFitMaxCols × kFitMaxLines
+    kChi2,         ///< reduced χ² above the limit: something else in the patch (a shaft, a neighbour, occlusion)
+    kImplausible,  ///< radius, amplitude or centre outside their plausible range, or not finite
+    kOutliers,     ///< the observations left out do not lie on a band through the marker (not a shaft)
+    kShift,        ///< the fitted centroid is further than max_shift_px from the pipeline's
+};
+
+/// One word for a refusal, for CSV and reports.
+const char* to_string(FitRefusal r);
 
 struct SphereFitResult {
     bool ok = false;              ///< false: keep the pipeline's centroid
+    FitRefusal refusal = FitRefusal::kInput;
     double cx_px = 0, cy_px = 0;  ///< intensity centroid of the fitted marker (field px, the pipeline's frame)
     double centre_x_px = 0;       ///< fitted sphere centre (field px)
     double centre_y_px = 0;
@@ -48,6 +67,8 @@ struct SphereFitResult {
     double reduced_chi2 = 0;      ///< residual Σ(r/σ)² per degree of freedom
     bool outline = false;         ///< the background model had a step (eye outline, shaft edge)
     int iterations = 0;
+    int outliers = 0;             ///< observations left out of the final fit
+    bool outlier_band = false;    ///< they lie on a band through the marker (a shaft), the only case accepted
 };
 
 /// Largest patch the fit accepts: wider or taller blobs keep the pipeline's centroid.
@@ -60,7 +81,10 @@ struct SphereFitWorkspace {
     static constexpr int kPx = kCols * kLines;
     std::array<double, kPx> cov{}, shade{};        // marker coverage and coverage × shading per pixel
     std::array<double, kPx * 3> dcov{}, dshade{};  // their derivatives by centre x, centre v, radius
-    std::array<double, kPx * 3> trial{};           // model pixels (Y, Cb, Cr) at a trial point
+    std::array<double, kPx * 2> trial{};           // coverage and shading at a trial point
+    std::array<double, kPx * 3> val{};             // model pixels (Y, Cb, Cr)
+    std::array<double, kPx> edge_w{};              // weight of the background inside the outline
+    std::array<uint8_t, kPx> keep_y{}, keep_cb{}, keep_cr{};  // 1: the observation is in the fit
     std::array<double, kPx> obs_y{}, var_y{};
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
 };
