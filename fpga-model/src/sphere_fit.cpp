@@ -86,6 +86,8 @@ public:
         const int ss = cfg_.supersample;
         const double h = 1.0 / ss, rr = std::max(r, 0.25), inv_r2 = 1.0 / (rr * rr), ap = cfg_.aperture_lines_px;
         const double reach = rr + 0.25 + 0.5 * std::max(1.0, ap), amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
+        // Sub-samples within r − h/2 of the centre are wholly covered, beyond r + h/2 not at all.
+        const double in2 = rr > 0.5 * h ? (rr - 0.5 * h) * (rr - 0.5 * h) : 0.0, out2 = (rr + 0.5 * h) * (rr + 0.5 * h);
         for (int j = 0; j < p_.lines; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
             for (int i = 0; i < p_.cols; ++i) {
@@ -98,9 +100,9 @@ public:
                         for (int sx = 0; sx < ss; ++sx) {
                             const double xx = dx - 0.5 + (sx + 0.5) * h;
                             const double d2 = xx * xx + yy * yy;
+                            if (d2 >= out2) continue;
                             // Straight-edge coverage of the sub-cell: a ramp one sub-cell wide keeps the model smooth.
-                            const double cs = std::clamp((rr - std::sqrt(d2)) / h + 0.5, 0.0, 1.0);
-                            if (cs <= 0) continue;
+                            const double cs = d2 <= in2 ? 1.0 : std::clamp((rr - std::sqrt(d2)) / h + 0.5, 0.0, 1.0);
                             c += cs;
                             s += cs * (amb + dif * std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2)));
                         }
@@ -221,18 +223,80 @@ public:
             for (int s = q + 1; s < np(); ++s) a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
     }
 
-    // Base render with finite-difference derivatives by centre x, centre v and radius.
+    // Base render with its derivatives by centre x, centre v and radius, in one pass. Coverage is the sub-cell
+    // ramp's exact derivative; shading's radial slope is taken over the sub-cell's width where it is steep (the
+    // rim, where the pointwise slope of sqrt(1 − ρ²/r²) is unbounded), analytically elsewhere.
     void linearise(const Vec& t) {
-        const int n = p_.lines * p_.cols;
-        render(t[kX0], t[kV0], t[kR], w_.cov.data(), w_.shade.data());
-        constexpr double h = 1e-3;
-        for (int q = 0; q < 3; ++q) {
-            double* dc = w_.dcov.data() + q * n;
-            double* ds = w_.dshade.data() + q * n;
-            render(t[kX0] + (q == 0 ? h : 0), t[kV0] + (q == 1 ? h : 0), t[kR] + (q == 2 ? h : 0), dc, ds);
-            for (int k = 0; k < n; ++k) {
-                dc[k] = (dc[k] - w_.cov[k]) / h;
-                ds[k] = (ds[k] - w_.shade[k]) / h;
+        const int n = p_.lines * p_.cols, ss = cfg_.supersample;
+        const double x0 = t[kX0], v0 = t[kV0], r = std::max(t[kR], 0.25);
+        const double h = 1.0 / ss, inv_h = ss, inv_r2 = 1.0 / (r * r), ap = cfg_.aperture_lines_px;
+        const double reach = r + 0.25 + 0.5 * std::max(1.0, ap), amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
+        auto q_of = [&](double rho) { return std::sqrt(std::max(0.0, 1.0 - rho * rho * inv_r2)); };
+        const double in2 = r > 0.5 * h ? (r - 0.5 * h) * (r - 0.5 * h) : 0.0, out2 = (r + 0.5 * h) * (r + 0.5 * h);
+        double* dcx = w_.dcov.data();
+        double* dcv = dcx + n;
+        double* dcr = dcv + n;
+        double* dsx = w_.dshade.data();
+        double* dsv = dsx + n;
+        double* dsr = dsv + n;
+        for (int j = 0; j < p_.lines; ++j) {
+            const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
+            for (int i = 0; i < p_.cols; ++i) {
+                const int k = j * p_.cols + i;
+                const double dx = (p_.x0 - 1 + i) - x0;
+                double c = 0, sh = 0, cx = 0, cv = 0, cr = 0, sx = 0, sv = 0, sr = 0;
+                if (dx * dx + dv * dv < reach * reach) {
+                    for (int sy = 0; sy < ss; ++sy) {
+                        const double yy = dv + ap * (-0.5 + (sy + 0.5) * h);
+                        for (int sxi = 0; sxi < ss; ++sxi) {
+                            const double xx = dx - 0.5 + (sxi + 0.5) * h;
+                            const double d2 = xx * xx + yy * yy;
+                            if (d2 >= out2) continue;
+                            const double q = std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2));
+                            const double shade = amb + dif * q;
+                            if (d2 <= in2 && q > 0.5) {
+                                // Wholly covered, shading smooth: dρ/dx0 · dq/dρ = xx / (r² q), no ρ needed.
+                                const double g = dif * inv_r2 / q;
+                                c += 1.0;
+                                sh += shade;
+                                sx += g * xx;
+                                sv += g * yy;
+                                sr += g * d2 / r;
+                                continue;
+                            }
+                            const double rho = std::sqrt(d2);
+                            const double u = (r - rho) * inv_h + 0.5;
+                            const bool ramp = u < 1.0;
+                            const double cs = ramp ? u : 1.0;
+                            c += cs;
+                            sh += cs * shade;
+                            // d/dρ and d/dr of coverage and of coverage × shading at this sub-sample.
+                            const double dq_drho = q > 0.5 ? -rho * inv_r2 / q : (q_of(rho + 0.5 * h) - q_of(rho - 0.5 * h)) * inv_h;
+                            const double dq_dr = -(rho / r) * dq_drho;
+                            const double dcs = ramp ? inv_h : 0.0;  // = dcs/dr = −dcs/dρ
+                            const double ds_drho = -dcs * shade + cs * dif * dq_drho;
+                            const double ds_dr = dcs * shade + cs * dif * dq_dr;
+                            cr += dcs;
+                            sr += ds_dr;
+                            if (rho > 1e-12) {
+                                const double ex = -xx / rho, ev = -yy / rho;  // dρ/dx0, dρ/dv0
+                                cx += -dcs * ex;
+                                cv += -dcs * ev;
+                                sx += ds_drho * ex;
+                                sv += ds_drho * ev;
+                            }
+                        }
+                    }
+                }
+                const double a = h * h;
+                w_.cov[k] = c * a;
+                w_.shade[k] = sh * a;
+                dcx[k] = cx * a;
+                dcv[k] = cv * a;
+                dcr[k] = cr * a;
+                dsx[k] = sx * a;
+                dsv[k] = sv * a;
+                dsr[k] = sr * a;
             }
         }
     }
@@ -517,6 +581,9 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     double chi2 = 0;
     int it = 0;
     // Levenberg–Marquardt from t; stops early on a fit that stays hopeless (another object in the patch).
+    auto small_step = [](const Vec& d) {
+        return std::fabs(d[kX0]) < 1e-3 && std::fabs(d[kV0]) < 2e-3 && std::fabs(d[kR]) < 1e-3;
+    };
     auto solve = [&](int max_it, bool give_up) {
         chi2 = f.cost(t);
         double lambda = 1e-3;
@@ -526,7 +593,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
             Mat a;
             Vec g;
             f.normal_equations(t, a, g);
-            bool improved = false;
+            bool improved = false, converged = false;
             double gain = 0;
             for (int tries = 0; tries < 8 && !improved; ++tries) {
                 Vec d;
@@ -535,6 +602,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
                     const double c1 = f.cost(tt);
                     if (c1 < chi2) {
+                        // Centre and radius settled far below the noise's reach (≈ 0.01 px): one more step buys nothing.
+                        converged = small_step(d);
                         gain = chi2 - c1;
                         t = tt;
                         chi2 = c1;
@@ -542,10 +611,16 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
                         improved = true;
                         break;
                     }
+                    // A step this small that does not lower χ² means the minimum is reached (to the model's
+                    // sub-cell smoothness); damping it further only costs renders.
+                    if (small_step(d)) {
+                        converged = true;
+                        break;
+                    }
                 }
                 lambda *= 10.0;
             }
-            if (!improved || gain < 1e-6 * chi2) break;
+            if (!improved || gain < 1e-6 * chi2 || converged) break;
             if (give_up && k >= 3 && chi2 > 4.0 * cfg.max_reduced_chi2 * dof) break;
         }
     };
@@ -553,7 +628,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     // the fit is run again on the rest, as long as they are few. Not with an outline: there the misfit is the
     // outline model's own (a curved, shaded limb), which leaving pixels out does not mend.
     const bool may_drop = cfg.max_outlier_fraction > 0 && !p.outline;
-    solve(cfg.max_iterations, !may_drop);
+    solve(cfg.max_iterations, true);
     if (may_drop && chi2 > cfg.max_reduced_chi2 * std::max(1, f.observations() - np)) {
         const int before = f.observations();
         // The first fit is pulled by what it cannot model: tighten the cut over rounds (3, 2, 1 × outlier_sigma)
