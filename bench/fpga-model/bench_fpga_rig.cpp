@@ -207,7 +207,7 @@ int main(int argc, char** argv) {
             int refusals[7] = {};
             double se_model_refined = 0, se_fit_refined = 0, se_model_refused = 0;
         };
-        std::map<std::pair<int, bool>, Split> split;
+        std::map<std::pair<int, int>, Split> split;  // (size bin, 0 instrument / 1 eye / 2 eye on its outline)
         for (size_t k = 0; k < fields.size(); ++k) {
             const uint8_t* f = fields[k].data();
             blobs.clear();
@@ -228,9 +228,9 @@ int main(int argc, char** argv) {
                 },
                 [&](const rig::MarkerMatch& m) {
                     if (m.detection < 0) return;
-                    Split& sp = split[{size_bin(m.view->radius_px), m.marker->body == "eye"}];
                     const fpga::Blob& b = blobs[static_cast<size_t>(m.detection)];
                     const fpga::SphereFitResult& r = fits[static_cast<size_t>(m.detection)];
+                    Split& sp = split[{size_bin(m.view->radius_px), m.marker->body != "eye" ? 0 : r.outline ? 2 : 1}];
                     const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
                     ++sp.n;
                     ++sp.refusals[static_cast<int>(r.refusal)];
@@ -244,7 +244,7 @@ int main(int argc, char** argv) {
                 },
                 used);
         }
-        // The refinement stage alone: every blob of every field, thread CPU time, best of 3 repeats.
+        // The refinement stage alone, on every blob of every field.
         std::vector<std::vector<fpga::Blob>> field_blobs(fields.size());
         size_t n_blobs = 0;
         for (size_t k = 0; k < fields.size(); ++k) {
@@ -253,17 +253,41 @@ int main(int argc, char** argv) {
             pm.process_field(fields[k].data(), rig::kFieldHeight, 0, 0);
             n_blobs += field_blobs[k].size();
         }
-        double best_s = 1e30;
-        for (int rep = 0; rep < 3; ++rep) {
-            const double t0 = cpu_s();
-            for (size_t k = 0; k < fields.size(); ++k)
-                for (const fpga::Blob& b : field_blobs[k]) fpga::fit_sphere(fields[k].data(), rig::kFieldHeight, b, fit_cfg, *fit_work);
-            best_s = std::min(best_s, cpu_s() - t0);
+        // Run time against error of the stage: sub-samples per pixel side of the model render.
+        std::printf("\nRefinement stage alone (every blob of every field, thread CPU time, best of 3 repeats; %zu blobs, "
+                    "%.1f per field) against centroid RMS px of the unoccluded markers (pipeline where it refuses)\n\n",
+                    n_blobs, static_cast<double>(n_blobs) / static_cast<double>(fields.size()));
+        std::printf("| sub-samples | us per blob | fields/s per core | refined |");
+        for (const auto& [bin, acc] : methods[0].bins) std::printf(" %d–%d px |", bin, bin == 12 ? 99 : bin + 2);
+        std::printf("\n|---:|---:|---:|---:|");
+        for (size_t i = 0; i < methods[0].bins.size(); ++i) std::printf("---:|");
+        std::printf("\n");
+        for (int ss : {3, 4, 6}) {
+            fpga::SphereFitConfig cfg = fit_cfg;
+            cfg.supersample = ss;
+            double best_s = 1e30;
+            for (int rep = 0; rep < 3; ++rep) {
+                const double t0 = cpu_s();
+                for (size_t k = 0; k < fields.size(); ++k)
+                    for (const fpga::Blob& b : field_blobs[k]) fpga::fit_sphere(fields[k].data(), rig::kFieldHeight, b, cfg, *fit_work);
+                best_s = std::min(best_s, cpu_s() - t0);
+            }
+            std::map<int, Acc> bins;
+            int ok = 0;
+            for (size_t k = 0; k < fields.size(); ++k) {
+                std::vector<Detection> det;
+                for (const fpga::Blob& b : field_blobs[k]) {
+                    const fpga::SphereFitResult r = fpga::fit_sphere(fields[k].data(), rig::kFieldHeight, b, cfg, *fit_work);
+                    ok += r.ok;
+                    det.push_back({b.class_id, r.ok ? r.cx_px : b.cx_px(), r.ok ? r.cy_px : b.cy_px()});
+                }
+                score(det, truth[static_cast<size_t>(ids[k].second)], ids[k].first, bins);
+            }
+            std::printf("| %d%s | %.1f | %.0f | %d |", ss, ss == fit_cfg.supersample ? " (default)" : "",
+                        1e6 * best_s / static_cast<double>(n_blobs), static_cast<double>(fields.size()) / best_s, ok);
+            for (const auto& [bin, acc] : methods[0].bins) std::printf(" %.4f |", bins[bin].rms());
+            std::printf("\n");
         }
-        std::printf("\nrefinement stage alone: %.1f us per blob (%zu blobs, %.1f per field), %.0f fields/s per core\n",
-                    1e6 * best_s / static_cast<double>(n_blobs), n_blobs,
-                    static_cast<double>(n_blobs) / static_cast<double>(fields.size()),
-                    static_cast<double>(fields.size()) / best_s);
 
         std::printf("\nRefinement by marker size and body (unoccluded, matched): RMS px of the refined markers before "
                     "and after the fit, of the refused ones, and the refusals by reason\n\n");
@@ -272,7 +296,7 @@ int main(int argc, char** argv) {
         auto rms = [](double se, int cnt) { return cnt ? std::sqrt(se / cnt) : 0.0; };
         for (const auto& [key, sp] : split)
             std::printf("| %d–%d | %s | %d | %d | %.4f | %.4f | %.4f | %d | %d | %d | %d | %d |\n", key.first,
-                        key.first == 12 ? 99 : key.first + 2, key.second ? "eye" : "instrument", sp.n, sp.refined,
+                        key.first == 12 ? 99 : key.first + 2, key.second == 0 ? "instrument" : key.second == 1 ? "eye" : "eye, on the outline", sp.n, sp.refined,
                         rms(sp.se_model_refined, sp.refined), rms(sp.se_fit_refined, sp.refined),
                         rms(sp.se_model_refused, sp.n - sp.refined),
                         sp.refusals[static_cast<int>(fpga::FitRefusal::kChi2)],
