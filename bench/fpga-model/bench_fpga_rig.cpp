@@ -204,7 +204,7 @@ int main(int argc, char** argv) {
         // Where the refinement stage helps and why it refuses: unoccluded markers by size and body.
         struct Split {
             int n = 0, refined = 0;
-            int refusals[7] = {};
+            int refusals[fpga::kFitRefusalCount] = {};
             double se_model_refined = 0, se_fit_refined = 0, se_model_refused = 0;
         };
         std::map<std::pair<int, int>, Split> split;  // (size bin, 0 instrument / 1 eye / 2 eye on its outline)

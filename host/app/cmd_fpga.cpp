@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -108,6 +109,7 @@ struct CameraStats {
     int64_t blobs = 0;
     int64_t overflows = 0;
     int64_t refined = 0;
+    std::array<int64_t, fpga::kFitRefusalCount> refusals{};  // by fpga::FitRefusal
     double se = 0;
     int64_t matched = 0, missed = 0, extra = 0;
     std::vector<double> latency_us;        // blob: emission after its last pixel
@@ -220,6 +222,7 @@ int run(const FpgaOptions& opt) {
                 const auto r0 = std::chrono::steady_clock::now();
                 for (fpga::Blob& b : blobs) {
                     const fpga::SphereFitResult r = fpga::fit_sphere(field.data(), rig::kFieldHeight, b, fit_cfg, *fit_work);
+                    if (!r.ok) ++st.refusals[static_cast<size_t>(r.refusal)];
                     if (!r.ok || r.cx_px < 0 || r.cy_px < 0) continue;
                     b.cx_q16 = static_cast<uint32_t>(std::llround(r.cx_px * 65536.0));
                     b.cy_q16 = static_cast<uint32_t>(std::llround(r.cy_px * 65536.0));
@@ -270,6 +273,7 @@ int run(const FpgaOptions& opt) {
     }
 
     int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0;
+    std::array<int64_t, fpga::kFitRefusalCount> refusals{};
     double se = 0;
     std::vector<double> all_latency;
     nlohmann::json per_cam = nlohmann::json::array();
@@ -277,6 +281,7 @@ int run(const FpgaOptions& opt) {
         total_fields += st.fields;
         total_blobs += st.blobs;
         refined += st.refined;
+        for (size_t r = 0; r < refusals.size(); ++r) refusals[r] += st.refusals[r];
         matched += st.matched;
         se += st.se;
         all_latency.insert(all_latency.end(), st.latency_us.begin(), st.latency_us.end());
@@ -301,6 +306,10 @@ int run(const FpgaOptions& opt) {
         if (opt.refine) {
             j["refined"] = refined;
             j["refine_fields_per_s"] = refine_s > 0 ? total_fields / refine_s : 0.0;
+            nlohmann::json why = nlohmann::json::object();  // blobs whose fit was refused, by reason
+            for (size_t r = 1; r < refusals.size(); ++r)
+                why[fpga::to_string(static_cast<fpga::FitRefusal>(r))] = refusals[r];
+            j["refused"] = why;
         }
         if (!opt.out.empty()) j["out"] = opt.out;
         if (!opt.csv.empty()) j["csv"] = opt.csv;
@@ -308,10 +317,15 @@ int run(const FpgaOptions& opt) {
     } else {
         std::printf("%s: %lld fields, %lld blobs, %.0f fields/s (model)\n", opt.recording.c_str(),
                     static_cast<long long>(total_fields), static_cast<long long>(total_blobs), fps);
-        if (opt.refine)
-            std::printf("  refinement: %lld of %lld blobs refined by the sphere fit, %.0f fields/s\n",
+        if (opt.refine) {
+            std::printf("  refinement: %lld of %lld blobs refined by the sphere fit, %.0f fields/s; refused:",
                         static_cast<long long>(refined), static_cast<long long>(total_blobs),
                         refine_s > 0 ? total_fields / refine_s : 0.0);
+            for (size_t r = 1; r < refusals.size(); ++r)
+                std::printf(" %s %lld", fpga::to_string(static_cast<fpga::FitRefusal>(r)),
+                            static_cast<long long>(refusals[r]));
+            std::printf("\n");
+        }
         for (const CameraStats& st : stats)
             if (!truth.empty())
                 std::printf("  cam%d: centroid RMS %.4f px over %lld markers, %lld missed, %lld extra\n", st.camera,
@@ -332,8 +346,8 @@ eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording
     sub.add_option("--reg", opt->regs, "register write ADDRESS=VALUE before the first field (repeatable)");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     sub.add_flag("--refine", opt->refine,
-                 "refine each blob's centroid by a shaded-sphere fit on its patch (refinement stage; kept where the fit "
-                 "is refused)");
+                 "refine each blob's centroid by a shaded-sphere fit on its patch (refinement stage; the pipeline's "
+                 "centroid stands where the fit is refused)");
     return [opt]() -> int {
         try {
             return run(*opt);

@@ -54,6 +54,9 @@ enum class FitRefusal : uint8_t {
     kShift,        ///< the fitted centroid is further than max_shift_px from the pipeline's
 };
 
+/// Number of FitRefusal values (for tallies indexed by them).
+inline constexpr int kFitRefusalCount = static_cast<int>(FitRefusal::kShift) + 1;
+
 /// One word for a refusal, for CSV and reports.
 const char* to_string(FitRefusal r);
 
