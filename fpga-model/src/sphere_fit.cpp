@@ -25,10 +25,13 @@ const char* to_string(FitRefusal r) {
 
 namespace {
 
-constexpr int kMaxPar = 18;
-// Parameters: centre (frame x, frame v), radius (frame px), amplitude; background per channel Y, Cb, Cr as
-// level + x slope + v slope about the patch reference; outline: normal angle, offset, and the level beyond it.
-enum : int { kX0, kV0, kR, kA, kB0, kPhi = 13, kD, kB2 };
+constexpr int kMaxPar = 20;
+// Parameters: centre (frame x, frame v), radius (frame px), the outline's ellipticity (e1, e2: the marker's
+// outline is ρ² = (1 + e1)·dx² + 2·e2·dx·dv + (1 − e1)·dv² = r²; pixel aspect and perspective make a sphere's
+// image an ellipse), amplitude; background per channel Y, Cb, Cr as level + x slope + v slope about the patch
+// reference; outline: normal angle, offset, and the level beyond it.
+enum : int { kX0, kV0, kR, kE1, kE2, kA, kB0, kPhi = 15, kD, kB2 };
+constexpr int kShapePar = 5;  // centre, radius, ellipticity: the parameters the marker render depends on
 constexpr double kOffset[3] = {16.0, 128.0, 128.0};
 
 using Vec = std::array<double, kMaxPar>;
@@ -81,37 +84,95 @@ public:
         m_[2] = p_.colour.cr_dn;
     }
 
-    // Coverage and coverage × shading of the sphere per model pixel.
-    void render(double x0, double v0, double r, double* cov, double* shade) const {
-        const int ss = cfg_.supersample;
-        const double h = 1.0 / ss, rr = std::max(r, 0.25), inv_r2 = 1.0 / (rr * rr), ap = cfg_.aperture_lines_px;
-        const double reach = rr + 0.25 + 0.5 * std::max(1.0, ap), amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
-        // Sub-samples within r − h/2 of the centre are wholly covered, beyond r + h/2 not at all.
-        const double in2 = rr > 0.5 * h ? (rr - 0.5 * h) * (rr - 0.5 * h) : 0.0, out2 = (rr + 0.5 * h) * (rr + 0.5 * h);
+    // Coverage and coverage × shading of the marker per model pixel at t; with kDeriv also their derivatives by
+    // the shape parameters (centre x, v, radius, e1, e2) into the workspace. Coverage is a ramp one sub-cell wide
+    // across the outline, whose derivative is exact; shading's radial slope is taken across the sub-cell near the
+    // rim (where the pointwise slope of √(1 − ρ²/r²) is unbounded), analytically elsewhere.
+    template <bool kDeriv>
+    void raster(const Vec& t, double* cov, double* shade) const {
+        const int n = p_.lines * p_.cols, ss = cfg_.supersample;
+        const double x0 = t[kX0], v0 = t[kV0], r = std::max(t[kR], 0.25);
+        const double e1 = std::clamp(t[kE1], -0.5, 0.5), e2 = std::clamp(t[kE2], -0.5, 0.5);
+        const double h = 1.0 / ss, inv_h = ss, inv_r2 = 1.0 / (r * r), ap = cfg_.aperture_lines_px;
+        const double amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
+        // Longest semi-axis r / √(1 − |e|), plus half a pixel's diagonal.
+        const double reach = r / std::sqrt(1.0 - std::hypot(e1, e2)) + 0.25 + 0.5 * std::max(1.0, ap);
+        // Sub-samples within r − h/2 (metric ρ) are wholly covered, beyond r + h/2 not at all.
+        const double in2 = r > 0.5 * h ? (r - 0.5 * h) * (r - 0.5 * h) : 0.0, out2 = (r + 0.5 * h) * (r + 0.5 * h);
+        auto q_of = [&](double rho) { return std::sqrt(std::max(0.0, 1.0 - rho * rho * inv_r2)); };
+        double* dc = w_.dcov.data();
+        double* ds = w_.dshade.data();
         for (int j = 0; j < p_.lines; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
             for (int i = 0; i < p_.cols; ++i) {
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
-                double c = 0, s = 0;
+                double c = 0, sh = 0, gc[kShapePar] = {}, gs[kShapePar] = {};
                 if (dx * dx + dv * dv < reach * reach) {
                     for (int sy = 0; sy < ss; ++sy) {
                         const double yy = dv + ap * (-0.5 + (sy + 0.5) * h);
-                        for (int sx = 0; sx < ss; ++sx) {
-                            const double xx = dx - 0.5 + (sx + 0.5) * h;
-                            const double d2 = xx * xx + yy * yy;
+                        for (int sxi = 0; sxi < ss; ++sxi) {
+                            const double xx = dx - 0.5 + (sxi + 0.5) * h;
+                            const double d2 = (1.0 + e1) * xx * xx + 2.0 * e2 * xx * yy + (1.0 - e1) * yy * yy;
                             if (d2 >= out2) continue;
-                            // Straight-edge coverage of the sub-cell: a ramp one sub-cell wide keeps the model smooth.
-                            const double cs = d2 <= in2 ? 1.0 : std::clamp((rr - std::sqrt(d2)) / h + 0.5, 0.0, 1.0);
-                            c += cs;
-                            s += cs * (amb + dif * std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2)));
+                            const double q = std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2));
+                            const double shading = amb + dif * q;
+                            if constexpr (!kDeriv) {
+                                const double cs = d2 <= in2 ? 1.0 : std::clamp((r - std::sqrt(d2)) * inv_h + 0.5, 0.0, 1.0);
+                                c += cs;
+                                sh += cs * shading;
+                                continue;
+                            } else {
+                                // ∂ρ²/∂(x0, v0, e1, e2); ∂ρ²/∂r = 0.
+                                const double qx = -2.0 * ((1.0 + e1) * xx + e2 * yy), qv = -2.0 * (e2 * xx + (1.0 - e1) * yy);
+                                const double qe1 = xx * xx - yy * yy, qe2 = 2.0 * xx * yy;
+                                if (d2 <= in2 && q > 0.5) {
+                                    // Wholly covered, shading smooth: ∂q/∂ρ² = −1 / (2 r² q), no ρ needed.
+                                    const double g = -0.5 * dif * inv_r2 / q;
+                                    c += 1.0;
+                                    sh += shading;
+                                    gs[0] += g * qx;
+                                    gs[1] += g * qv;
+                                    gs[2] += dif * d2 * inv_r2 / (r * q);
+                                    gs[3] += g * qe1;
+                                    gs[4] += g * qe2;
+                                    continue;
+                                }
+                                const double rho = std::sqrt(d2);
+                                const double u = (r - rho) * inv_h + 0.5;
+                                const bool ramp = u < 1.0;
+                                const double cs = ramp ? u : 1.0;
+                                c += cs;
+                                sh += cs * shading;
+                                // d/dρ and d/dr of coverage and of coverage × shading at this sub-sample.
+                                const double dq_drho =
+                                    q > 0.5 ? -rho * inv_r2 / q : (q_of(rho + 0.5 * h) - q_of(rho - 0.5 * h)) * inv_h;
+                                const double dq_dr = -(rho / r) * dq_drho;
+                                const double dcs = ramp ? inv_h : 0.0;  // = ∂cs/∂r = −∂cs/∂ρ
+                                const double ds_drho = -dcs * shading + cs * dif * dq_drho;
+                                gc[2] += dcs;
+                                gs[2] += dcs * shading + cs * dif * dq_dr;
+                                if (rho > 1e-12) {
+                                    const double to_rho = 0.5 / rho;  // ∂ρ = ∂ρ² / (2ρ)
+                                    const double dp[4] = {qx * to_rho, qv * to_rho, qe1 * to_rho, qe2 * to_rho};
+                                    const int slot[4] = {0, 1, 3, 4};
+                                    for (int m = 0; m < 4; ++m) {
+                                        gc[slot[m]] -= dcs * dp[m];
+                                        gs[slot[m]] += ds_drho * dp[m];
+                                    }
+                                }
+                            }
                         }
                     }
-                    c *= h * h;
-                    s *= h * h;
                 }
-                cov[k] = c;
-                shade[k] = s;
+                const double a = h * h;
+                cov[k] = c * a;
+                shade[k] = sh * a;
+                if constexpr (kDeriv)
+                    for (int m = 0; m < kShapePar; ++m) {
+                        dc[m * n + k] = gc[m] * a;
+                        ds[m * n + k] = gs[m] * a;
+                    }
             }
         }
     }
@@ -165,7 +226,7 @@ public:
         const int n = SphereFitWorkspace::kPx;
         double* cov = w_.trial.data();
         double* shade = cov + n;
-        render(t[kX0], t[kV0], t[kR], cov, shade);
+        raster<false>(t, cov, shade);
         model(t, cov, shade, w_.val.data());
         return chi2(w_.val.data());
     }
@@ -176,7 +237,7 @@ public:
         double* val = w_.val.data();
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
-        const int nr = p_.outline ? kRow : kRow - 3;
+        const int nr = p_.outline ? kRow : kRow - 3;  // the outline's 3 are last
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
         double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {};
         auto add = [&](int ch, const double* row, double r, double wgt) {
@@ -223,83 +284,8 @@ public:
             for (int s = q + 1; s < np(); ++s) a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
     }
 
-    // Base render with its derivatives by centre x, centre v and radius, in one pass. Coverage is the sub-cell
-    // ramp's exact derivative; shading's radial slope is taken over the sub-cell's width where it is steep (the
-    // rim, where the pointwise slope of sqrt(1 − ρ²/r²) is unbounded), analytically elsewhere.
-    void linearise(const Vec& t) {
-        const int n = p_.lines * p_.cols, ss = cfg_.supersample;
-        const double x0 = t[kX0], v0 = t[kV0], r = std::max(t[kR], 0.25);
-        const double h = 1.0 / ss, inv_h = ss, inv_r2 = 1.0 / (r * r), ap = cfg_.aperture_lines_px;
-        const double reach = r + 0.25 + 0.5 * std::max(1.0, ap), amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
-        auto q_of = [&](double rho) { return std::sqrt(std::max(0.0, 1.0 - rho * rho * inv_r2)); };
-        const double in2 = r > 0.5 * h ? (r - 0.5 * h) * (r - 0.5 * h) : 0.0, out2 = (r + 0.5 * h) * (r + 0.5 * h);
-        double* dcx = w_.dcov.data();
-        double* dcv = dcx + n;
-        double* dcr = dcv + n;
-        double* dsx = w_.dshade.data();
-        double* dsv = dsx + n;
-        double* dsr = dsv + n;
-        for (int j = 0; j < p_.lines; ++j) {
-            const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
-            for (int i = 0; i < p_.cols; ++i) {
-                const int k = j * p_.cols + i;
-                const double dx = (p_.x0 - 1 + i) - x0;
-                double c = 0, sh = 0, cx = 0, cv = 0, cr = 0, sx = 0, sv = 0, sr = 0;
-                if (dx * dx + dv * dv < reach * reach) {
-                    for (int sy = 0; sy < ss; ++sy) {
-                        const double yy = dv + ap * (-0.5 + (sy + 0.5) * h);
-                        for (int sxi = 0; sxi < ss; ++sxi) {
-                            const double xx = dx - 0.5 + (sxi + 0.5) * h;
-                            const double d2 = xx * xx + yy * yy;
-                            if (d2 >= out2) continue;
-                            const double q = std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2));
-                            const double shade = amb + dif * q;
-                            if (d2 <= in2 && q > 0.5) {
-                                // Wholly covered, shading smooth: dρ/dx0 · dq/dρ = xx / (r² q), no ρ needed.
-                                const double g = dif * inv_r2 / q;
-                                c += 1.0;
-                                sh += shade;
-                                sx += g * xx;
-                                sv += g * yy;
-                                sr += g * d2 / r;
-                                continue;
-                            }
-                            const double rho = std::sqrt(d2);
-                            const double u = (r - rho) * inv_h + 0.5;
-                            const bool ramp = u < 1.0;
-                            const double cs = ramp ? u : 1.0;
-                            c += cs;
-                            sh += cs * shade;
-                            // d/dρ and d/dr of coverage and of coverage × shading at this sub-sample.
-                            const double dq_drho = q > 0.5 ? -rho * inv_r2 / q : (q_of(rho + 0.5 * h) - q_of(rho - 0.5 * h)) * inv_h;
-                            const double dq_dr = -(rho / r) * dq_drho;
-                            const double dcs = ramp ? inv_h : 0.0;  // = dcs/dr = −dcs/dρ
-                            const double ds_drho = -dcs * shade + cs * dif * dq_drho;
-                            const double ds_dr = dcs * shade + cs * dif * dq_dr;
-                            cr += dcs;
-                            sr += ds_dr;
-                            if (rho > 1e-12) {
-                                const double ex = -xx / rho, ev = -yy / rho;  // dρ/dx0, dρ/dv0
-                                cx += -dcs * ex;
-                                cv += -dcs * ev;
-                                sx += ds_drho * ex;
-                                sv += ds_drho * ev;
-                            }
-                        }
-                    }
-                }
-                const double a = h * h;
-                w_.cov[k] = c * a;
-                w_.shade[k] = sh * a;
-                dcx[k] = cx * a;
-                dcv[k] = cv * a;
-                dcr[k] = cr * a;
-                dsx[k] = sx * a;
-                dsv[k] = sv * a;
-                dsr[k] = sr * a;
-            }
-        }
-    }
+    // Base render with its derivatives by the shape parameters, in one pass.
+    void linearise(const Vec& t) { raster<true>(t, w_.cov.data(), w_.shade.data()); }
 
     int np() const { return p_.outline ? kMaxPar : kPhi; }
     double var_c() const { return cfg_.noise_dn * cfg_.noise_dn + 1.0 / 12.0; }
@@ -371,11 +357,13 @@ public:
     }
 
 private:
-    // A model pixel's derivatives touch 10 parameters: centre x, v, radius, amplitude, its channel's background
-    // level and slopes, and (with an outline) the outline's angle, offset and its channel's level beyond it.
-    static constexpr int kRow = 10;
+    // A model pixel's derivatives touch 12 parameters: the 5 of the marker's shape, amplitude, its channel's
+    // background level and slopes, and (with an outline) the outline's angle, offset and its channel's level
+    // beyond it. Increasing, so that a compact lower triangle scatters into the lower triangle.
+    static constexpr int kRow = 12;
     static void row_params(int ch, int* idx) {
-        const int p[kRow] = {kX0, kV0, kR, kA, kB0 + 3 * ch, kB0 + 3 * ch + 1, kB0 + 3 * ch + 2, kPhi, kD, kB2 + ch};
+        const int p[kRow] = {kX0, kV0, kR, kE1, kE2, kA, kB0 + 3 * ch, kB0 + 3 * ch + 1, kB0 + 3 * ch + 2,
+                             kPhi, kD, kB2 + ch};
         for (int q = 0; q < kRow; ++q) idx[q] = p[q];
     }
 
@@ -407,17 +395,18 @@ private:
         const double we = w_.edge_w[k];
         const double bg = p_.outline ? we * inside + (1.0 - we) * t[kB2 + ch] : inside;
         const double open = 1.0 - w_.cov[k], under = bg - kOffset[ch], am = t[kA] * m_[ch];
-        for (int q = 0; q < 3; ++q) row[q] = am * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under;
-        row[3] = w_.shade[k] * m_[ch];
-        row[4] = open * we;
-        row[5] = open * we * x;
-        row[6] = open * we * v;
+        for (int q = 0; q < kShapePar; ++q) row[q] = am * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under;
+        if (!cfg_.fit_ellipse) row[3] = row[4] = 0.0;  // e1, e2 held at 0
+        row[5] = w_.shade[k] * m_[ch];
+        row[6] = open * we;
+        row[7] = open * we * x;
+        row[8] = open * we * v;
         if (!p_.outline) return;
         const bool ramp = we > 0.0 && we < 1.0;
         const double step = open * (inside - t[kB2 + ch]);
-        row[7] = ramp ? -step * (-sp_ * x + cp_ * v) : 0.0;
-        row[8] = ramp ? step : 0.0;
-        row[9] = open * (1.0 - we);
+        row[9] = ramp ? -step * (-sp_ * x + cp_ * v) : 0.0;
+        row[10] = ramp ? step : 0.0;
+        row[11] = open * (1.0 - we);
     }
 
     const SphereFitConfig& cfg_;
@@ -431,13 +420,14 @@ private:
 
 // Intensity centroid of the fitted sphere over the field's pixels (pixel centres weighted by the coverage ×
 // shading each pixel integrates — the rig's truth definition), field px.
-void intensity_centroid(const SphereFitConfig& cfg, double x0, double v0, double r, int parity, double& cx,
-                        double& cy) {
+void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, double& cx, double& cy) {
     constexpr int S = 16;
+    const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2];
     const double h = 1.0 / S, inv_r2 = 1.0 / (r * r), ap = cfg.aperture_lines_px;
+    const double reach = r / std::sqrt(1.0 - std::hypot(e1, e2)) + 1.0;
     double si = 0, sx = 0, sv = 0;
-    const int lo_v = static_cast<int>(std::floor(v0 - r - 1)), hi_v = static_cast<int>(std::ceil(v0 + r + 1));
-    const int lo_x = static_cast<int>(std::floor(x0 - r - 1)), hi_x = static_cast<int>(std::ceil(x0 + r + 1));
+    const int lo_v = static_cast<int>(std::floor(v0 - reach)), hi_v = static_cast<int>(std::ceil(v0 + reach));
+    const int lo_x = static_cast<int>(std::floor(x0 - reach)), hi_x = static_cast<int>(std::ceil(x0 + reach));
     for (int v = lo_v; v <= hi_v; ++v) {
         if (((v - parity) & 1) != 0) continue;
         for (int x = lo_x; x <= hi_x; ++x) {
@@ -446,7 +436,7 @@ void intensity_centroid(const SphereFitConfig& cfg, double x0, double v0, double
                 const double yy = v + ap * (-0.5 + (sy + 0.5) * h) - v0;
                 for (int sx2 = 0; sx2 < S; ++sx2) {
                     const double xx = x - 0.5 + (sx2 + 0.5) * h - x0;
-                    const double q = 1.0 - (xx * xx + yy * yy) * inv_r2;
+                    const double q = 1.0 - ((1.0 + e1) * xx * xx + 2.0 * e2 * xx * yy + (1.0 - e1) * yy * yy) * inv_r2;
                     if (q > 0) in += cfg.shade_ambient + cfg.shade_diffuse * std::sqrt(q);
                 }
             }
@@ -648,6 +638,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     res.outline = p.outline;
     res.reduced_chi2 = f.cost(t) / std::max(1, f.observations() - np);
     res.radius_px = t[kR];
+    res.e1 = t[kE1];
+    res.e2 = t[kE2];
     res.centre_x_px = t[kX0];
     res.centre_y_px = 0.5 * (t[kV0] - p.parity);
     const double box_r = 0.5 * (blob.x_max - blob.x_min + 1);
@@ -655,9 +647,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     if (!(res.reduced_chi2 <= cfg.max_reduced_chi2)) return res;
     res.refusal = FitRefusal::kImplausible;
     const bool sane = t[kR] > 0.5 && t[kR] < 2.0 * box_r + 2.0 && t[kA] > 0.2 && t[kA] < 5.0 &&
+                      std::hypot(t[kE1], t[kE2]) < 0.3 &&
                       std::fabs(t[kX0] - cx0) < 1.5 && std::fabs(t[kV0] - p.vc) < 2.0;
     if (!sane) return res;
-    intensity_centroid(cfg, t[kX0], t[kV0], t[kR], p.parity, res.cx_px, res.cy_px);
+    intensity_centroid(cfg, t, p.parity, res.cx_px, res.cy_px);
     if (!std::isfinite(res.cx_px) || !std::isfinite(res.cy_px)) return res;
     // Both estimate the same centroid; a fit that moves far from the pipeline's has modelled something else (a
     // partly occluded marker's hidden half, a neighbour in the patch).

@@ -31,6 +31,7 @@ struct SphereFitConfig {
     double noise_dn = 1.0;                 ///< sensor noise σ on Y, Cb, Cr (DN)
     double shot_gain = 0.02;               ///< luma shot-noise variance per DN above black
     int supersample = 4;                   ///< sub-samples per pixel side for coverage and shading
+    bool fit_ellipse = true;               ///< fit the outline's ellipticity (pixel aspect, perspective); else a circle
     int max_iterations = 12;
     double max_reduced_chi2 = 5.0;         ///< a worse fit is refused (another object in the patch, occlusion)
     double outline_step_dn = 40.0;         ///< luma range on the patch border that adds the outline (step) term
@@ -67,6 +68,7 @@ struct SphereFitResult {
     double centre_x_px = 0;       ///< fitted sphere centre (field px)
     double centre_y_px = 0;
     double radius_px = 0;         ///< fitted radius in frame px (a field line is two frame px tall)
+    double e1 = 0, e2 = 0;        ///< fitted ellipticity: outline (1 + e1)·dx² + 2·e2·dx·dv + (1 − e1)·dv² = r²
     double reduced_chi2 = 0;      ///< residual Σ(r/σ)² per degree of freedom
     bool outline = false;         ///< the background model had a step (eye outline, shaft edge)
     int iterations = 0;
@@ -83,7 +85,7 @@ struct SphereFitWorkspace {
     static constexpr int kCols = kFitMaxCols + 2, kLines = kFitMaxLines;
     static constexpr int kPx = kCols * kLines;
     std::array<double, kPx> cov{}, shade{};        // marker coverage and coverage × shading per pixel
-    std::array<double, kPx * 3> dcov{}, dshade{};  // their derivatives by centre x, centre v, radius
+    std::array<double, kPx * 5> dcov{}, dshade{};  // their derivatives by centre x, centre v, radius, e1, e2
     std::array<double, kPx * 2> trial{};           // coverage and shading at a trial point
     std::array<double, kPx * 3> val{};             // model pixels (Y, Cb, Cr)
     std::array<double, kPx> edge_w{};              // weight of the background inside the outline
