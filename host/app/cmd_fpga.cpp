@@ -1,5 +1,6 @@
 // `eyesim fpga`: run the FPGA pipeline model over a recording; write protocol FieldMarkers packets and/or CSV.
 #include "eyesim/app/command.hpp"
+#include "eyesim/app/refine.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/fpga/wire.hpp"
@@ -109,7 +110,6 @@ struct CameraStats {
     int64_t blobs = 0;
     int64_t overflows = 0;
     int64_t refined = 0;
-    std::array<int64_t, fpga::kFitRefusalCount> refusals{};  // by fpga::FitRefusal
     double se = 0;
     int64_t matched = 0, missed = 0, extra = 0;
     std::vector<double> latency_us;        // blob: emission after its last pixel
@@ -185,14 +185,9 @@ int run(const FpgaOptions& opt) {
     std::vector<Record> records;
     uint16_t sequence = 0;
     double model_s = 0, refine_s = 0;
-    // Refinement stage: a sphere fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
-    fpga::SphereFitConfig fit_cfg;
-    for (int c = 1; c <= 4; ++c) {
-        const auto rgb = rig::marker_class_rgb(c);
-        fit_cfg.colour[static_cast<size_t>(c)] = fpga::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
-    }
-    std::unique_ptr<fpga::SphereFitWorkspace> fit_work;
-    if (opt.refine) fit_work = std::make_unique<fpga::SphereFitWorkspace>();
+    // Refinement stage: a model fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
+    std::unique_ptr<eyesim::app::BlobRefiner> refiner;
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
     const bool progress = eyesim::app::show_progress(opt.json);
 
     for (int64_t i = 0; i < n_fields; ++i) {
@@ -220,14 +215,7 @@ int run(const FpgaOptions& opt) {
             CameraStats& st = stats[k];
             if (opt.refine) {
                 const auto r0 = std::chrono::steady_clock::now();
-                for (fpga::Blob& b : blobs) {
-                    const fpga::SphereFitResult r = fpga::fit_sphere(field.data(), rig::kFieldHeight, b, fit_cfg, *fit_work);
-                    if (!r.ok) ++st.refusals[static_cast<size_t>(r.refusal)];
-                    if (!r.ok || r.cx_px < 0 || r.cy_px < 0) continue;
-                    b.cx_q16 = static_cast<uint32_t>(std::llround(r.cx_px * 65536.0));
-                    b.cy_q16 = static_cast<uint32_t>(std::llround(r.cy_px * 65536.0));
-                    ++st.refined;
-                }
+                st.refined += refiner->refine(field.data(), rig::kFieldHeight, blobs);
                 refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
             }
             ++st.fields;
@@ -273,7 +261,6 @@ int run(const FpgaOptions& opt) {
     }
 
     int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0;
-    std::array<int64_t, fpga::kFitRefusalCount> refusals{};
     double se = 0;
     std::vector<double> all_latency;
     nlohmann::json per_cam = nlohmann::json::array();
@@ -281,7 +268,6 @@ int run(const FpgaOptions& opt) {
         total_fields += st.fields;
         total_blobs += st.blobs;
         refined += st.refined;
-        for (size_t r = 0; r < refusals.size(); ++r) refusals[r] += st.refusals[r];
         matched += st.matched;
         se += st.se;
         all_latency.insert(all_latency.end(), st.latency_us.begin(), st.latency_us.end());
@@ -306,10 +292,7 @@ int run(const FpgaOptions& opt) {
         if (opt.refine) {
             j["refined"] = refined;
             j["refine_fields_per_s"] = refine_s > 0 ? total_fields / refine_s : 0.0;
-            nlohmann::json why = nlohmann::json::object();  // blobs whose fit was refused, by reason
-            for (size_t r = 1; r < refusals.size(); ++r)
-                why[fpga::to_string(static_cast<fpga::FitRefusal>(r))] = refusals[r];
-            j["refused"] = why;
+            j["refused"] = refiner->refusals_json();  // blobs whose fit was refused, by reason
         }
         if (!opt.out.empty()) j["out"] = opt.out;
         if (!opt.csv.empty()) j["csv"] = opt.csv;
@@ -321,9 +304,9 @@ int run(const FpgaOptions& opt) {
             std::printf("  refinement: %lld of %lld blobs refined by the sphere fit, %.0f fields/s; refused:",
                         static_cast<long long>(refined), static_cast<long long>(total_blobs),
                         refine_s > 0 ? total_fields / refine_s : 0.0);
-            for (size_t r = 1; r < refusals.size(); ++r)
+            for (int r = 1; r < fpga::kFitRefusalCount; ++r)
                 std::printf(" %s %lld", fpga::to_string(static_cast<fpga::FitRefusal>(r)),
-                            static_cast<long long>(refusals[r]));
+                            static_cast<long long>(refiner->refusals()[static_cast<size_t>(r)]));
             std::printf("\n");
         }
         for (const CameraStats& st : stats)

@@ -1,6 +1,7 @@
 // `eyesim validate`: FPGA model → FieldMarkers packets (the firmware's wire conversion, encoded and parsed) →
 // tracking, over a recording with ground truth; accuracy, latency and drop statistics, optional report.
 #include "eyesim/app/command.hpp"
+#include "eyesim/app/refine.hpp"
 
 #include "eyesim/firmware/latency.hpp"
 #include "eyesim/fpga/pipeline.hpp"
@@ -56,6 +57,7 @@ struct ValidateOptions {
     double sigma_px = 0.05;
     std::string bodies;
     std::uint64_t seed = 1;
+    bool refine = false;
 };
 
 /// Everything collected from one tracking run.
@@ -477,7 +479,11 @@ int run_validate(const ValidateOptions& opt) {
         throw Error(opt.write_capture + ": cannot create capture file");
     long parse_errors = 0, fields_with_drops = 0;
     const double t_start = us_now();
-    double fpga_us = 0;
+    double fpga_us = 0, refine_us = 0;
+    // Refinement stage on each blob's patch (eyesim/app/refine.hpp); the modelled link timing does not include it.
+    std::unique_ptr<eyesim::app::BlobRefiner> refiner;
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
+    long refined = 0;
 
     for (std::int64_t i = 0; i < n; ++i) {
         std::vector<Timed> fpga_msgs, truth_msgs;
@@ -498,6 +504,11 @@ int run_validate(const ValidateOptions& opt) {
             eyesim::fpga::Blob b;
             while (pipe.pop_blob(b)) blobs.push_back(b);
             fpga_us += us_now() - f0;
+            if (refiner) {
+                const double r0 = us_now();
+                refined += refiner->refine(field.data(), rig::kFieldHeight, blobs);
+                refine_us += us_now() - r0;
+            }
             const eyesim::fpga::FieldInfo info =
                 eyesim::fpga::field_info(pipe.field_stats(), std::uint8_t(c), std::uint8_t(parity), start_us);
             if (info.blobs_dropped) ++fields_with_drops;
@@ -624,6 +635,11 @@ int run_validate(const ValidateOptions& opt) {
     j["centroid_rms_px"] = rms(all_c);
     j["fields_with_dropped_blobs"] = fields_with_drops;
     j["fpga_us_per_field"] = fpga_us / double(n * ncam);
+    if (refiner) {
+        j["refined"] = refined;
+        j["refused"] = refiner->refusals_json();
+        j["refine_us_per_field"] = refine_us / double(n * ncam);
+    }
     const RunStats& fs = fpga_run.stats();
     const RunStats& ts = truth_run.stats();
     // Headline keys: the full chain from the FPGA model.
@@ -712,7 +728,8 @@ int run_validate(const ValidateOptions& opt) {
     } else {
         std::printf("%s: %lld fields x %d cameras (sync %s)\n", opt.dir.c_str(), static_cast<long long>(n), ncam,
                     opt.sync.c_str());
-        std::printf("  centroids (FPGA vs rendered): RMS %.4f px\n", j["centroid_rms_px"].get<double>());
+        std::printf("  centroids (FPGA%s vs rendered): RMS %.4f px\n", refiner ? " + refinement" : "",
+                    j["centroid_rms_px"].get<double>());
         for (const auto& [label, r] : std::vector<std::pair<std::string, nlohmann::json>>{
                  {"FPGA chain", fj}, {fmt::format("truth centroids + {} px", opt.truth_noise_px), j["truth_centroids"]}})
             std::printf("  %-28s 3D marker RMS %.1f um (p95 %.1f), tip RMS %.1f um, eye RMS %.4f deg, frames %ld\n",
@@ -744,6 +761,8 @@ eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets
     sub.add_option("--sigma-px", opt->sigma_px, "centroid noise assumed for the covariance (frame px)")
         ->check(eyesim::app::finite_in(1e-4, 10.0));
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
+    sub.add_flag("--refine", opt->refine,
+                 "refine each blob's centroid by the refinement stage (a marker model fit on its patch) before packing");
     sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise");
     sub.add_option("--write-capture", opt->write_capture,
                    "also write the FPGA chain's packets as a capture file (modelled receive times)");

@@ -99,6 +99,17 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     CHECK(refined["refined"].get<int>() * 3 > fpga["blobs"].get<int>());
     CHECK(refined["centroid_rms_px"].get<double>() < 0.1);
 
+    // validate --refine: the same chain with refined centroids, scored against the rendered truth of the markers
+    // no other object hides (its own matching), is closer to it than without.
+    auto plain_v = nlohmann::json::parse(run(exe + " validate --recording " + dir + "/rec --json", rc));
+    REQUIRE(rc == 0);
+    auto refined_v = nlohmann::json::parse(run(exe + " validate --recording " + dir + "/rec --refine --json", rc));
+    REQUIRE(rc == 0);
+    CHECK(refined_v["refined"].get<int>() > 0);
+    CHECK(refined_v["refused"].contains("chi2"));
+    CHECK_FALSE(plain_v.contains("refined"));
+    CHECK(refined_v["centroid_rms_px"].get<double>() < 0.75 * plain_v["centroid_rms_px"].get<double>());
+
     // Every FieldMarkers message of the capture decodes; its markers add up to the FPGA model's blobs.
     const std::string lines = run(exe + " protocol decode " + dir + "/cap.bin --json 2>/dev/null", rc);
     REQUIRE(rc == 0);

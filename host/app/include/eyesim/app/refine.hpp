@@ -1,0 +1,40 @@
+#pragma once
+/// \file
+/// The refinement stage (fpga/sphere_fit.hpp) applied to a field's blobs with the rig's marker colours, as
+/// `eyesim fpga --refine` and `eyesim validate --refine` run it.
+
+#include "eyesim/fpga/blob.hpp"
+#include "eyesim/fpga/sphere_fit.hpp"
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <vector>
+
+namespace eyesim::app {
+
+/// The fit's configuration with the rig's default marker colours (classes 1..4, sRGB as lit on the rig).
+fpga::SphereFitConfig rig_sphere_fit_config();
+
+/// Replaces blob centroids by the refinement stage's where it accepts the fit; counts refusals by reason.
+class BlobRefiner {
+public:
+    BlobRefiner();
+
+    /// Refines `blobs` of `field` (UYVY, 720 × `height`) in place: centroids only, the blob set is unchanged.
+    /// Returns how many were refined.
+    int refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs);
+
+    /// Blobs whose fit was refused, by fpga::FitRefusal.
+    const std::array<int64_t, fpga::kFitRefusalCount>& refusals() const { return refusals_; }
+    /// {"chi2": n, "implausible": n, …}: the refusals by name.
+    nlohmann::json refusals_json() const;
+
+private:
+    fpga::SphereFitConfig config_;
+    std::unique_ptr<fpga::SphereFitWorkspace> work_;  // ≈ 150 KiB, allocated once
+    std::array<int64_t, fpga::kFitRefusalCount> refusals_{};
+};
+
+}  // namespace eyesim::app
