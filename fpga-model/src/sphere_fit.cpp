@@ -25,12 +25,13 @@ const char* to_string(FitRefusal r) {
 
 namespace {
 
-constexpr int kMaxPar = 20;
+constexpr int kMaxPar = 24;
 // Parameters: centre (frame x, frame v), radius (frame px), the outline's ellipticity (e1, e2: the marker's
 // outline is ρ² = (1 + e1)·dx² + 2·e2·dx·dv + (1 − e1)·dv² = r²; pixel aspect and perspective make a sphere's
 // image an ellipse), amplitude; background per channel Y, Cb, Cr as level + x slope + v slope about the patch
-// reference; outline: normal angle, offset, and the level beyond it.
-enum : int { kX0, kV0, kR, kE1, kE2, kA, kB0, kPhi = 15, kD, kB2 };
+// reference; outline: normal angle, offset, the level beyond it per channel, its curvature, and per channel the
+// gain of the limb shading inside it.
+enum : int { kX0, kV0, kR, kE1, kE2, kA, kB0, kPhi = 15, kD, kB2, kKappa = 20, kG };
 constexpr int kShapePar = 5;  // centre, radius, ellipticity: the parameters the marker render depends on
 constexpr double kOffset[3] = {16.0, 128.0, 128.0};
 
@@ -180,15 +181,17 @@ public:
     // Model value of every model pixel and channel at t, from a render (cov, shade) of t's sphere.
     void model(const Vec& t, const double* cov, const double* shade, double* val) const {
         const int n = p_.lines * p_.cols;
-        outline_weights(t, w_.edge_w.data());
+        outline_weights(t);
         for (int ch = 0; ch < 3; ++ch) {
             const double b0 = t[kB0 + 3 * ch], bx = t[kB0 + 3 * ch + 1], bv = t[kB0 + 3 * ch + 2];
             const double beyond = p_.outline ? t[kB2 + ch] : 0.0, am = t[kA] * m_[ch];
+            const double limb = p_.outline ? t[kG + ch] : 0.0;
             double* out = val + ch * n;
             for (int j = 0; j < p_.lines; ++j)
                 for (int i = 0; i < p_.cols; ++i) {
                     const int k = j * p_.cols + i;
-                    const double inside = b0 + bx * xrel_[static_cast<size_t>(i)] + bv * vrel_[static_cast<size_t>(j)];
+                    const double inside = b0 + bx * xrel_[static_cast<size_t>(i)] + bv * vrel_[static_cast<size_t>(j)] +
+                                          limb * w_.edge_p[k];
                     const double we = w_.edge_w[k];
                     const double bg = we * inside + (1.0 - we) * beyond;
                     out[k] = kOffset[ch] + am * shade[k] + (1.0 - cov[k]) * (bg - kOffset[ch]);
@@ -237,7 +240,7 @@ public:
         double* val = w_.val.data();
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
-        const int nr = p_.outline ? kRow : kRow - 3;  // the outline's 3 are last
+        const int nr = p_.outline ? kRow : kRow - 5;  // the outline's 5 are last
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
         double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {};
         auto add = [&](int ch, const double* row, double r, double wgt) {
@@ -357,33 +360,45 @@ public:
     }
 
 private:
-    // A model pixel's derivatives touch 12 parameters: the 5 of the marker's shape, amplitude, its channel's
-    // background level and slopes, and (with an outline) the outline's angle, offset and its channel's level
-    // beyond it. Increasing, so that a compact lower triangle scatters into the lower triangle.
-    static constexpr int kRow = 12;
+    // A model pixel's derivatives touch 14 parameters: the 5 of the marker's shape, amplitude, its channel's
+    // background level and slopes, and (with an outline) the outline's angle, offset, its channel's level beyond
+    // it, the curvature and its channel's limb gain. Increasing, so that a compact lower triangle scatters into the
+    // lower triangle.
+    static constexpr int kRow = 14;
     static void row_params(int ch, int* idx) {
         const int p[kRow] = {kX0, kV0, kR, kE1, kE2, kA, kB0 + 3 * ch, kB0 + 3 * ch + 1, kB0 + 3 * ch + 2,
-                             kPhi, kD, kB2 + ch};
+                             kPhi, kD, kB2 + ch, kKappa, kG + ch};
         for (int q = 0; q < kRow; ++q) idx[q] = p[q];
     }
 
     // The camera's [1 2 1] co-sited chroma filter at model column i.
     static double filtered(const double* line, int i) { return 0.25 * (line[i - 1] + line[i + 1]) + 0.5 * line[i]; }
 
-    // Weight of the background inside the outline per model pixel (1 everywhere without an outline).
-    void outline_weights(const Vec& t, double* we) const {
+    // Per model pixel, for the outline term (a sphere's limb: the eye's, seen beside a marker): the weight of the
+    // background inside it (1 everywhere without an outline); the limb profile P(s), √ of the depth s inside the
+    // outline averaged over the pixel (a sphere's shading near its limb rises as √(2s/R)); dP/ds; ∂dist/∂φ and
+    // ∂dist/∂κ. The outline is a parabola: dist = n·x − D + κ/2·τ², τ the coordinate along it.
+    void outline_weights(const Vec& t) const {
         const int n = p_.lines * p_.cols;
         if (!p_.outline) {
-            std::fill(we, we + n, 1.0);
+            std::fill(w_.edge_w.begin(), w_.edge_w.begin() + n, 1.0);
+            std::fill(w_.edge_p.begin(), w_.edge_p.begin() + n, 0.0);
             return;
         }
-        cp_ = std::cos(t[kPhi]);
-        sp_ = std::sin(t[kPhi]);
-        const double cp = cp_, sp = sp_;
+        const double cp = std::cos(t[kPhi]), sp = std::sin(t[kPhi]), kappa = t[kKappa];
         for (int j = 0; j < p_.lines; ++j)
             for (int i = 0; i < p_.cols; ++i) {
-                const double dist = cp * xrel_[static_cast<size_t>(i)] + sp * vrel_[static_cast<size_t>(j)] - t[kD];
-                we[j * p_.cols + i] = std::clamp(0.5 - dist, 0.0, 1.0);
+                const int k = j * p_.cols + i;
+                const double x = xrel_[static_cast<size_t>(i)], v = vrel_[static_cast<size_t>(j)];
+                const double tau = -sp * x + cp * v, nrm = cp * x + sp * v;
+                const double dist = nrm - t[kD] + 0.5 * kappa * tau * tau;
+                w_.edge_w[k] = std::clamp(0.5 - dist, 0.0, 1.0);
+                const double s = -dist, hi = s + 0.5, lo = std::max(0.0, s - 0.5);
+                const double shi = hi > 0 ? std::sqrt(hi) : 0.0, slo = std::sqrt(lo);
+                w_.edge_p[k] = hi > 0 ? (2.0 / 3.0) * (hi * shi - lo * slo) : 0.0;
+                w_.edge_dp[k] = shi - slo;
+                w_.edge_dphi[k] = tau - kappa * tau * nrm;
+                w_.edge_dkappa[k] = 0.5 * tau * tau;
             }
     }
 
@@ -391,7 +406,8 @@ private:
     void pixel_row(const Vec& t, int ch, int i, int j, double* row) const {
         const int k = j * p_.cols + i, n = p_.lines * p_.cols;
         const double x = xrel_[static_cast<size_t>(i)], v = vrel_[static_cast<size_t>(j)];
-        const double inside = t[kB0 + 3 * ch] + t[kB0 + 3 * ch + 1] * x + t[kB0 + 3 * ch + 2] * v;
+        const double limb = p_.outline ? t[kG + ch] : 0.0;
+        const double inside = t[kB0 + 3 * ch] + t[kB0 + 3 * ch + 1] * x + t[kB0 + 3 * ch + 2] * v + limb * w_.edge_p[k];
         const double we = w_.edge_w[k];
         const double bg = p_.outline ? we * inside + (1.0 - we) * t[kB2 + ch] : inside;
         const double open = 1.0 - w_.cov[k], under = bg - kOffset[ch], am = t[kA] * m_[ch];
@@ -403,10 +419,13 @@ private:
         row[8] = open * we * v;
         if (!p_.outline) return;
         const bool ramp = we > 0.0 && we < 1.0;
-        const double step = open * (inside - t[kB2 + ch]);
-        row[9] = ramp ? -step * (-sp_ * x + cp_ * v) : 0.0;
-        row[10] = ramp ? step : 0.0;
+        // ∂bg/∂dist: the step moves (in its ramp) and so does the limb profile (s = −dist).
+        const double dbg = open * (-(ramp ? inside - t[kB2 + ch] : 0.0) - we * limb * w_.edge_dp[k]);
+        row[9] = dbg * w_.edge_dphi[k];
+        row[10] = -dbg;
         row[11] = open * (1.0 - we);
+        row[12] = dbg * w_.edge_dkappa[k];
+        row[13] = open * we * w_.edge_p[k];
     }
 
     const SphereFitConfig& cfg_;
@@ -415,7 +434,6 @@ private:
     std::array<double, SphereFitWorkspace::kCols> xrel_{};
     std::array<double, SphereFitWorkspace::kLines> vrel_{};
     double m_[3] = {};
-    mutable double cp_ = 1.0, sp_ = 0.0;  // cos, sin of the outline angle of the last outline_weights()
 };
 
 // Intensity centroid of the fitted sphere over the field's pixels (pixel centres weighted by the coverage ×

@@ -32,8 +32,11 @@ SphereFitConfig rig_config() {
 
 }  // namespace
 
-TEST_CASE("sphere fit: rig surgery recording at sigma 1 beats the pipeline and meets 0.02 px", "[fpga][rig][fit]") {
-    RigRecording rr("eyesim_fpga_fit_test", "surgery", 0.2, 1.0);  // 10 fields × 3 cameras
+TEST_CASE("sphere fit: rig surgery recording beats the pipeline and meets 0.02 px", "[fpga][rig][fit]") {
+    // σ = 1 DN, and noise off: then what is left is the model's own error against the rig's renderer.
+    const double noise = GENERATE(1.0, 0.0);
+    const double max_rms_px = noise > 0 ? 0.015 : 0.006;  // docs/bench/fpga-model.md: 0.0107 / 0.0034 px, 50 fields
+    RigRecording rr(noise > 0 ? "eyesim_fpga_fit_test" : "eyesim_fpga_fit_test0", "surgery", 0.2, noise);  // 10 fields
     rig::Recording& rec = rr.rec;
     const std::vector<rig::FieldTruth>& truth = rr.truth;
     REQUIRE(truth.size() == 10);
@@ -95,15 +98,15 @@ TEST_CASE("sphere fit: rig surgery recording at sigma 1 beats the pipeline and m
         }
     const double rms_model = std::sqrt(se_model / matched), rms_fit = std::sqrt(se_fit / matched);
     const double rms_fit_only = std::sqrt(se_fit_only / refined), rms_model_on = std::sqrt(se_model_on_fitted / refined);
-    INFO("matched " << matched << " refined " << refined << " (outline " << outline << "); RMS model " << rms_model
+    INFO("noise " << noise << ": matched " << matched << " refined " << refined << " (outline " << outline << "); RMS model " << rms_model
                     << " with fit " << rms_fit << "; on refined markers model " << rms_model_on << " fit "
                     << rms_fit_only);
     CHECK(matched > 80);
     CHECK(refined * 2 > matched);  // most unoccluded markers get a fit
-    CHECK(outline > 0);            // some sit on the eye outline and need the step model
-    CHECK(rms_fit_only < 0.6 * rms_model_on);
-    CHECK(rms_fit < 0.8 * rms_model);
-    CHECK(rms_fit < 0.02);  // docs/bench/fpga-model.md: 0.0144 px over 50 fields
+    CHECK(outline > 0);            // some sit beside the eye's limb and need the outline term
+    CHECK(rms_fit_only < 0.5 * rms_model_on);
+    CHECK(rms_fit < 0.6 * rms_model);
+    CHECK(rms_fit < max_rms_px);
     // The fitted shape is the rendered one: horizontal semi-axis within a few hundredths of a pixel of the
     // sphere's angular radius × fx, and the mean ellipticity that of the cameras' pixel aspect (e1 = (a² − 1) /
     // (a² + 1), a = fy / fx; perspective adds a little, radially, with either sign).
@@ -115,7 +118,7 @@ TEST_CASE("sphere fit: rig surgery recording at sigma 1 beats the pipeline and m
                                << std::sqrt(se_inst_model / inst) << " with fit " << std::sqrt(se_inst_fit / inst));
     REQUIRE(inst >= 5);
     CHECK(inst_refined * 4 >= inst * 3);
-    CHECK(std::sqrt(se_inst_fit / inst) < 0.8 * std::sqrt(se_inst_model / inst));
+    CHECK(std::sqrt(se_inst_fit / inst) < 0.7 * std::sqrt(se_inst_model / inst));
 }
 
 TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage centroid", "[fpga][fit]") {

@@ -89,6 +89,8 @@ struct SphereFitWorkspace {
     std::array<double, kPx * 2> trial{};           // coverage and shading at a trial point
     std::array<double, kPx * 3> val{};             // model pixels (Y, Cb, Cr)
     std::array<double, kPx> edge_w{};              // weight of the background inside the outline
+    std::array<double, kPx> edge_p{}, edge_dp{};   // limb profile P(s) and dP/ds
+    std::array<double, kPx> edge_dphi{}, edge_dkappa{};  // ∂dist/∂φ, ∂dist/∂κ
     std::array<uint8_t, kPx> keep_y{}, keep_cb{}, keep_cr{};  // 1: the observation is in the fit
     std::array<double, kPx> obs_y{}, var_y{};
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
