@@ -5,6 +5,9 @@
 
 namespace eyesim::fpga {
 
+// The documented storage of one fit (docs/fpga-pipeline.md): a fixed block a device CPU can hold.
+static_assert(sizeof(SphereFitWorkspace) <= 160 * 1024, "SphereFitWorkspace grew past 160 KiB");
+
 MarkerColour MarkerColour::from_rgb(double r, double g, double b) {
     const double l = 0.299 * r + 0.587 * g + 0.114 * b;
     return {219.0 / 255.0 * l, 224.0 / 255.0 * (b - l) / 1.772, 224.0 / 255.0 * (r - l) / 1.402};

@@ -33,7 +33,7 @@ public:
 
 private:
     fpga::SphereFitConfig config_;
-    std::unique_ptr<fpga::SphereFitWorkspace> work_;  // ≈ 150 KiB, allocated once
+    std::unique_ptr<fpga::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
     std::array<int64_t, fpga::kFitRefusalCount> refusals_{};
 };
 
