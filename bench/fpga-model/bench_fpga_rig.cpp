@@ -1,5 +1,7 @@
 // Centroid accuracy of the FPGA model on a rig recording (rendered truth), per marker size, beside a binary
-// centroid of the same model and the OpenCV baseline; with fields/s of each on the same fields.
+// centroid of the same model and the OpenCV baseline; with fields/s of each on the same fields. Then the
+// refinement stage (fpga/sphere_fit.hpp) alone: its run time against error by sub-samples per pixel, and its
+// effect and refusals by marker size and body (instrument markers, eye markers off and beside the eye's limb).
 //
 // Usage: bench_fpga_rig RECORDING_DIR [max_fields]
 //   (make one with: eyesim synth --scenario surgery --seconds 2 --out DIR)

@@ -1,5 +1,6 @@
-// Refinement stage after the streaming pipeline: a least-squares fit of a shaded-sphere marker model to the
-// Y, Cb and Cr samples of a small patch around one blob (docs/fpga-pipeline.md §"Refinement stage").
+// Refinement stage after the streaming pipeline: a least-squares fit of a shaded-sphere marker model (an ellipse
+// in the image, over a background with, where it shows, the eye's limb) to the Y, Cb and Cr samples of a small
+// patch around one blob (docs/fpga-pipeline.md §"Refinement stage").
 //
 // Why: the pipeline's centroid weights come from chroma alone, which 4:2:2 samples once per pixel pair and
 // spreads two columns past the marker; at σ = 1 DN even the best estimator from chroma alone is ≈ 0.017 px off for
@@ -24,6 +25,8 @@ struct MarkerColour {
     static MarkerColour from_rgb(double r, double g, double b);
 };
 
+/// What the fit models and when it refuses. The defaults are the rig's shaded spheres; shading 1 / 0 with
+/// aperture_lines_px 2 models flat discs whose field pixels integrate a whole field line.
 struct SphereFitConfig {
     std::array<MarkerColour, 5> colour{};  ///< per class 1..4 (index 0 unused)
     double shade_ambient = 0.35;           ///< marker shading: ambient + diffuse·cos(angle to the view ray)
@@ -34,7 +37,7 @@ struct SphereFitConfig {
     bool fit_ellipse = true;               ///< fit the outline's ellipticity (pixel aspect, perspective); else a circle
     int max_iterations = 12;
     double max_reduced_chi2 = 5.0;         ///< a worse fit is refused (another object in the patch, occlusion)
-    double outline_step_dn = 40.0;         ///< luma range on the patch border that adds the outline (step) term
+    double outline_step_dn = 40.0;         ///< luma range on the patch border that adds the outline (limb) term
     double max_shift_px = 0.15;            ///< a fit further than this from the pipeline's centroid is refused
     int margin_px = 4;                     ///< patch margin beside the blob's box, columns
     int margin_lines = 2;                  ///< patch margin above and below, field lines
@@ -50,9 +53,9 @@ enum class FitRefusal : uint8_t {
     kInput,        ///< not a marker class, or an empty blob
     kStorage,      ///< the patch exceeds kFitMaxCols × kFitMaxLines
     kChi2,         ///< reduced χ² above the limit: something else in the patch (a shaft, a neighbour, occlusion)
-    kImplausible,  ///< radius, amplitude or centre outside their plausible range, or not finite
+    kImplausible,  ///< radius, ellipticity, amplitude or centre outside their plausible range, or not finite
     kOutliers,     ///< the observations left out do not lie on a band through the marker (not a shaft)
-    kShift,        ///< the fitted centroid is further than max_shift_px from the pipeline's
+    kShift,        ///< the fitted centroid is further than max_shift_px (max_shift_outliers_px) from the pipeline's
 };
 
 /// Number of FitRefusal values (for tallies indexed by them).
