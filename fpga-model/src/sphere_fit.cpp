@@ -122,13 +122,15 @@ public:
                             const double q = std::sqrt(std::max(0.0, 1.0 - d2 * inv_r2));
                             const double shading = amb + dif * q;
                             if constexpr (!kDeriv) {
-                                const double cs = d2 <= in2 ? 1.0 : std::clamp((r - std::sqrt(d2)) * inv_h + 0.5, 0.0, 1.0);
+                                const double cs =
+                                    d2 <= in2 ? 1.0 : std::clamp((r - std::sqrt(d2)) * inv_h + 0.5, 0.0, 1.0);
                                 c += cs;
                                 sh += cs * shading;
                                 continue;
                             } else {
                                 // ∂ρ²/∂(x0, v0, e1, e2); ∂ρ²/∂r = 0.
-                                const double qx = -2.0 * ((1.0 + e1) * xx + e2 * yy), qv = -2.0 * (e2 * xx + (1.0 - e1) * yy);
+                                const double qx = -2.0 * ((1.0 + e1) * xx + e2 * yy);
+                                const double qv = -2.0 * (e2 * xx + (1.0 - e1) * yy);
                                 const double qe1 = xx * xx - yy * yy, qe2 = 2.0 * xx * yy;
                                 if (d2 <= in2 && q > 0.5) {
                                     // Wholly covered, shading smooth: ∂q/∂ρ² = −1 / (2 r² q), no ρ needed.
@@ -239,11 +241,19 @@ public:
 
     // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise()).
     void normal_equations(const Vec& t, Mat& a, Vec& g) const {
+        if (p_.outline)
+            normal_equations_n<kRow>(t, a, g);
+        else
+            normal_equations_n<kRow - 5>(t, a, g);  // the outline's 5 are last
+    }
+
+    // normal_equations over the first nr compact parameters (a compile-time count, so the loops unroll).
+    template <int nr>
+    void normal_equations_n(const Vec& t, Mat& a, Vec& g) const {
         const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
         double* val = w_.val.data();
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
-        const int nr = p_.outline ? kRow : kRow - 5;  // the outline's 5 are last
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
         double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {};
         auto add = [&](int ch, const double* row, double r, double wgt) {
@@ -254,7 +264,7 @@ public:
                 for (int s = 0; s <= q; ++s) am[q * kRow + s] += wq * row[s];
             }
         };
-        double row[kRow], r0[kRow], r1[kRow], r2[kRow];
+        double row[kRow] = {}, r0[kRow] = {}, r1[kRow] = {}, r2[kRow] = {};
         for (int j = 0; j < p_.lines; ++j) {
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x, k = j * p_.cols + x + 1;
@@ -287,7 +297,8 @@ public:
             }
         }
         for (int q = 0; q < np(); ++q)
-            for (int s = q + 1; s < np(); ++s) a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
+            for (int s = q + 1; s < np(); ++s)
+                a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
     }
 
     // Base render with its derivatives by the shape parameters, in one pass.
@@ -442,25 +453,42 @@ private:
 // Intensity centroid of the fitted sphere over the field's pixels (pixel centres weighted by the coverage ×
 // shading each pixel integrates — the rig's truth definition), field px.
 void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, double& cx, double& cy) {
-    constexpr int S = 16;
+    constexpr int S = 16;  // sub-samples per pixel side near the outline; 4 inside, where the shading is smooth
     const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2];
-    const double h = 1.0 / S, inv_r2 = 1.0 / (r * r), ap = cfg.aperture_lines_px;
-    const double reach = r / std::sqrt(1.0 - std::hypot(e1, e2)) + 1.0;
+    const double inv_r2 = 1.0 / (r * r), ap = cfg.aperture_lines_px, ecc = std::hypot(e1, e2);
+    const double reach = r / std::sqrt(1.0 - ecc) + 1.0;
+    auto metric = [&](double xx, double yy) {
+        return (1.0 + e1) * xx * xx + 2.0 * e2 * xx * yy + (1.0 - e1) * yy * yy;
+    };
+    // Σ ambient + diffuse·√(1 − ρ²/r²) over n × n sub-samples of the pixel at (x, v), scaled to S × S.
+    auto integrate = [&](int x, int v, int n) {
+        const double hn = 1.0 / n;
+        double in = 0;
+        for (int sy = 0; sy < n; ++sy) {
+            const double yy = v + ap * (-0.5 + (sy + 0.5) * hn) - v0;
+            for (int sxi = 0; sxi < n; ++sxi) {
+                const double xx = x - 0.5 + (sxi + 0.5) * hn - x0;
+                const double q = 1.0 - metric(xx, yy) * inv_r2;
+                if (q > 0) in += cfg.shade_ambient + cfg.shade_diffuse * std::sqrt(q);
+            }
+        }
+        return in * (S / n) * (S / n);
+    };
     double si = 0, sx = 0, sv = 0;
     const int lo_v = static_cast<int>(std::floor(v0 - reach)), hi_v = static_cast<int>(std::ceil(v0 + reach));
     const int lo_x = static_cast<int>(std::floor(x0 - reach)), hi_x = static_cast<int>(std::ceil(x0 + reach));
     for (int v = lo_v; v <= hi_v; ++v) {
         if (((v - parity) & 1) != 0) continue;
         for (int x = lo_x; x <= hi_x; ++x) {
-            double in = 0;
-            for (int sy = 0; sy < S; ++sy) {
-                const double yy = v + ap * (-0.5 + (sy + 0.5) * h) - v0;
-                for (int sx2 = 0; sx2 < S; ++sx2) {
-                    const double xx = x - 0.5 + (sx2 + 0.5) * h - x0;
-                    const double q = 1.0 - ((1.0 + e1) * xx * xx + 2.0 * e2 * xx * yy + (1.0 - e1) * yy * yy) * inv_r2;
-                    if (q > 0) in += cfg.shade_ambient + cfg.shade_diffuse * std::sqrt(q);
-                }
-            }
+            // The metric is convex: its largest value over the pixel is at a corner, and its smallest is at least
+            // (1 − |e|) × the squared distance from the centre to the pixel.
+            const double dx0 = x - 0.5 - x0, dx1 = x + 0.5 - x0, dv0 = v - 0.5 * ap - v0, dv1 = v + 0.5 * ap - v0;
+            const double ex = std::max(0.0, std::max(dx0, -dx1)), ev = std::max(0.0, std::max(dv0, -dv1));
+            if ((1.0 - ecc) * (ex * ex + ev * ev) >= r * r) continue;  // wholly outside
+            const double qmax =
+                std::max(std::max(metric(dx0, dv0), metric(dx0, dv1)), std::max(metric(dx1, dv0), metric(dx1, dv1)));
+            // Wholly inside with the shading at ≥ 0.3 of its range: 4 × 4 sub-samples are enough.
+            const double in = integrate(x, v, qmax < 0.91 * r * r ? 4 : S);
             si += in;
             sx += in * x;
             sv += in * v;
@@ -613,7 +641,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
                     const double c1 = f.cost(tt);
                     if (c1 < chi2) {
-                        // Centre and radius settled far below the noise's reach (≈ 0.01 px): one more step buys nothing.
+                        // Centre and radius settled far below the noise's reach (≈ 0.01 px): another step buys nothing.
                         converged = small_step(d);
                         gain = chi2 - c1;
                         t = tt;
@@ -648,6 +676,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
             res.outliers = f.drop_outliers(t, round * cfg.outlier_sigma);
             if (res.outliers > cfg.max_outlier_fraction * before) break;
             solve(cfg.max_iterations, true);
+            // A refit whose centre is this far from the pipeline's will not come within max_shift_outliers_px.
+            if (std::hypot(t[kX0] - cx0, 0.5 * (t[kV0] - p.vc)) > 4.0 * cfg.max_shift_outliers_px) break;
         }
         // Only a band through the marker is a shaft; left-out pixels on one side (an eye limb the background
         // model cannot follow) or all round it are not mended by leaving them out.
