@@ -619,10 +619,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     const int np = f.np();
     double chi2 = 0;
     int it = 0;
-    // Levenberg–Marquardt from t; stops early on a fit that stays hopeless (another object in the patch).
     auto small_step = [](const Vec& d) {
         return std::fabs(d[kX0]) < 1e-3 && std::fabs(d[kV0]) < 2e-3 && std::fabs(d[kR]) < 1e-3;
     };
+    // Levenberg–Marquardt from t; with give_up, stops early on a fit that stays hopeless (another object in the
+    // patch).
     auto solve = [&](int max_it, bool give_up) {
         chi2 = f.cost(t);
         double lambda = 1e-3;
@@ -670,11 +671,13 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     solve(cfg.max_iterations, true);
     if (may_drop && chi2 > cfg.max_reduced_chi2 * std::max(1, f.observations() - np)) {
         const int before = f.observations();
+        bool too_many = false;
         // The first fit is pulled by what it cannot model: tighten the cut over rounds (3, 2, 1 × outlier_sigma)
         // so that the first cut takes only the grossest misfits.
         for (int round = 3; round >= 1; --round) {
             res.outliers = f.drop_outliers(t, round * cfg.outlier_sigma);
-            if (res.outliers > cfg.max_outlier_fraction * before) break;
+            too_many = res.outliers > cfg.max_outlier_fraction * before;
+            if (too_many) break;
             solve(cfg.max_iterations, true);
             // A refit whose centre is this far from the pipeline's will not come within max_shift_outliers_px.
             if (std::hypot(t[kX0] - cx0, 0.5 * (t[kV0] - p.vc)) > 4.0 * cfg.max_shift_outliers_px) break;
@@ -683,7 +686,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
         // model cannot follow) or all round it are not mended by leaving them out.
         double r1 = 1, r2 = 0;
         f.outlier_spread(t, r1, r2);
-        res.outlier_band = r1 < 0.5 && r2 > 0.6;
+        res.outlier_band = !too_many && r1 < 0.5 && r2 > 0.6;
     }
     res.iterations = it;
     res.outline = p.outline;
@@ -703,12 +706,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     if (!sane) return res;
     intensity_centroid(cfg, t, p.parity, res.cx_px, res.cy_px);
     if (!std::isfinite(res.cx_px) || !std::isfinite(res.cy_px)) return res;
-    // Both estimate the same centroid; a fit that moves far from the pipeline's has modelled something else (a
-    // partly occluded marker's hidden half, a neighbour in the patch).
-    res.refusal = FitRefusal::kShift;
-    // A fit that left observations out has less to stand on: it must agree more closely.
     res.refusal = FitRefusal::kOutliers;
     if (res.outliers > 0 && !res.outlier_band) return res;
+    // Both estimate the same centroid; a fit that moves far from the pipeline's has modelled something else (a
+    // partly occluded marker's hidden half, a neighbour in the patch). A fit that left observations out has less
+    // to stand on: it must agree more closely.
     res.refusal = FitRefusal::kShift;
     const double max_shift = res.outliers > 0 ? cfg.max_shift_outliers_px : cfg.max_shift_px;
     if (std::hypot(res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;

@@ -6,7 +6,6 @@
 #include "eyesim/fpga/wire.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
-#include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
