@@ -285,12 +285,20 @@ void DeviceCore::handle_rx() noexcept {
 void DeviceCore::send_periodic() noexcept {
     if (!streaming_) return;
     const std::uint64_t now = hal_.clock->now_us();
-    if (hal_.pedal != nullptr) {
+    if (hal_.pedal != nullptr && (!pedal_sampled_once_ || now - last_pedal_sample_us_ >= kPedalSampleUs)) {
+        last_pedal_sample_us_ = now;
+        pedal_sampled_once_ = true;
+        const PedalReading in = hal_.pedal->read();
         protocol::PedalState p;
         p.device_us = now;
-        p.axes[0] = hal_.pedal->position();
-        p.buttons = hal_.pedal->switch_pressed() ? 1 : 0;
-        const bool changed = p.axes != last_pedal_.axes || p.buttons != last_pedal_.buttons;
+        bool changed = in.buttons != last_pedal_.buttons;
+        for (std::size_t a = 0; a < protocol::kPedalAxisCount; ++a) {
+            p.axes[a] = in.axes[a];
+            const int d = static_cast<int>(in.axes[a]) - static_cast<int>(last_pedal_.axes[a]);
+            changed = changed || d >= kPedalDeadbandCounts || -d >= kPedalDeadbandCounts ||
+                      ((in.axes[a] == 0 || in.axes[a] == 0xFFFF) && d != 0);  // the end stops are always sent
+        }
+        p.buttons = in.buttons;
         if (!pedal_sent_once_ || changed || now - last_pedal_us_ >= pedal_period_ms_ * 1000ull) {
             queue_message(protocol::Message{p}, 0);
             last_pedal_ = p;
@@ -365,7 +373,7 @@ Reply DeviceCore::execute(const Command& c) noexcept {
                 r = nack(r, NackReason::Malformed);
             } else if (static_cast<Opcode>(c.opcode) == Opcode::StreamStart) {
                 if (!streaming_) {
-                    status_sent_once_ = pedal_sent_once_ = false;  // first status and pedal at once
+                    status_sent_once_ = pedal_sent_once_ = pedal_sampled_once_ = false;  // first status and pedal at once
                 }
                 streaming_ = true;
             } else if (static_cast<Opcode>(c.opcode) == Opcode::StreamStop) {

@@ -5,11 +5,13 @@
 #include "eyesim/firmware/pc/field_source.hpp"
 #include "eyesim/firmware/pc/latency_log.hpp"
 #include "eyesim/firmware/pc/modelled_clock.hpp"
+#include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/firmware/pc/tcp_server.hpp"
 
 #include "eyesim/rig/pal.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
+#include "eyesim/rig/truth.hpp"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -64,7 +66,17 @@ public:
     virtual const std::vector<eyesim::rig::CameraModel>& cameras() const = 0;
     /// Field `index` of camera `cam` as UYVY.
     virtual void read(int cam, std::int64_t index, std::uint8_t* uyvy) = 0;
+    /// The foot pedal over the recording (recording clock); empty: no pedal track (pedal at rest).
+    virtual std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const = 0;
 };
+
+eyesim::firmware::pc::PedalSample pedal_sample(double t_us, const eyesim::rig::PedalTruth& p) {
+    eyesim::firmware::pc::PedalSample s;
+    s.t_us = t_us;
+    for (int a = 0; a < 3; ++a) s.axes[a] = p.axes[static_cast<std::size_t>(a)];
+    s.buttons = static_cast<std::uint16_t>(p.buttons & 0xFFFFu);
+    return s;
+}
 
 class RecordingProvider final : public FieldProvider {
 public:
@@ -77,6 +89,20 @@ public:
     std::int64_t fields() const override { return rec_.common_field_count(); }
     const std::vector<eyesim::rig::CameraModel>& cameras() const override { return rec_.cameras(); }
     void read(int cam, std::int64_t index, std::uint8_t* uyvy) override { rec_.read_field(cam, index, uyvy); }
+    std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const override {
+        // The pedal of a recording is in its truth.jsonl (one sample per field time); a recording without it
+        // (a real rig's video) plays with the pedal at rest.
+        std::vector<eyesim::firmware::pc::PedalSample> track;
+        const std::string path = rec_.truth_path();
+        if (path.empty()) {
+            std::fprintf(stderr, "eyesim-device: warning: %s has no truth.jsonl: the pedal stays at rest\n",
+                         rec_.dir().c_str());
+            return track;
+        }
+        for (const auto& t : eyesim::rig::read_truth(path)) track.push_back(pedal_sample(t.t_us, t.pedal));
+        std::sort(track.begin(), track.end(), [](const auto& a, const auto& b) { return a.t_us < b.t_us; });
+        return track;
+    }
 
 private:
     eyesim::rig::Recording rec_;
@@ -91,10 +117,12 @@ public:
         const eyesim::rig::Bodies bodies = eyesim::rig::load_bodies(eyesim::rig::default_bodies_path());
         eyesim::rig::RenderOptions ro;
         ro.seed = seed;
-        synth_ = std::make_unique<eyesim::rig::RigSynth>(
-            cams_, bodies,
-            eyesim::rig::Scenario::make(name, seed, static_cast<double>(fields_) * eyesim::rig::kFieldPeriodUs, bodies),
-            ro);
+        const auto scenario =
+            eyesim::rig::Scenario::make(name, seed, static_cast<double>(fields_) * eyesim::rig::kFieldPeriodUs, bodies);
+        // The pedal every 1 ms over the run (the core samples it at 1 kHz).
+        const double end_us = static_cast<double>(fields_ + 1) * eyesim::rig::kFieldPeriodUs;
+        for (double t = 0.0; t <= end_us; t += 1000.0) pedal_.push_back(pedal_sample(t, scenario.state_at(t).pedal));
+        synth_ = std::make_unique<eyesim::rig::RigSynth>(cams_, bodies, scenario, ro);
         for (auto& f : buffers_) f.resize(eyesim::rig::kFieldBytes);
     }
     std::int64_t fields() const override { return fields_; }
@@ -107,8 +135,10 @@ public:
         }
         std::copy(buffers_[static_cast<std::size_t>(cam)].begin(), buffers_[static_cast<std::size_t>(cam)].end(), uyvy);
     }
+    std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const override { return pedal_; }
 
 private:
+    std::vector<eyesim::firmware::pc::PedalSample> pedal_;
     std::vector<eyesim::rig::CameraModel> cams_;
     std::int64_t fields_;
     std::unique_ptr<eyesim::rig::RigSynth> synth_;
@@ -141,14 +171,19 @@ int run(const Options& opt) {
     std::fprintf(announce, "listening tcp://%s:%u\n", (allow_any ? opt.bind : opt.address).c_str(), server.port());
     std::fflush(announce);
 
+    // Device clock: µs since start-up. While the cameras play, the PAL model sets it (deterministic timestamps);
+    // otherwise (before stream_start, after stream_stop or the recording's end) it follows the wall clock.
+    // The recording's t = 0 is played at device time `epoch_us`, so every field is stamped after start-up.
     pc::ModelledClock clock;
+    auto epoch_us = std::make_shared<std::uint64_t>(0);
+    pc::PedalTrack pedal(recording->pedal_track(), &clock);
     std::vector<std::unique_ptr<pc::FieldSource>> sources;
     DeviceHal hal;
     const long long limit = opt.max_fields;
     for (std::size_t c = 0; c < kCameras; ++c) {
         const int cam = static_cast<int>(c);
         const rig::CameraModel model = recording->cameras()[c];
-        auto loader = [recording, cam, model, fields_in_file, loop = opt.loop, limit](
+        auto loader = [recording, cam, model, fields_in_file, loop = opt.loop, limit, epoch_us](
                           std::uint64_t k, std::uint8_t* out, std::uint8_t& parity, std::uint64_t& start_us) {
             if (limit >= 0 && k >= static_cast<std::uint64_t>(limit)) return false;
             if (!loop && k >= static_cast<std::uint64_t>(fields_in_file)) return false;
@@ -159,7 +194,8 @@ int run(const Options& opt) {
             const rig::FieldTiming t = rig::field_timing(static_cast<std::int64_t>(k), model.field_time_offset_us,
                                                          model.exposure_us, model.first_field_parity);
             parity = static_cast<std::uint8_t>(t.parity);
-            start_us = static_cast<std::uint64_t>(std::llround(std::max(0.0, t.start_us + (t.parity ? 32.0 : 0.0))));
+            start_us = *epoch_us +
+                       static_cast<std::uint64_t>(std::llround(std::max(0.0, t.start_us + (t.parity ? 32.0 : 0.0))));
             return true;
         };
         sources.push_back(std::make_unique<pc::FieldSource>(loader, &clock));
@@ -170,6 +206,7 @@ int run(const Options& opt) {
     hal.source = &server;
     hal.clock = &clock;
     hal.latency = &latency;
+    hal.pedal = &pedal;
     CoreConfig config;
     config.low_latency = opt.low_latency;
     config.stream_on_start = opt.stream;
@@ -184,6 +221,10 @@ int run(const Options& opt) {
     std::uint64_t play_model0_us = 0;
     bool play_started = false;
     Clock::time_point finished_at{};
+    // Idle: the device clock follows the wall clock from this anchor.
+    bool was_playing = false;
+    Clock::time_point idle_wall0 = Clock::now();
+    std::uint64_t idle_model0_us = 0, paused_model_us = 0;
     const std::size_t queue_pause_bytes = DeviceCore::TxQueue::byte_capacity() / 2;
 
     while (!g_stop) {
@@ -195,8 +236,23 @@ int run(const Options& opt) {
             for (const auto& s : sources) all_out = all_out && s->fields_delivered() >= static_cast<std::uint64_t>(expected_fields);
             if (finished || all_out) break;
         }
-        core->service();
         const bool playing = !finished && (opt.free_run || (server.connected() && core->streaming()));
+        if (!playing) {
+            if (was_playing) {
+                idle_wall0 = Clock::now();
+                idle_model0_us = paused_model_us = clock.now_us();
+            }
+            clock.advance_to(idle_model0_us +
+                             static_cast<std::uint64_t>(std::max(0.0, seconds_since(idle_wall0) * 1e6)));
+        } else if (!was_playing) {
+            // (Re)start: the recording's timeline continues after the idle time, on a whole millisecond.
+            const std::uint64_t now = clock.now_us();
+            const std::uint64_t shift = play_started ? now - paused_model_us : (now + 999) / 1000 * 1000;
+            *epoch_us += shift;
+            pedal.set_epoch_us(*epoch_us);
+        }
+        was_playing = playing;
+        core->service();
         if (!playing) {
             if (finished) {
                 // Recording over: let the host drain what is queued, then leave when it goes (or after linger).

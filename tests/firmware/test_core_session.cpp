@@ -27,8 +27,12 @@ struct TransportPort final : firmware::ByteSink, firmware::ByteSource {
 struct FakePedal final : firmware::PedalInput {
     std::uint16_t pos = 0;
     bool sw = false;
-    std::uint16_t position() const noexcept override { return pos; }
-    bool switch_pressed() const noexcept override { return sw; }
+    firmware::PedalReading read() const noexcept override {
+        firmware::PedalReading r;
+        r.axes[0] = pos;
+        r.buttons = sw ? 1 : 0;
+        return r;
+    }
 };
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include "eyesim/protocol/capture_replay.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
+#include "eyesim/rig/truth.hpp"
 #include "eyesim/transport/device_link.hpp"
 #include "eyesim/transport/tcp.hpp"
 
@@ -18,6 +19,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <chrono>
 #include <set>
 #include <thread>
 
@@ -88,6 +90,8 @@ std::vector<protocol::FieldMarkers> reference_messages(const std::string& dir) {
 
 struct Run {
     std::vector<protocol::FieldMarkers> messages;  // from the capture, in arrival order
+    std::vector<protocol::PedalState> pedals;      // from the capture, in arrival order
+    std::uint64_t pong_before_start_us = 0;        // device time in the reply to a ping sent before stream_start
     int exit_code = -1;
     std::string stderr_text;
     protocol::ParserStats stats;
@@ -120,6 +124,11 @@ Run run_device(bool low_latency, const std::string& capture, std::vector<std::st
             REQUIRE(r->status == 0);
         }
         for (int i = 0; i < 4; ++i) link.ping();
+        // The device clock runs from start-up: a pong before streaming carries a real time.
+        std::this_thread::sleep_for(std::chrono::milliseconds(30));
+        const auto pong = link.wait_reply(link.ping(), 5000);
+        REQUIRE(pong.has_value());
+        run.pong_before_start_us = pong->device_us;
         link.command(protocol::Opcode::StreamStart);
         // Until the last part of the last field of every camera is in (bounded).
         std::set<int> done;
@@ -149,12 +158,37 @@ Run run_device(bool low_latency, const std::string& capture, std::vector<std::st
         REQUIRE(rx >= last_rx);
         last_rx = rx;
         if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message)) run.messages.push_back(*fm);
+        if (const auto* p = std::get_if<protocol::PedalState>(&f.message)) run.pedals.push_back(*p);
     }
     REQUIRE(replay->status() == protocol::CaptureStatus::End);
     run.stats = replay->stats();
     replay.reset();
     fs::remove(capture);
     return run;
+}
+
+/// The device plays the recording's t = 0 at device time `epoch` (after start-up): its stamps minus the epoch
+/// are the recording clock's, as `eyesim fpga` writes them. Returns the epoch found in the first message.
+std::uint64_t to_recording_clock(std::vector<protocol::FieldMarkers>& got, const std::vector<protocol::FieldMarkers>& want) {
+    std::map<std::pair<int, std::uint32_t>, std::uint64_t> end_us;
+    for (const auto& m : want)
+        if (m.field_end_us) end_us[{m.camera_id, m.field_counter}] = m.field_end_us;
+    std::uint64_t epoch = 0;
+    bool found = false;
+    for (const auto& m : got) {
+        const auto it = end_us.find({m.camera_id, m.field_counter});
+        if (m.field_end_us == 0 || it == end_us.end()) continue;
+        REQUIRE(m.field_end_us >= it->second);
+        epoch = m.field_end_us - it->second;
+        found = true;
+        break;
+    }
+    REQUIRE(found);
+    for (auto& m : got) {
+        if (m.field_end_us) m.field_end_us -= epoch;
+        for (int i = 0; i < m.marker_count; ++i) m.markers[i].complete_us -= epoch;
+    }
+    return epoch;
 }
 
 }  // namespace
@@ -169,6 +203,11 @@ TEST_CASE("eyesim-device over TCP: the capture equals the FPGA model's packets (
     auto got = run.messages;
     std::stable_sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.camera_id < b.camera_id; });
     REQUIRE(got.size() == want.size());
+    // Device time runs from start-up: the playback began after the pings, on a whole millisecond.
+    const std::uint64_t epoch = to_recording_clock(got, want);
+    CHECK(epoch % 1000 == 0);
+    CHECK(run.pong_before_start_us > 20000);
+    CHECK(epoch >= run.pong_before_start_us);
     std::size_t markers = 0;
     for (std::size_t i = 0; i < got.size(); ++i) {
         INFO("message " << i);
@@ -176,6 +215,34 @@ TEST_CASE("eyesim-device over TCP: the capture equals the FPGA model's packets (
         markers += got[i].marker_count;
     }
     REQUIRE(markers > 0);
+
+    // The pedal of the recording (truth.jsonl, one sample per field time) goes out as PedalState on the device
+    // clock: from stream start, at least every 20 ms (PEDAL_PERIOD_MS) and on each change.
+    const auto truth = rig::read_truth(recording_dir() + "/truth.jsonl");
+    REQUIRE(truth.size() >= 2);
+    auto pedal_at = [&](double t_us) {  // linear between field times, held at the ends
+        if (t_us <= truth.front().t_us) return truth.front().pedal.axes[0];
+        for (std::size_t i = 1; i < truth.size(); ++i)
+            if (t_us <= truth[i].t_us) {
+                const double u = (t_us - truth[i - 1].t_us) / (truth[i].t_us - truth[i - 1].t_us);
+                return truth[i - 1].pedal.axes[0] + u * (truth[i].pedal.axes[0] - truth[i - 1].pedal.axes[0]);
+            }
+        return truth.back().pedal.axes[0];
+    };
+    REQUIRE(run.pedals.size() >= 10);
+    int lo = 65535, hi = 0;
+    for (std::size_t i = 0; i < run.pedals.size(); ++i) {
+        const auto& p = run.pedals[i];
+        INFO("pedal message " << i << " at device " << p.device_us << " us");
+        REQUIRE(p.device_us >= run.pong_before_start_us);  // sent after stream_start
+        // Before the first field the pedal holds the recording's first sample.
+        const double want_counts = std::clamp(pedal_at(double(p.device_us) - double(epoch)), 0.0, 1.0) * 65535.0;
+        CHECK(std::abs(double(p.axes[0]) - want_counts) <= 1.0);
+        if (i > 0) CHECK(p.device_us - run.pedals[i - 1].device_us <= 20000 + 1000);
+        lo = std::min<int>(lo, p.axes[0]);
+        hi = std::max<int>(hi, p.axes[0]);
+    }
+    CHECK(hi - lo > 64);  // the pedal moved over the recording (sweep: a slow press)
 }
 
 TEST_CASE("eyesim-device over TCP: low-latency parts carry the same markers", "[firmware][e2e]") {
@@ -187,7 +254,9 @@ TEST_CASE("eyesim-device over TCP: low-latency parts carry the same markers", "[
     std::map<std::pair<int, std::uint32_t>, std::vector<protocol::Marker>> a, b;
     for (const auto& m : want)
         for (int i = 0; i < m.marker_count; ++i) a[{m.camera_id, m.field_counter}].push_back(m.markers[i]);
-    for (const auto& m : run.messages) {
+    auto got = run.messages;
+    (void)to_recording_clock(got, want);
+    for (const auto& m : got) {
         REQUIRE((m.flags & protocol::kFieldFlagLowLatency) != 0);
         auto& v = b[{m.camera_id, m.field_counter}];
         for (int i = 0; i < m.marker_count; ++i) v.push_back(m.markers[i]);
@@ -210,6 +279,7 @@ TEST_CASE("eyesim-device --scenario renders live what the synthesiser writes", "
     auto got = run.messages;
     std::stable_sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.camera_id < b.camera_id; });
     REQUIRE(got.size() == want.size());
+    (void)to_recording_clock(got, want);
     for (std::size_t i = 0; i < got.size(); ++i) REQUIRE(got[i] == want[i]);
 }
 

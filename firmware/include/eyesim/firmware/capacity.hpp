@@ -26,5 +26,10 @@ inline constexpr std::size_t kMaxPartsPerField =
 inline constexpr std::size_t kRxChunkBytes = 256;
 /// Commands executed per service call at most (bounds the time one call can take).
 inline constexpr std::size_t kMaxCommandsPerService = 16;
+/// The pedal is sampled at most this often (1 kHz, an ADC's rate): a change is seen within 1 ms.
+inline constexpr std::uint64_t kPedalSampleUs = 1000;
+/// A PedalState is sent on a change of a button, or of an axis by at least this many counts (0.1 % of travel,
+/// above an ADC's noise); otherwise every PEDAL_PERIOD_MS as a keep-alive.
+inline constexpr std::uint16_t kPedalDeadbandCounts = 64;
 
 }  // namespace eyesim::firmware

@@ -36,7 +36,7 @@ struct CoreConfig {
     bool low_latency = false;          ///< start in per-blob mode
     bool stream_on_start = false;      ///< stream without waiting for StreamStart
     std::uint32_t status_period_ms = 100;  ///< DeviceStatus period while streaming
-    std::uint32_t pedal_period_ms = 20;    ///< PedalState keep-alive period (also sent on every change)
+    std::uint32_t pedal_period_ms = 20;    ///< PedalState keep-alive period (also sent on every change, see capacity.hpp)
 };
 
 /// Everything the core is connected to. Cameras, sink, source and clock are required; pedal and latency optional.
@@ -160,6 +160,8 @@ private:
     bool status_sent_once_ = false;
     std::uint64_t last_pedal_us_ = 0;
     bool pedal_sent_once_ = false;
+    std::uint64_t last_pedal_sample_us_ = 0;
+    bool pedal_sampled_once_ = false;
     protocol::PedalState last_pedal_{};
 
     TxQueue queue_;

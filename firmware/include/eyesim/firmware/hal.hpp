@@ -63,14 +63,20 @@ public:
     virtual std::uint64_t now_us() const noexcept = 0;
 };
 
-/// The foot pedal: an analogue position and a switch.
+/// One reading of the foot pedal, in PedalState's units.
+struct PedalReading {
+    std::uint16_t axes[3] = {0, 0, 0};  ///< 0 = released .. 65535 = full travel (axes 1, 2: the pedal's
+                                        ///< joystick, 32768 = centre)
+    std::uint16_t buttons = 0;          ///< bit i set = button i pressed
+};
+
+/// The foot pedal: three analogue axes (main travel, joystick x/y) and its buttons, read by the core at most
+/// once per kPedalSampleUs.
 class PedalInput {
 public:
     virtual ~PedalInput() = default;
-    /// Pedal travel in 1/65535 of full travel (0 = released).
-    virtual std::uint16_t position() const noexcept = 0;
-    /// State of the pedal's foot switch.
-    virtual bool switch_pressed() const noexcept = 0;
+    /// The pedal now.
+    virtual PedalReading read() const noexcept = 0;
 };
 
 }  // namespace eyesim::firmware
