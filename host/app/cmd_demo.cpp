@@ -28,7 +28,8 @@ using eyesim::app::Error;
 struct DemoOptions {
     std::string out = "eyesim-demo";
     std::string scene;
-    double seconds = 4.0;
+    std::string scenario;
+    double seconds = 0.0;
     uint64_t seed = 1;
     bool json = false;
     std::string device;
@@ -103,19 +104,24 @@ int run_demo(const DemoOptions& opt) {
     const std::string scene = opt.scene.empty() ? std::string(EYESIM_SCENES_DIR) + "/membrane-peel.json" : opt.scene;
 
     // 0. The scene first: a bad scene file fails before anything is synthesised or started.
+    eyesim::sim::scenes::Scene sc;
     try {
-        (void)eyesim::sim::scenes::load_scene(scene);
+        sc = eyesim::sim::scenes::load_scene(scene);
     } catch (const eyesim::sim::scenes::SceneError& e) {
         throw Error(e.what());
     }
+    const std::string scenario = opt.scenario.empty() ? sc.scenario : opt.scenario;
+    const double seconds = opt.seconds > 0 ? opt.seconds : sc.duration_s;
 
-    // 1. A short synthetic surgery recording (three PAL cameras, noise on, with truth).
+    // 1. The synthetic surgeon performs the scene's procedure on the rig (three PAL cameras, noise on, truth).
     eyesim::rig::SynthRequest sreq;
     sreq.out_dir = rec_dir;
-    sreq.scenario = "surgery";
-    sreq.seconds = opt.seconds;
+    sreq.scenario = scenario;
+    sreq.seconds = seconds;
     sreq.seed = opt.seed;
-    if (progress) std::fprintf(stderr, "demo: synthesising %.1f s of three-camera PAL fields into %s\n", opt.seconds, rec_dir.c_str());
+    if (progress)
+        std::fprintf(stderr, "demo: synthesising %.1f s of '%s' (three-camera PAL fields) into %s\n", seconds,
+                     scenario.c_str(), rec_dir.c_str());
     try {
         eyesim::rig::write_recording(sreq, [&](int64_t done, int64_t total) {
             if (progress && (done % 25 == 0 || done == total)) std::fprintf(stderr, "\r  field %lld/%lld", (long long)done, (long long)total);
@@ -135,22 +141,25 @@ int run_demo(const DemoOptions& opt) {
     req.source.connect = device.uri();
     req.rig_path = rec_dir + "/rig.yaml";
     req.truth_path = rec_dir + "/truth.jsonl";
-    req.seconds = opt.seconds + 10.0;  // a time-out only: the device closes the link at the end of the recording
-    req.expected_s = opt.seconds;
+    req.seconds = seconds + 10.0;  // a time-out only: the device closes the link at the end of the recording
+    req.expected_s = seconds;
     req.report_dir = report_dir;
     req.snapshots = 3;
     req.json = opt.json;
-    req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgery)";
+    req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgeon '" +
+                scenario + "')";
     return eyesim::app::run_scene(req);
 }
 
 eyesim::app::Registrar reg{
-    "demo", "The main job: synthetic surgery → device over TCP → tracking → membrane peel, with a report",
+    "demo", "The main job: a synthetic surgeon peels a membrane → device over TCP → tracking → simulation, with a report",
     [](CLI::App& sub) {
         auto opt = std::make_shared<DemoOptions>();
         sub.add_option("--out", opt->out, "folder for the recording and the report")->capture_default_str();
         sub.add_option("--scene", opt->scene, "scene file (default: scenes/membrane-peel.json)");
-        sub.add_option("--seconds", opt->seconds, "length of the synthetic recording")->capture_default_str()
+        sub.add_option("--scenario", opt->scenario,
+                       "synthetic surgeon (default: the scene's, e.g. peel; peel-hard pulls too hard)");
+        sub.add_option("--seconds", opt->seconds, "length of the synthetic recording (default: the scene's duration)")
             ->check(eyesim::app::finite_in(0.5, 60.0));
         sub.add_option("--seed", opt->seed, "scenario and noise seed")->capture_default_str();
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");

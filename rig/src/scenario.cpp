@@ -1,8 +1,10 @@
 #include "eyesim/rig/scenario.hpp"
 
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/surgeon.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
@@ -41,7 +43,33 @@ double smoothstep(double a, double b, double x) {
 
 }  // namespace
 
-std::vector<std::string> scenario_names() { return {"static", "sweep", "surgery", "fast", "occlusion", "injection"}; }
+std::vector<std::string> scenario_names() {
+    return {"static", "sweep", "surgery", "fast", "occlusion", "injection", "peel", "peel-hard", "vitrectomy"};
+}
+
+namespace {
+
+/// Point at geodesic polar coordinates (rho, theta) about `c` on the sphere of radius `r` (any tangent basis).
+Eigen::Vector3d on_sphere(double r, const Eigen::Vector3d& c, double rho, double theta) {
+    const Eigen::Vector3d a = std::fabs(c.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+    const Eigen::Vector3d e1 = (a - a.dot(c) * c).normalized(), e2 = e1.cross(c);  // as the host's mesh
+    const double ang = rho / r;
+    const Eigen::Vector3d dir = std::cos(theta) * e1 + std::sin(theta) * e2;
+    return r * (std::cos(ang) * c + std::sin(ang) * dir);
+}
+
+/// The epiretinal membrane's surface point at (rho, theta), with the tip `lift_mm` above it (towards the centre).
+Eigen::Vector3d above_membrane(double rho, double theta, double lift_mm) {
+    return on_sphere(surgeon::kMembraneSurface_mm - lift_mm, surgeon::kMembraneCentreDir, rho * (1.0 - lift_mm / surgeon::kMembraneSurface_mm), theta);
+}
+
+/// Shaft x axis of the host's instrument frame: eye +x (or +y) made perpendicular to the forward axis z.
+Eigen::Vector3d shaft_x(const Eigen::Vector3d& z) {
+    const Eigen::Vector3d a = std::fabs(z.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+    return (a - a.dot(z) * z).normalized();
+}
+
+}  // namespace
 
 double Scenario::eval(const std::vector<Wave>& waves, double t_s) {
     double v = 0;
@@ -53,7 +81,7 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     const auto names = scenario_names();
     if (std::find(names.begin(), names.end(), name) == names.end())
         throw RigError(fmt::format(
-            "scenario: name: unknown scenario '{}' (static, sweep, surgery, fast, occlusion, injection)", name));
+            "scenario: name: unknown scenario '{}' ({})", name, fmt::join(names, ", ")));
     Scenario s;
     s.name_ = name;
     s.bodies_ = bodies;
@@ -64,6 +92,9 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     if (name == "sweep") tissue = InstrumentKind::kPick;
     if (name == "fast") tissue = InstrumentKind::kVitrector;
     if (name == "occlusion" || name == "injection") tissue = InstrumentKind::kInjection;
+    const bool peel = name == "peel" || name == "peel-hard";
+    if (peel) tissue = InstrumentKind::kForceps;
+    if (name == "vitrectomy") tissue = InstrumentKind::kVitrector;
     s.injection_ = name == "injection";
     s.kinds_ = {tissue, InstrumentKind::kLightPipe};
     (void)bodies.instrument(tissue);
@@ -74,7 +105,7 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     Band b{};
     if (name == "static") b = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     if (name == "sweep") b = {22 * kDeg, 0.04, 0.12, 6.0, 0.05, 0.10, 8 * kDeg, 0.03, 0.08};
-    if (name == "surgery") b = {1.5 * kDeg, 0.3, 0.8, 0.8, 0.2, 0.6, 2 * kDeg, 0.1, 0.4};
+    if (name == "surgery" || peel || name == "vitrectomy") b = {1.5 * kDeg, 0.3, 0.8, 0.8, 0.2, 0.6, 2 * kDeg, 0.1, 0.4};
     if (name == "fast") b = {14 * kDeg, 2.0, 3.5, 4.0, 1.5, 3.0, 6 * kDeg, 0.8, 2.0};
     if (name == "occlusion") b = {16 * kDeg, 0.1, 0.3, 3.0, 0.1, 0.3, 14 * kDeg, 0.1, 0.3};
     if (name == "injection") b = {1.0 * kDeg, 0.1, 0.3, 0.0, 0.1, 0.3, 1 * kDeg, 0.1, 0.3};
@@ -110,6 +141,81 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         // Drive both instruments towards each other so the shafts cross in some views.
         s.motion_[0].tilt_x0 = 18 * kDeg;
         s.motion_[1].tilt_x0 = -18 * kDeg;
+    }
+
+    // Synthetic surgeons: waypoints on a nominal timeline, compressed into shorter runs.
+    if (peel || name == "vitrectomy") {
+        const bool hard = name == "peel-hard";
+        const double nominal_s = peel ? 8.0 : 6.4;
+        const double k = dur_s > 0 && dur_s < nominal_s ? dur_s / nominal_s : 1.0;
+        auto jit = [&](double a) { return rng.uniform(-a, a); };
+        auto add = [&](double t, const Eigen::Vector3d& p, double pedal) {
+            s.path_.push_back({std::max(0.0, (t + jit(0.04)) * k), p, pedal});
+        };
+        if (peel) {
+            // Grasp near the edge on the trocar's side of the membrane, lift and pull across it; release,
+            // regrasp further round the edge, pull again; withdraw.
+            const Eigen::Vector3d troc = bodies.eye.trocars.at(0).position_eye_mm;
+            const double theta_troc = std::atan2(troc.y(), troc.x());
+            const double th0 = theta_troc + rng.uniform(-35, 35) * kDeg;
+            const double th1 = th0 + (rng.uniform(0, 1) < 0.5 ? -1 : 1) * rng.uniform(45, 70) * kDeg;
+            // A careful surgeon grasps the flap about 1.3 mm inside the edge; the hard one takes the edge itself,
+            // next to where the membrane is attached.
+            auto grasp_rho = [&](double th) {
+                return surgeon::membrane_outline_radius_mm(th) - (hard ? 0.15 : 1.3) + jit(0.05);
+            };
+            const double rho_g = grasp_rho(th0);
+            const double grasp_h = 0.12 + jit(0.02);
+            // Too hard: lifted high and fast, straight off the attached rim.
+            const double pull = hard ? 0.3 + jit(0.1) : 1.2 + jit(0.1);
+            const double lift = hard ? 2.5 + jit(0.1) : 0.3 + jit(0.05);
+            const double pull_s = hard ? 0.5 : 2.0 + jit(0.2);
+            add(0.0, above_membrane(0.5, th0 + kPi, 6.0), 0.0);
+            double t = 0.9;
+            for (int g = 0; g < 2; ++g) {
+                const double th = g == 0 ? th0 : th1;
+                const double rho = g == 0 ? rho_g : grasp_rho(th1);
+                add(t, above_membrane(rho, th, 1.0), 0.0);                    // over the edge
+                add(t + 0.5, above_membrane(rho, th, grasp_h), 0.0);          // down to it
+                add(t + 0.8, above_membrane(rho, th, grasp_h), 1.0);          // close the jaws
+                add(t + 1.1, above_membrane(rho - 0.1, th, 0.2), 1.0);        // lift the flap
+                add(t + 1.1 + pull_s, above_membrane(rho - pull, th, lift), 1.0);  // pull along the surface
+                add(t + 1.4 + pull_s, above_membrane(rho - pull, th, lift), 0.0);  // release
+                t += 1.4 + pull_s + 0.7;
+            }
+            add(t + 0.5, above_membrane(0.0, th0, 4.0), 0.0);
+        } else {
+            // The port 0.1 mm in front of the vitreous membrane (the cutter reaches 0.15 mm), swept line by line with the pedal pressed.
+            s.aim_port_ = true;
+            const Eigen::Vector3d n = surgeon::kSheetNormal.normalized();
+            const Eigen::Vector3d u = n.cross(Eigen::Vector3d::UnitY()).normalized(), v = n.cross(u);
+            const double half = 0.5 * surgeon::kSheetSize_mm - 0.8;
+            auto at = [&](double su, double sv, double off) { return surgeon::kSheetCentre_mm + su * u + sv * v + off * n; };
+            const double gap = 0.1 + jit(0.02);
+            add(0.0, at(-half, -half, 3.0), 0.0);
+            add(0.8, at(-half, -half, gap), 0.0);
+            double t = 1.0;
+            add(t, at(-half, -half, gap), 0.85);
+            const int lines = 5;
+            for (int l = 0; l < lines; ++l) {
+                const double a = -half + 2.0 * half * l / (lines - 1) + jit(0.05);
+                const double end = l % 2 == 0 ? half : -half;
+                add(t + 0.9, at(a, end + jit(0.1), gap + jit(0.02)), 0.85);
+                t += 0.9;
+                if (l + 1 < lines) {
+                    add(t + 0.15, at(a + 2.0 * half / (lines - 1), end, gap), 0.85);
+                    t += 0.15;
+                }
+            }
+            add(t + 0.2, at(half, 0.0, gap), 0.0);
+            add(t + 0.8, at(0.0, 0.0, 3.0), 0.0);
+        }
+        std::sort(s.path_.begin(), s.path_.end(), [](const Waypoint& x, const Waypoint& y) { return x.t_s < y.t_s; });
+        // Tremor: physiological 8–12 Hz, about 10 µm, and a slower drift of about 20 µm.
+        for (auto& axis : s.tremor_) {
+            axis.push_back({0.010, rng.uniform(8, 12), rng.uniform(0, 2 * kPi)});
+            axis.push_back({0.020, rng.uniform(0.5, 1.5), rng.uniform(0, 2 * kPi)});
+        }
     }
 
     // Pedal: main axis pressed and released in cycles (surgery, fast), slow joystick axes.
@@ -155,6 +261,23 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         om += h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v);
     }
     return s;
+}
+
+Eigen::Vector3d Scenario::path_at(double t_s, double& pedal) const {
+    if (t_s <= path_.front().t_s) {
+        pedal = path_.front().pedal;
+        return path_.front().p_eye_mm;
+    }
+    for (size_t i = 1; i < path_.size(); ++i) {
+        if (t_s > path_[i].t_s) continue;
+        const Waypoint& a = path_[i - 1];
+        const Waypoint& b = path_[i];
+        const double u = smoothstep(a.t_s, b.t_s, t_s);  // minimum-jerk profile between rests
+        pedal = a.pedal + u * (b.pedal - a.pedal);
+        return a.p_eye_mm + u * (b.p_eye_mm - a.p_eye_mm);
+    }
+    pedal = path_.back().pedal;
+    return path_.back().p_eye_mm;
 }
 
 SceneState Scenario::state_at(double t_us) const {
@@ -208,6 +331,33 @@ SceneState Scenario::state_at(double t_us) const {
             const double b_ = troc.dot(d_in), c_ = troc.squaredNorm() - r_tip * r_tip;
             const double s_wall = -b_ + std::sqrt(std::max(0.0, b_ * b_ - c_));
             ins = s_wall - 1.5 * (1.0 - smoothstep(0.0, 1.0, t));
+        }
+        if (k == 0 && !path_.empty()) {
+            // Synthetic surgeon: the scripted point plus tremor, reached through the trocar.
+            double pedal = 0.0;
+            Eigen::Vector3d target = path_at(t, pedal);
+            for (int a = 0; a < 3; ++a) target[a] += eval(tremor_[a], t);
+            Eigen::Vector3d tip = target;
+            if (aim_port_) {
+                // The side port is at `target`: solve for the tip (the port's offset turns with the shaft).
+                for (int it = 0; it < 4; ++it) {
+                    const Eigen::Vector3d z = (tip - troc).normalized();
+                    tip = target - surgeon::kVitrectorPort_mm.x() * shaft_x(z) - surgeon::kVitrectorPort_mm.z() * z;
+                }
+            }
+            // Never through the retina (a tissue instrument stays 80 µm clear of it), never past full insertion.
+            const double r_max = surgeon::kRetinaRadius_mm - 0.08;
+            if (tip.norm() > r_max) tip *= r_max / tip.norm();
+            Eigen::Vector3d d = tip - troc;
+            if (d.norm() > body.max_insertion_mm) tip = troc + d * (body.max_insertion_mm / d.norm());
+            d = (tip - troc).normalized();
+            p.insertion_mm = (tip - troc).norm();
+            p.tip_eye_mm = tip;
+            p.axis_eye = -d;
+            st.pedal.axes[0] = std::clamp(pedal, 0.0, 1.0);
+            p.jaw_opening = kinds_[k] == InstrumentKind::kForceps ? 1.0 - st.pedal.axes[0] : 0.0;
+            st.instruments.push_back(p);
+            continue;
         }
         const double retract = smoothstep(m.retract_start_s, m.retract_start_s + 0.15 * (m.retract_end_s - m.retract_start_s), t) *
                                (1.0 - smoothstep(m.retract_end_s - 0.15 * (m.retract_end_s - m.retract_start_s), m.retract_end_s, t));

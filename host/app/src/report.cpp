@@ -4,6 +4,7 @@
 #include "eyesim/render/scene_renderer.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -182,13 +183,20 @@ void print_report(std::FILE* out, const RunReport& r) {
                      percentile(r.stats->latency_us, 50), percentile(r.stats->latency_us, 99),
                      percentile(r.stats->transfer_us, 50));
     const Scores& s = sim.scores();
-    std::fprintf(out, "\nScores: task %.2f s, path %.1f mm, tissue contact %llu frames, grabs %llu, springs torn %llu, "
-                      "removed %.3f mm², detached %llu nodes, eye contacts %llu, object contacts %llu, lift-off warnings "
-                      "%llu, tear warnings %llu\n",
-                 s.task_time_s, s.path_length_mm, (unsigned long long)s.tissue_contact_frames, (unsigned long long)s.grabs,
+    std::fprintf(out, "\nScores: task %.2f s, path %.1f mm, grabs %llu, ", s.task_time_s, s.path_length_mm,
+                 (unsigned long long)s.grabs);
+    if (s.membrane_area_mm2 > 0)
+        std::fprintf(out, "peeled %.2f mm² (%.1f %% of %.1f mm²), ", s.peeled_area_mm2, peeled_percent(s),
+                     s.membrane_area_mm2);
+    std::fprintf(out, "springs torn %llu, removed %.3f mm², detached %llu nodes, retina contacts %llu, object contacts "
+                      "%llu, lift-off warnings %llu, tear warnings %llu, tissue contact %llu frames\n",
                  (unsigned long long)s.springs_torn, s.removed_area_mm2, (unsigned long long)s.nodes_detached,
                  (unsigned long long)s.eye_contacts, (unsigned long long)s.object_contacts,
-                 (unsigned long long)s.lift_off_warnings, (unsigned long long)s.tear_warnings);
+                 (unsigned long long)s.lift_off_warnings, (unsigned long long)s.tear_warnings,
+                 (unsigned long long)s.tissue_contact_frames);
+    const Verdict v = judge(sim.scene().scoring, s);
+    if (v.checked && v.passed) std::fprintf(out, "Task passed: every rule of the scene held\n");
+    if (v.checked && !v.passed) std::fprintf(out, "Task failed: %s\n", fmt::format("{}", fmt::join(v.failed, "; ")).c_str());
     // Events: the first of each burst (events of one kind within 0.1 s are one line).
     std::fprintf(out, "Events (%zu):\n", sim.events().size());
     double last_t[16];
@@ -240,7 +248,11 @@ nlohmann::json report_json(const RunReport& r) {
                    {"removed_area_mm2", s.removed_area_mm2}, {"nodes_detached", s.nodes_detached},
                    {"eye_contacts", s.eye_contacts}, {"object_contacts", s.object_contacts},
                    {"lift_off_warnings", s.lift_off_warnings}, {"tear_warnings", s.tear_warnings},
-                   {"not_pi_convex_frames", s.not_pi_convex_frames}, {"events_dropped", s.events_dropped}};
+                   {"not_pi_convex_frames", s.not_pi_convex_frames}, {"events_dropped", s.events_dropped},
+                   {"retina_contacts", s.eye_contacts}, {"membrane_area_mm2", s.membrane_area_mm2},
+                   {"peeled_area_mm2", s.peeled_area_mm2}, {"peeled_percent", peeled_percent(s)}};
+    const Verdict v = judge(sim.scene().scoring, s);
+    if (v.checked) j["passed"] = v.passed, j["failed_rules"] = v.failed;
     nlohmann::json ev = nlohmann::json::array();
     for (const Event& e : sim.events()) ev.push_back({{"t_s", e.time_s}, {"kind", to_string(e.kind)}, {"value", e.value}});
     j["events"] = ev;
@@ -318,14 +330,23 @@ std::string write_report(const std::string& dir, const RunReport& r) {
     row("instrument path length", fmt::format("{:.1f} mm", s.path_length_mm));
     row("frames in tissue contact", std::to_string(s.tissue_contact_frames));
     row("grabs", std::to_string(s.grabs));
+    if (s.membrane_area_mm2 > 0)
+        row("membrane peeled", fmt::format("{:.2f} mm² ({:.1f} % of {:.1f} mm²)", s.peeled_area_mm2, peeled_percent(s),
+                                           s.membrane_area_mm2));
     row("springs torn", std::to_string(s.springs_torn));
     row("tissue removed", fmt::format("{:.3f} mm²", s.removed_area_mm2));
     row("retina nodes detached", std::to_string(s.nodes_detached));
-    row("eyeball contacts (case 2)", std::to_string(s.eye_contacts));
+    row("retina contacts (case 2)", std::to_string(s.eye_contacts));
     row("object contacts (case 3)", std::to_string(s.object_contacts));
     row("retina lift-off warnings", std::to_string(s.lift_off_warnings));
     row("tear warnings", std::to_string(s.tear_warnings));
-    h << "</table>\n<h2>Events</h2><table><tr><th>t [s]</th><th>event</th><th>value</th></tr>\n";
+    h << "</table>\n";
+    const Verdict v = judge(sim.scene().scoring, s);
+    if (v.checked)
+        h << "<p><b>Task " << (v.passed ? "passed" : "failed") << "</b>"
+          << (v.passed ? ": every rule of the scene held." : ": " + html_escape(fmt::format("{}", fmt::join(v.failed, "; "))))
+          << "</p>\n";
+    h << "<h2>Events</h2><table><tr><th>t [s]</th><th>event</th><th>value</th></tr>\n";
     size_t shown = 0;
     for (const Event& e : sim.events()) {
         if (++shown > 200) break;

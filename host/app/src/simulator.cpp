@@ -2,6 +2,8 @@
 
 #include "eyesim/sim/collision/view.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -17,6 +19,7 @@ using sim::scenes::ZcollMode;
 
 namespace {
 constexpr float kRetinaRadius_mm = sim::kEyeRadius_mm - 0.5f;  // inner wall: where the retina lies
+constexpr float kMembraneSurface_mm = kRetinaRadius_mm - 0.05f; // an epiretinal membrane's nodes, on the retina
 constexpr float kForcepsMaxOpening_deg = 30.0f;                // pedal released: jaws fully open
 constexpr float kCutterRadius_mm = 0.15f;                      // vitrector cutter reach around its port
 constexpr float kSuctionRange_mm = 1.5f;
@@ -113,10 +116,31 @@ void Simulator::add_event(double t, EventKind k, float v) {
 
 void Simulator::place_tissue(const FramePoses& poses) {
     const auto& ts = scene_.tissue;
-    if (ts.kind == TissueKind::kMembrane) {
+    if (ts.kind == TissueKind::kMembrane && ts.shape == sim::scenes::MembraneShape::kEpiretinal) {
+        // On the retina (a thin membrane: its nodes just inside the retina's surface), rim attached.
+        sim::MembraneOutline outline;
+        outline.mean_radius_mm = 0.5f * ts.width_mm;
+        outline.irregularity = ts.outline_irregularity;
+        outline.seed = uint32_t(ts.outline_seed);
+        mesh_ = sim::make_epiretinal_membrane(kMembraneSurface_mm, ts.center_eye_mm, outline, ts.triangles);
+        rest_radius_mm_.resize(mesh_.vertex_count());
+        for (size_t v = 0; v < mesh_.vertex_count(); ++v) rest_radius_mm_[v] = mesh_.vertices_mm[v].norm();
+        peeled_.assign(mesh_.vertex_count(), 0);
+        rest_triangles_ = mesh_.triangles;
+        rest_area_mm2_.resize(rest_triangles_.size());
+        double total = 0.0;
+        for (size_t k = 0; k < rest_triangles_.size(); ++k) {
+            const auto& t = rest_triangles_[k];
+            rest_area_mm2_[k] = 0.5f * (mesh_.vertices_mm[t[1]] - mesh_.vertices_mm[t[0]])
+                                           .cross(mesh_.vertices_mm[t[2]] - mesh_.vertices_mm[t[0]])
+                                           .norm();
+            total += rest_area_mm2_[k];
+        }
+        scores_.membrane_area_mm2 = total;
+    } else if (ts.kind == TissueKind::kMembrane) {
         const sim::PatchSize p = patch_for(ts.triangles);
         mesh_ = sim::make_membrane_patch(ts.width_mm, ts.width_mm, p.nx, p.ny);
-        Eigen::Matrix3f rot = Eigen::Matrix3f::Identity();
+        Eigen::Matrix3f rot = frame_with_z(ts.normal_eye);
         Eigen::Vector3f centre = ts.center_eye_mm;
         if (ts.anchor_ahead_of_tip_mm) {
             Eigen::Vector3f from = poses.tissue_to_eye.translation();
@@ -332,10 +356,14 @@ void Simulator::step(const FramePoses& poses) {
             }
         }
         if (torn) add_event(t, EventKind::kSpringTorn, float(torn));
-        if (grab && forceps.closed) {
+        // A grasp: the jaws closed on tissue this frame (held nodes, not held before).
+        const bool holding = tissue_->grabbed_count() > 0;
+        if (holding && !holding_) {
             ++scores_.grabs;
-            add_event(t, EventKind::kGrab, 0.0f);
+            add_event(t, EventKind::kGrab, float(tissue_->grabbed_count()));
         }
+        holding_ = holding;
+        (void)grab;
     }
 
     // Geometry transfer: positions (and topology after tearing or cutting) back into the collision/render mesh.
@@ -356,6 +384,25 @@ void Simulator::step(const FramePoses& poses) {
             if (have_prev_) scores_.path_length_mm += (tip - prev_tip_mm_).norm();
             prev_tip_mm_ = tip;
         }
+        if (tissue_ && !peeled_.empty()) {
+            // Peeled: every node of a triangle lifted off the retina by the threshold at some time (a separated
+            // membrane does not stick again).
+            const auto& sys = tissue_->system();
+            const float lift = scene_.tissue.lift_threshold_mm;
+            bool changed = false;
+            for (size_t v = 0; v < peeled_.size(); ++v) {
+                if (peeled_[v] || sys.state[v] == tis::NodeState::kRemoved) continue;
+                if (sys.x_mm[v].norm() < rest_radius_mm_[v] - lift) peeled_[v] = changed = true;
+            }
+            if (changed) {
+                double area = 0.0;
+                for (size_t k = 0; k < rest_triangles_.size(); ++k) {
+                    const auto& tri = rest_triangles_[k];
+                    if (peeled_[tri[0]] && peeled_[tri[1]] && peeled_[tri[2]]) area += rest_area_mm2_[k];
+                }
+                scores_.peeled_area_mm2 = area;
+            }
+        }
         if (tissue_) {
             const auto& d = tissue_->damage();
             scores_.springs_torn = d.springs_torn;
@@ -369,6 +416,29 @@ void Simulator::step(const FramePoses& poses) {
     timer_.end_frame();
     prev_time_s_ = poses.time_s;
     have_prev_ = true;
+}
+
+Verdict judge(const sim::scenes::ScoringSpec& r, const Scores& s) {
+    Verdict v;
+    v.checked = r.any();
+    auto at_least = [&](const std::optional<double>& lim, double value, const char* what) {
+        if (lim && !(value >= *lim)) v.failed.push_back(fmt::format("{} {:.4g} < {:.4g}", what, value, *lim));
+    };
+    auto at_most = [&](const std::optional<double>& lim, double value, const char* what) {
+        if (lim && !(value <= *lim)) v.failed.push_back(fmt::format("{} {:.4g} > {:.4g}", what, value, *lim));
+    };
+    const double peeled_pct = peeled_percent(s);
+    at_least(r.min_grabs, double(s.grabs), "grabs");
+    at_least(r.min_peeled_percent, peeled_pct, "peeled %");
+    at_least(r.min_removed_mm2, s.removed_area_mm2, "removed mm²");
+    at_least(r.min_nodes_detached, double(s.nodes_detached), "retina nodes detached");
+    at_most(r.max_lift_off_warnings, double(s.lift_off_warnings), "lift-off warnings");
+    at_most(r.max_tear_warnings, double(s.tear_warnings), "tear warnings");
+    at_most(r.max_retina_contacts, double(s.eye_contacts), "retina contacts");
+    at_most(r.max_object_contacts, double(s.object_contacts), "object contacts");
+    at_most(r.max_time_s, s.task_time_s, "time s");
+    v.passed = v.checked && v.failed.empty();
+    return v;
 }
 
 uint64_t Simulator::state_hash() const {

@@ -1,5 +1,7 @@
 #include "eyesim/sim/mesh.hpp"
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <unordered_set>
@@ -50,6 +52,93 @@ TriangleMesh make_membrane_patch(float width_mm, float height_mm, int nx, int ny
             }
         }
     }
+    m.build_adjacency();
+    return m;
+}
+
+namespace {
+
+/// Tangent basis at `c` (unit) with e1 × e2 = −c (so grid triangles counter-clockwise in (e1, e2) face inwards).
+void tangent_basis(const Vec3f& c, Vec3f& e1, Vec3f& e2) {
+    const Vec3f a = std::fabs(c.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
+    e1 = (a - a.dot(c) * c).normalized();
+    e2 = e1.cross(c);  // e1 × (e1 × c) = −c
+}
+
+/// Exponential map of the sphere: geodesic offset (u, v) in the tangent basis at c → point on the sphere.
+Vec3f wrap(float r, const Vec3f& c, const Vec3f& e1, const Vec3f& e2, float u, float v) {
+    const float rho = std::sqrt(u * u + v * v);
+    if (rho < 1e-9f) return r * c;
+    const float a = rho / r;
+    return r * (std::cos(a) * c + std::sin(a) * (u * e1 + v * e2) / rho);
+}
+
+}  // namespace
+
+float MembraneOutline::radius_at(float theta) const {
+    // splitmix64 from the seed: amplitudes and phases of harmonics 2..5.
+    uint64_t s = seed * 0x9E3779B97F4A7C15ull + 0x632BE59BD9B4E019ull;
+    auto next = [&s] {
+        uint64_t z = (s += 0x9E3779B97F4A7C15ull);
+        z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+        z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+        return double((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
+    };
+    double amp[4], phase[4], sum = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        amp[k] = 0.2 + next();
+        phase[k] = 2.0 * 3.14159265358979323846 * next();
+        sum += amp[k];
+    }
+    double lobes = 0.0;
+    for (int k = 0; k < 4; ++k) lobes += amp[k] / sum * std::cos(double(k + 2) * theta + phase[k]);
+    return float(mean_radius_mm * (1.0 + irregularity * lobes));
+}
+
+Vec3f point_on_retina(float surface_radius_mm, const Vec3f& centre_dir, float rho_mm, float theta) {
+    Vec3f e1, e2;
+    const Vec3f c = centre_dir.normalized();
+    tangent_basis(c, e1, e2);
+    return wrap(surface_radius_mm, c, e1, e2, rho_mm * std::cos(theta), rho_mm * std::sin(theta));
+}
+
+TriangleMesh make_epiretinal_membrane(float surface_radius_mm, const Vec3f& centre_dir, const MembraneOutline& outline,
+                                      int triangles) {
+    const Vec3f c = centre_dir.normalized();
+    Vec3f e1, e2;
+    tangent_basis(c, e1, e2);
+    const float half = outline.mean_radius_mm * (1.0f + std::fabs(outline.irregularity)) * 1.02f;
+    auto inside = [&](float u, float v) { return std::sqrt(u * u + v * v) <= outline.radius_at(std::atan2(v, u)); };
+    // Grid cells n × n over [−half, half]²: about π·mean²·(1 + irr²/2) / (2·half)² of its 2n² triangles are kept.
+    const double frac = 3.14159265358979323846 * outline.mean_radius_mm * outline.mean_radius_mm *
+                        (1.0 + 0.5 * outline.irregularity * outline.irregularity) / (4.0 * half * half);
+    const int n = std::max(2, int(std::lround(std::sqrt(std::max(triangles, 2) / (2.0 * frac)))));
+    const float step = 2.0f * half / float(n);
+    std::vector<int32_t> remap(size_t(n + 1) * size_t(n + 1), -1);
+    auto id = [n](int i, int j) { return size_t(j) * size_t(n + 1) + size_t(i); };
+    TriangleMesh m;
+    auto vertex = [&](int i, int j) {
+        int32_t& r = remap[id(i, j)];
+        if (r < 0) {
+            r = int32_t(m.vertices_mm.size());
+            m.vertices_mm.push_back(wrap(surface_radius_mm, c, e1, e2, -half + step * float(i), -half + step * float(j)));
+        }
+        return uint32_t(r);
+    };
+    auto keep = [&](int i0, int j0, int i1, int j1, int i2, int j2) {
+        const float u = -half + step * float(i0 + i1 + i2) / 3.0f, v = -half + step * float(j0 + j1 + j2) / 3.0f;
+        if (inside(u, v)) m.triangles.push_back({vertex(i0, j0), vertex(i1, j1), vertex(i2, j2)});
+    };
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            if ((i + j) % 2 == 0) {
+                keep(i, j, i + 1, j, i + 1, j + 1);
+                keep(i, j, i + 1, j + 1, i, j + 1);
+            } else {
+                keep(i, j, i + 1, j, i, j + 1);
+                keep(i + 1, j, i + 1, j + 1, i, j + 1);
+            }
+        }
     m.build_adjacency();
     return m;
 }

@@ -121,6 +121,8 @@ constexpr std::pair<const char*, InstrumentRole> kRoles[] = {{"tissue", Instrume
                                                               {"light", InstrumentRole::kLight}};
 constexpr std::pair<const char*, TissueKind> kTissues[] = {
     {"none", TissueKind::kNone}, {"membrane", TissueKind::kMembrane}, {"retina", TissueKind::kRetina}};
+constexpr std::pair<const char*, MembraneShape> kShapesM[] = {{"epiretinal", MembraneShape::kEpiretinal},
+                                                               {"flat", MembraneShape::kFlat}};
 constexpr std::pair<const char*, collision::ConvexShape> kShapes[] = {
     {"sphere", collision::ConvexShape::Sphere}, {"box", collision::ConvexShape::Box},
     {"cylinder", collision::ConvexShape::Cylinder}, {"capsule", collision::ConvexShape::Capsule},
@@ -178,10 +180,25 @@ void parse_collision(Obj& o, Scene& s) {
 void parse_tissue(Obj& o, Scene& s) {
     TissueSpec& t = s.tissue;
     t.kind = pick(o, "kind", o.str("kind", "none", true), kTissues);
+    const bool anchored = o.has("anchor_ahead_of_tip_mm");
+    if (anchored) t.anchor_ahead_of_tip_mm = o.num("anchor_ahead_of_tip_mm", 0.0f, -5.0f, 5.0f);
+    t.shape = pick(o, "shape", o.str("shape", anchored ? "flat" : "epiretinal"), kShapesM);
+    if (anchored && t.shape != MembraneShape::kFlat) o.fail("anchor_ahead_of_tip_mm", "needs shape 'flat'");
+    if (t.shape == MembraneShape::kFlat) {
+        t.width_mm = 6.0f;
+        t.center_eye_mm = {0.0f, 0.0f, -10.5f};
+    }
     t.triangles = o.integer("triangles", t.triangles, 50, 20000);
     t.width_mm = o.num("width_mm", t.width_mm, 0.5f, 20.0f);
     t.center_eye_mm = o.vec3("center_eye_mm", t.center_eye_mm, 12.0f);
-    if (o.has("anchor_ahead_of_tip_mm")) t.anchor_ahead_of_tip_mm = o.num("anchor_ahead_of_tip_mm", 0.0f, -5.0f, 5.0f);
+    if (t.shape == MembraneShape::kEpiretinal && t.center_eye_mm.norm() < 1e-3f)
+        o.fail("center_eye_mm", "must give a direction (not the eye centre)");
+    t.normal_eye = o.vec3("normal_eye", t.normal_eye, 10.0f);
+    if (t.normal_eye.norm() < 1e-3f) o.fail("normal_eye", "must not be zero");
+    if (t.shape != MembraneShape::kFlat && o.has("normal_eye")) o.fail("normal_eye", "only a flat membrane has one");
+    t.outline_irregularity = o.num("outline_irregularity", t.outline_irregularity, 0.0f, 0.5f);
+    t.outline_seed = o.integer("outline_seed", t.outline_seed, 0, 1 << 30);
+    t.lift_threshold_mm = o.num("lift_threshold_mm", t.lift_threshold_mm, 0.01f, 5.0f);
     t.anchor_to_port = o.boolean("anchor_to_port", false);
     if (t.anchor_to_port && !t.anchor_ahead_of_tip_mm) o.fail("anchor_to_port", "needs anchor_ahead_of_tip_mm");
     t.retina_rings = o.integer("retina_rings", t.retina_rings, 2, 200);
@@ -216,6 +233,23 @@ void parse_tissue(Obj& o, Scene& s) {
         p.tear_warning_speed_mm_per_s = ro.num("tear_warning_speed_mm_per_s", p.tear_warning_speed_mm_per_s, 0.0f, kBig, true);
         ro.finish();
     }
+    o.finish();
+}
+
+void parse_scoring(Obj& o, Scene& s) {
+    ScoringSpec& r = s.scoring;
+    auto opt = [&](const char* key, std::optional<double>& v, float hi) {
+        if (o.has(key)) v = o.num(key, 0.0f, 0.0f, hi);
+    };
+    opt("min_grabs", r.min_grabs, 1e6f);
+    opt("min_peeled_percent", r.min_peeled_percent, 100.0f);
+    opt("min_removed_mm2", r.min_removed_mm2, 1e4f);
+    opt("min_nodes_detached", r.min_nodes_detached, 1e7f);
+    opt("max_lift_off_warnings", r.max_lift_off_warnings, 1e9f);
+    opt("max_tear_warnings", r.max_tear_warnings, 1e9f);
+    opt("max_retina_contacts", r.max_retina_contacts, 1e9f);
+    opt("max_object_contacts", r.max_object_contacts, 1e9f);
+    opt("max_time_s", r.max_time_s, 1e6f);
     o.finish();
 }
 
@@ -258,6 +292,10 @@ Scene parse_scene(const std::string& json_text, const std::string& origin) {
     if (const json* t = top.child("tissue", json::value_t::object)) {
         Obj to(*t, "tissue", origin);
         parse_tissue(to, s);
+    }
+    if (const json* sc = top.child("scoring", json::value_t::object)) {
+        Obj so(*sc, "scoring", origin);
+        parse_scoring(so, s);
     }
     top.finish();
     for (const auto& in : s.instruments)

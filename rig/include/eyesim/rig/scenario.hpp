@@ -8,6 +8,13 @@
 /// pedal, light pipe following), "fast" (quick moves: motion blur of several pixels), "occlusion" (instruments
 /// crossing, retracting out of view, large eye rotations hiding markers behind the eye), "injection" (retina
 /// relocation: the injection needle penetrates the posterior retina, the pedal injects, a quick flick at 3 s).
+///
+/// Synthetic surgeons (rig/surgeon.hpp says where their tissue lies), deterministic from the seed with human-like
+/// variation (grasp point, pull direction, timing, 8–12 Hz tremor): "peel" (forceps to the epiretinal membrane's
+/// edge, jaws closed with the pedal, lift and pull along the surface, release, regrasp elsewhere, pull again),
+/// "peel-hard" (the same, pulled too far too fast: the rim lifts off), "vitrectomy" (the vitrector's port swept
+/// over a vitreous membrane with the pedal pressed: suction and cutting). Their tips move through the trocar and
+/// stay inside the eye, clear of the retina.
 
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/truth.hpp"
@@ -78,6 +85,13 @@ private:
         double flick_s = 1e30;  ///< injection: a quick 4° tilt starting here (fast move along the retina)
     };
     std::vector<InstrumentMotion> motion_;
+    // Synthetic surgeon: the tissue instrument's tip (or, aim_port_, the vitrector's port) through waypoints with
+    // minimum-jerk segments, plus tremor; the main pedal axis follows the waypoints too.
+    struct Waypoint { double t_s; Eigen::Vector3d p_eye_mm; double pedal; };
+    std::vector<Waypoint> path_;
+    std::vector<Wave> tremor_[3];
+    bool aim_port_ = false;
+    Eigen::Vector3d path_at(double t_s, double& pedal) const;
     std::vector<Wave> pedal0_, pedal1_, pedal2_;
     double pedal0_base_ = 0.0;
     bool injection_ = false;  ///< "injection": the needle reaches the retina, pedal = injection pressure

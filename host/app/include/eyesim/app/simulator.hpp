@@ -72,11 +72,28 @@ struct Scores {
     uint64_t lift_off_warnings = 0;        ///< frames with a lift-off warning
     uint64_t tear_warnings = 0;            ///< frames with a tear warning
     uint64_t tissue_contact_frames = 0;    ///< frames with case-4 contact
-    uint64_t grabs = 0;                    ///< forceps grabs
+    uint64_t grabs = 0;                    ///< forceps grasps: jaws closing on tissue (rising edges)
+    double membrane_area_mm2 = 0.0;        ///< epiretinal membrane: its area on the retina at the start
+    double peeled_area_mm2 = 0.0;          ///< … of which lifted off the retina (every node > lift threshold)
     uint64_t not_pi_convex_frames = 0;     ///< frames that needed the exact fallback
     double path_length_mm = 0.0;           ///< working-hand tip path
     uint64_t events_dropped = 0;           ///< events beyond the list's capacity (counted, not stored)
 };
+
+/// The scene's pass rules applied to a run's scores.
+struct Verdict {
+    bool checked = false;              ///< the scene has pass rules
+    bool passed = false;               ///< every rule held
+    std::vector<std::string> failed;   ///< one line per rule that did not hold, e.g. "lift-off warnings 3 > 0"
+};
+
+/// Peeled share of the membrane, % (0 without an epiretinal membrane).
+inline double peeled_percent(const Scores& s) {
+    return s.membrane_area_mm2 > 0 ? 100.0 * s.peeled_area_mm2 / s.membrane_area_mm2 : 0.0;
+}
+
+/// Applies `rules` to `scores`.
+Verdict judge(const sim::scenes::ScoringSpec& rules, const Scores& scores);
 
 /// Which parts of the frame loop a scene made run (for "skip what a scene does not need" checks).
 struct StageUse {
@@ -148,6 +165,12 @@ private:
     double prev_time_s_ = 0.0, first_time_s_ = 0.0;
     Eigen::Vector3f prev_tip_mm_ = Eigen::Vector3f::Zero();
     Eigen::Vector3f prev_needle_tip_mm_ = Eigen::Vector3f::Zero();
+    bool holding_ = false;                  // forceps held tissue after the last frame
+    // Epiretinal membrane: rest distance of each node from the eye centre, peeled latch, rest triangles.
+    std::vector<float> rest_radius_mm_;
+    std::vector<uint8_t> peeled_;
+    std::vector<std::array<uint32_t, 3>> rest_triangles_;
+    std::vector<float> rest_area_mm2_;
     bool tissue_contact_ = false;
     std::vector<uint8_t> object_contact_;
 };

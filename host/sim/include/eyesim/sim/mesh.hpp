@@ -48,6 +48,30 @@ inline constexpr PatchSize kPatch3k{39, 39};
 /// towards the cornea; the retina lines the posterior inner wall (z < 0).
 inline constexpr float kEyeRadius_mm = 12.0f;
 
+/// Irregular outline of an epiretinal membrane: geodesic radius r(θ) = mean·(1 + irregularity·Σ a_k cos(kθ + φ_k))
+/// over harmonics k = 2..5 with Σ a_k = 1, so r stays within mean·(1 ± irregularity). Amplitudes and phases
+/// come from `seed` (deterministic on every platform).
+struct MembraneOutline {
+    float mean_radius_mm = 2.5f;  ///< mean geodesic radius on the retina
+    float irregularity = 0.25f;   ///< relative depth of the outline's lobes, 0 = circle, ≤ 0.5
+    uint32_t seed = 1;            ///< shape of the lobes
+    /// Radius at polar angle θ (rad) about the centre, measured from the tangent basis of make_epiretinal_membrane.
+    float radius_at(float theta) const;
+};
+
+/// Epiretinal membrane lying on the retina's inner surface: the triangles of a regular grid (in geodesic
+/// coordinates about `centre_dir`, the unit direction of its centre from the eye centre) whose centroids fall
+/// inside `outline`, wrapped onto the sphere of `surface_radius_mm` about the origin. The grid is sized so that
+/// about `triangles` are kept. Normals point inwards (towards the eye centre); the boundary edges are its rim.
+/// Tangent basis at the centre: e1 is +x (+y when centre_dir is near ±x) made perpendicular to centre_dir, and
+/// e2 = e1 × centre_dir, so that e1 × e2 = −centre_dir.
+TriangleMesh make_epiretinal_membrane(float surface_radius_mm, const Vec3f& centre_dir, const MembraneOutline& outline,
+                                      int triangles);
+
+/// Point on the sphere of `surface_radius_mm` at geodesic polar coordinates (rho_mm, theta) about `centre_dir`,
+/// in the tangent basis of make_epiretinal_membrane.
+Vec3f point_on_retina(float surface_radius_mm, const Vec3f& centre_dir, float rho_mm, float theta);
+
 /// Posterior retina hemisphere: the inner eye sphere of radius `radius_mm` (centre at the origin) for z ≤ 0,
 /// from the posterior pole (0, 0, -radius_mm) up to the equator z = 0. `rings` latitude bands (≥ 1) and
 /// `segments` longitude sectors (≥ 3): vertex 0 is the pole, then `rings` rings of `segments` vertices each.

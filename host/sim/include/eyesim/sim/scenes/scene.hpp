@@ -45,12 +45,25 @@ struct InstrumentSpec {
 /// Tissue models a scene may hold.
 enum class TissueKind : uint8_t { kNone, kMembrane, kRetina };
 
+/// Where and how a membrane lies.
+enum class MembraneShape : uint8_t {
+    kEpiretinal,  ///< on the retina's inner surface, irregular outline, rim attached (the paper's rule)
+    kFlat,        ///< a flat square patch (Table-3 meshes; benchmarks and free-hand recordings)
+};
+
 /// Tissue set-up (paper §4.5).
 struct TissueSpec {
     TissueKind kind = TissueKind::kNone;
-    int triangles = 1000;                     ///< membrane patch size: ≈400, ≈1k or ≈3k (Table 3 meshes)
-    float width_mm = 6.0f;                    ///< membrane patch side length
-    Eigen::Vector3f center_eye_mm{0.0f, 0.0f, -10.5f};  ///< membrane centre (normal +z, facing the cornea)
+    MembraneShape shape = MembraneShape::kEpiretinal;  ///< membrane: on the retina, or a flat patch
+    int triangles = 1000;                     ///< membrane size: ≈400, ≈1k or ≈3k (flat: the Table 3 meshes)
+    float width_mm = 5.0f;                    ///< epiretinal: mean diameter of the outline; flat: side length
+    /// Epiretinal: direction of the membrane's centre from the eye centre (the macula by default; normalised);
+    /// flat: the patch centre (normal +z, facing the cornea).
+    Eigen::Vector3f center_eye_mm{0.0f, 0.0f, -11.0f};
+    Eigen::Vector3f normal_eye{0.0f, 0.0f, 1.0f};  ///< flat: the patch's normal (the side facing the instruments)
+    float outline_irregularity = 0.25f;       ///< epiretinal: relative depth of the outline's lobes (0 = circle)
+    int outline_seed = 1;                     ///< epiretinal: shape of the lobes
+    float lift_threshold_mm = 0.1f;           ///< epiretinal: a node lifted this far off the retina is peeled
     /// When set, the membrane is placed at the first tracked tip of the tissue instrument plus this distance
     /// along the instrument's forward axis, facing the instrument (for free-hand recordings).
     std::optional<float> anchor_ahead_of_tip_mm;
@@ -77,6 +90,23 @@ struct CollisionSpec {
     std::vector<collision::ConvexObject> convex_objects;  ///< case 3 (FCL)
 };
 
+/// A scene's rules for passing the task (every rule present must hold). Absent rules are not checked.
+struct ScoringSpec {
+    std::optional<double> min_grabs;              ///< forceps grasps of tissue
+    std::optional<double> min_peeled_percent;     ///< membrane area lifted off the retina, % of the membrane
+    std::optional<double> min_removed_mm2;        ///< tissue removed by the vitrector
+    std::optional<double> min_nodes_detached;     ///< retina nodes detached by injections
+    std::optional<double> max_lift_off_warnings;  ///< frames with a retina lift-off warning
+    std::optional<double> max_tear_warnings;      ///< frames with a tear warning
+    std::optional<double> max_retina_contacts;    ///< case-2 warnings: an instrument tip at the eye wall
+    std::optional<double> max_object_contacts;    ///< case-3 contacts
+    std::optional<double> max_time_s;             ///< task time
+    bool any() const {
+        return min_grabs || min_peeled_percent || min_removed_mm2 || min_nodes_detached || max_lift_off_warnings ||
+               max_tear_warnings || max_retina_contacts || max_object_contacts || max_time_s;
+    }
+};
+
 /// A whole scene.
 struct Scene {
     std::string name;                         ///< e.g. "membrane-peel"
@@ -86,6 +116,7 @@ struct Scene {
     std::vector<InstrumentSpec> instruments;  ///< per role, ordered by active_from_s
     CollisionSpec collision;
     TissueSpec tissue;
+    ScoringSpec scoring;                      ///< pass rules of the task
 
     /// True when tissue must be simulated.
     bool needs_tissue() const { return tissue.kind != TissueKind::kNone; }

@@ -116,6 +116,8 @@ public:
     /// adjacency) into `mesh`. Vertex indices never change. Returns true if the topology was rewritten.
     bool write_to(TriangleMesh& mesh);
 
+    /// Nodes bound to the closed forceps now.
+    size_t grabbed_count() const { return grabbed_.size(); }
     /// Events of the last `step` call.
     const TissueEventList& events() const { return events_; }
     /// Damage counters since construction.
