@@ -2,6 +2,7 @@
 
 #include "eyesim/app/command.hpp"
 #include "eyesim/firmware/latency.hpp"
+#include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/timing.hpp"
 #include "eyesim/fpga/wire.hpp"
@@ -10,6 +11,7 @@
 #include "eyesim/protocol/stream_parser.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/pal.hpp"
+#include "eyesim/rig/truth.hpp"
 #include "eyesim/transport/transport.hpp"
 
 #include <fmt/format.h>
@@ -114,7 +116,35 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
     firmware::LinkModel link;
     uint16_t sequence = 0;
     run.set_clock_offset_us(0.0);  // receive times are modelled on the device clock itself
+    // The pedal, as eyesim-device sends it: the recording's truth.jsonl (a recording without one: pedal at rest).
+    std::vector<firmware::pc::PedalSample> pedal_track;
+    if (const std::string tp = rec.truth_path(); !tp.empty()) {
+        try {
+            for (const auto& t : rig::read_truth(tp)) {
+                firmware::pc::PedalSample ps;
+                ps.t_us = t.t_us;
+                for (int a = 0; a < 3; ++a) ps.axes[a] = t.pedal.axes[size_t(a)];
+                ps.buttons = uint16_t(t.pedal.buttons & 0xFFFFu);
+                pedal_track.push_back(ps);
+            }
+        } catch (const rig::RigError& e) {
+            throw Error(e.what());
+        }
+    }
+    const firmware::pc::PedalTrack pedal(std::move(pedal_track), nullptr);
     for (int64_t i = 0; i < n; ++i) {
+        {
+            // One PedalState per field period, stamped at camera 0's field start (before that field's markers).
+            proto::PedalState ps;
+            const double t_us = std::max(0.0, rec.field_timing(0, i).start_us);
+            ps.device_us = uint64_t(std::llround(t_us));
+            const firmware::PedalReading pr = pedal.at(t_us);
+            for (size_t a = 0; a < proto::kPedalAxisCount; ++a) ps.axes[a] = pr.axes[a];
+            ps.buttons = pr.buttons;
+            const size_t len = proto::encode_frame(proto::Message{ps}, sequence++, bytes);
+            parser.parse(std::span<const uint8_t>(bytes.data(), len),
+                         [&](const proto::DecodedFrame& df) { run.on_frame(df, t_us); });
+        }
         for (int c = 0; c < ncam; ++c) {
             const rig::FieldTiming ft = rec.field_timing(c, i);
             try {

@@ -29,8 +29,9 @@ TEST_CASE("the shipped scenes load and declare what they need", "[scenes]") {
     CHECK(peel.needs_deformation());
     CHECK(peel.tissue.kind == TissueKind::kMembrane);
     CHECK(peel.instrument(InstrumentRole::kTissue, 0.0f)->kind == eyesim::sim::collision::InstrumentKind::Forceps);
-    CHECK(peel.instrument(InstrumentRole::kTissue, 7.0f)->kind == eyesim::sim::collision::InstrumentKind::Pick);
-    CHECK(peel.instrument(InstrumentRole::kTissue, 9.5f)->kind == eyesim::sim::collision::InstrumentKind::Vitrector);
+    CHECK(peel.instrument(InstrumentRole::kTissue, 7.0f)->kind == eyesim::sim::collision::InstrumentKind::Forceps);
+    CHECK(peel.scenario == "peel");
+    CHECK(peel.scoring.any());
     CHECK(peel.instrument(InstrumentRole::kLight, 0.0f)->kind == eyesim::sim::collision::InstrumentKind::LightPipe);
 
     const Scene shadow = load_scene(scene_path("abstract-shadow"));
