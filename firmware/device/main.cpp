@@ -326,7 +326,7 @@ int main(int argc, char** argv) {
     Options opt;
     auto* rec_opt = app.add_option("--recording", opt.recording, "recording directory (rig.yaml + cam0..2 streams)");
     auto* scn_opt = app.add_option("--scenario", opt.scenario,
-                                   "render this rig scenario live instead (static, sweep, surgery, fast, occlusion)");
+                                   "render this rig scenario live instead (static, sweep, surgery, fast, occlusion, injection, peel, peel-hard, vitrectomy)");
     rec_opt->excludes(scn_opt);
     app.add_option("--seconds", opt.seconds, "--scenario: length in seconds (fields = 50 per second)")
         ->capture_default_str();

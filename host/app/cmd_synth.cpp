@@ -1,6 +1,7 @@
 // `eyesim synth`: render a synthetic three-camera recording with ground truth.
 #include "eyesim/app/command.hpp"
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/synth.hpp"
 
 #include <fmt/format.h>
@@ -27,8 +28,8 @@ struct SynthOptions {
 
 eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recording with ground truth", [](CLI::App& sub) {
     auto opt = std::make_shared<SynthOptions>();
-    sub.add_option("--scenario", opt->scenario, "static | sweep | surgery | fast | occlusion")
-        ->check(CLI::IsMember({"static", "sweep", "surgery", "fast", "occlusion"}));
+    sub.add_option("--scenario", opt->scenario, "motion scenario or synthetic surgeon (docs/validation.md)")
+        ->check(CLI::IsMember(eyesim::rig::scenario_names()));
     sub.add_option("--seconds", opt->seconds, "recording length in seconds (50 fields per second)");
     sub.add_option("--seed", opt->seed, "seed of the motion and the sensor noise");
     sub.add_option("--out", opt->out, "output recording directory (created)")->required();
