@@ -65,8 +65,25 @@ TcpServer::TcpServer(const std::string& address, std::uint16_t port, bool allow_
                               : ntohs(reinterpret_cast<sockaddr_in6*>(&bound)->sin6_port);
 }
 
+namespace {
+/// Orderly close: FIN first (everything sent stays deliverable), then read and discard what the host still sends
+/// (pings) until it closes too or 500 ms pass. Closing with unread bytes would send RST, and a host that gets RST
+/// loses the data still in its receive buffer.
+void close_gracefully(int fd) noexcept {
+    ::shutdown(fd, SHUT_WR);
+    std::uint8_t sink[512];
+    for (int waited_ms = 0; waited_ms < 500; waited_ms += 20) {
+        pollfd p{fd, POLLIN, 0};
+        if (::poll(&p, 1, 20) <= 0) continue;
+        const ssize_t n = ::recv(fd, sink, sizeof sink, 0);
+        if (n <= 0 && !(n < 0 && (errno == EAGAIN || errno == EINTR))) break;  // host closed (or failed)
+    }
+    ::close(fd);
+}
+}  // namespace
+
 TcpServer::~TcpServer() {
-    if (client_ >= 0) ::close(client_);
+    if (client_ >= 0) close_gracefully(client_);
     if (listen_fd_ >= 0) ::close(listen_fd_);
 }
 
