@@ -70,13 +70,7 @@ public:
     virtual std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const = 0;
 };
 
-eyesim::firmware::pc::PedalSample pedal_sample(double t_us, const eyesim::rig::PedalTruth& p) {
-    eyesim::firmware::pc::PedalSample s;
-    s.t_us = t_us;
-    for (int a = 0; a < 3; ++a) s.axes[a] = p.axes[static_cast<std::size_t>(a)];
-    s.buttons = static_cast<std::uint16_t>(p.buttons & 0xFFFFu);
-    return s;
-}
+using eyesim::firmware::pc::pedal_sample;
 
 class RecordingProvider final : public FieldProvider {
 public:
@@ -92,16 +86,13 @@ public:
     std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const override {
         // The pedal of a recording is in its truth.jsonl (one sample per field time); a recording without it
         // (a real rig's video) plays with the pedal at rest.
-        std::vector<eyesim::firmware::pc::PedalSample> track;
         const std::string path = rec_.truth_path();
         if (path.empty()) {
             std::fprintf(stderr, "eyesim-device: warning: %s has no truth.jsonl: the pedal stays at rest\n",
                          rec_.dir().c_str());
-            return track;
+            return {};
         }
-        for (const auto& t : eyesim::rig::read_truth(path)) track.push_back(pedal_sample(t.t_us, t.pedal));
-        std::sort(track.begin(), track.end(), [](const auto& a, const auto& b) { return a.t_us < b.t_us; });
-        return track;
+        return eyesim::firmware::pc::pedal_track_of(eyesim::rig::read_truth(path));
     }
 
 private:

@@ -120,13 +120,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
     std::vector<firmware::pc::PedalSample> pedal_track;
     if (const std::string tp = rec.truth_path(); !tp.empty()) {
         try {
-            for (const auto& t : rig::read_truth(tp)) {
-                firmware::pc::PedalSample ps;
-                ps.t_us = t.t_us;
-                for (int a = 0; a < 3; ++a) ps.axes[a] = t.pedal.axes[size_t(a)];
-                ps.buttons = uint16_t(t.pedal.buttons & 0xFFFFu);
-                pedal_track.push_back(ps);
-            }
+            pedal_track = firmware::pc::pedal_track_of(rig::read_truth(tp));
         } catch (const rig::RigError& e) {
             throw Error(e.what());
         }

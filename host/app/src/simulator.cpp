@@ -205,7 +205,7 @@ void Simulator::step(const FramePoses& poses) {
     }
 
     // Collision: only the cases the scene declares.
-    bool tissue_contact = false, grab = false, suction_on = false;
+    bool tissue_contact = false, suction_on = false;
     pushes_.clear();
     grabbed_nodes_.clear();
     {
@@ -252,7 +252,6 @@ void Simulator::step(const FramePoses& poses) {
                     const col::ZcollResult& r = zcoll_->push(verts, hand->posed, view);
                     if (r.gated_out) ++use_.zcoll_gated;
                     tissue_contact = r.colliding || r.grabbed;
-                    grab = r.grabbed;
                     if (!r.pi_convex) {
                         ++scores_.not_pi_convex_frames;
                         add_event(t, EventKind::kNotPiConvex, float(r.multi_layer_pixels));
@@ -363,7 +362,6 @@ void Simulator::step(const FramePoses& poses) {
             add_event(t, EventKind::kGrab, float(tissue_->grabbed_count()));
         }
         holding_ = holding;
-        (void)grab;
     }
 
     // Geometry transfer: positions (and topology after tearing or cutting) back into the collision/render mesh.

@@ -5,6 +5,8 @@
 
 #include "eyesim/firmware/hal.hpp"
 
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -12,10 +14,25 @@ namespace eyesim::firmware::pc {
 
 /// One pedal sample of a track, on the recording's clock.
 struct PedalSample {
-    double t_us = 0.0;       ///< recording time
-    double axes[3] = {0, 0, 0};  ///< axis 0: 0 released .. 1 full travel; axes 1, 2: joystick −1 .. 1
+    double t_us = 0.0;                 ///< recording time
+    std::array<double, 3> axes{};      ///< axis 0: 0 released .. 1 full travel; axes 1, 2: joystick −1 .. 1
     std::uint16_t buttons = 0;
 };
+
+/// A sample from a pedal record (the rig's PedalTruth or anything with `axes` [3] and `buttons`).
+template <class Pedal>
+PedalSample pedal_sample(double t_us, const Pedal& pedal) {
+    return {t_us, {pedal.axes[0], pedal.axes[1], pedal.axes[2]}, static_cast<std::uint16_t>(pedal.buttons & 0xFFFFu)};
+}
+
+/// The pedal track of a recording's per-field truth records (anything with `t_us` and `pedal`), sorted by time.
+template <class Records>
+std::vector<PedalSample> pedal_track_of(const Records& records) {
+    std::vector<PedalSample> track;
+    for (const auto& r : records) track.push_back(pedal_sample(r.t_us, r.pedal));
+    std::sort(track.begin(), track.end(), [](const PedalSample& a, const PedalSample& b) { return a.t_us < b.t_us; });
+    return track;
+}
 
 /// Converts a sample's axes to PedalState counts (axis 0: 0..65535; joystick axes: −1..1 → 0..65535).
 PedalReading to_reading(const PedalSample& s) noexcept;
