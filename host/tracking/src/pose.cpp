@@ -330,7 +330,10 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
         const std::span<const Eigen::Vector3d> ms(meas.data(), std::size_t(n));
         const std::span<const int> ws(which.data(), std::size_t(n));
         const std::span<const double> wts(w.data(), std::size_t(n));
-        bool ok = n >= std::max(2, need) && fit_instrument(model, ms, ws, wts, fitted);
+        // Fewer markers than `need` (a shaft deep in the eye hides its distal marker behind the eye) are enough
+        // when the trocar confirms them: two markers and the trocar are three points on one line.
+        bool ok = n >= 2 && fit_instrument(model, ms, ws, wts, fitted);
+        bool through_trocar = false;
         if (ok && opt.trocar_constraint && model.has_trocar && eye.measured()) {
             // Through the trocar only when the tip is inside the eye and the markers agree with the trocar.
             const Eigen::Vector3d p = Re * model.trocar_eye_mm + eye.centre_rig_mm;
@@ -340,10 +343,13 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
             if (depth > 0.0 && off_line < opt.trocar_gate_mm) {
                 InstrumentPose through = fitted;
                 if (fit_instrument(model, ms, ws, wts, through, &p,
-                                   1.0 / (opt.trocar_sigma_mm * opt.trocar_sigma_mm)))
+                                   1.0 / (opt.trocar_sigma_mm * opt.trocar_sigma_mm))) {
                     fitted = through;
+                    through_trocar = true;
+                }
             }
         }
+        ok = ok && (n >= need || through_trocar);
         bool jumped = false;
         if (ok && was && (fitted.tip_rig_mm - previous_instruments[std::size_t(b)].tip_rig_mm).norm() > opt.max_tip_jump_mm) {
             ok = false;  // markers of another instrument fitted by chance (crossing shafts): do not report it

@@ -153,3 +153,56 @@ TEST_CASE("a tracked instrument that jumps is held, not reported", "[tracking][p
     CHECK(j["instruments"][0]["name"] == "pick");
     CHECK(j["instruments"][0]["tip_rig_mm"][2].get<double>() == Approx(13.0));
 }
+
+TEST_CASE("an instrument deep in the eye is acquired from two markers when its shaft passes through its trocar",
+          "[tracking][pose]") {
+    // The distal marker is hidden behind the eye: two markers alone could be any body's, but two markers and the
+    // trocar are three points on one line.
+    BodySet bodies;
+    bodies.eye.marker_count = 3;
+    const Eigen::Vector3d eye_m[3] = {{12, 0, 0}, {0, 12, 0}, {-8.5, -8.5, 0}};
+    for (int k = 0; k < 3; ++k) {
+        bodies.eye.markers[std::size_t(k)].colour_class = 4;
+        bodies.eye.markers[std::size_t(k)].pos_body_mm = eye_m[k];
+    }
+    bodies.instrument_count = 1;
+    InstrumentModel& im = bodies.instruments[0];
+    im.name = "forceps";
+    im.marker_count = 3;
+    im.has_trocar = true;
+    const double s[3] = {26.0, 31.0, 38.0};
+    for (int k = 0; k < 3; ++k) {
+        im.markers[std::size_t(k)].colour_class = std::uint8_t(1 + k);
+        im.markers[std::size_t(k)].pos_body_mm = Eigen::Vector3d(0, 0, s[k]);
+    }
+    const Eigen::Vector3d tip(0, 0, -10), axis = Eigen::Vector3d::UnitZ();  // tip near the back wall
+    CorrespondenceResult found;
+    auto add = [&](std::uint8_t cls, const Eigen::Vector3d& x) {
+        MatchedMarker& m = found.markers[std::size_t(found.count++)];
+        m.colour_class = cls;
+        m.point.X_rig_mm = x;
+        m.point.cov_mm2 = Eigen::Matrix3d::Identity() * 1e-4;
+        m.point.views = 2;
+    };
+    for (const auto& e : eye_m) add(4, e);
+    add(2, tip + s[1] * axis);  // markers 1 and 2 only
+    add(3, tip + s[2] * axis);
+    PoseOptions opt;
+    EyePose eye0, eye;
+    MarkerAssignment asg;
+    std::array<InstrumentPose, 1> prev{}, cur{};
+
+    im.trocar_eye_mm = Eigen::Vector3d(0, 0, 11.5);  // on the shaft's line
+    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
+    REQUIRE(eye.measured());
+    REQUIRE(cur[0].measured());
+    CHECK((cur[0].tip_rig_mm - tip).norm() < 1e-3);
+
+    im.trocar_eye_mm = Eigen::Vector3d(3, 0, 11.5);  // 3 mm off the line: the two markers are not confirmed
+    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
+    CHECK_FALSE(cur[0].measured());
+
+    im.has_trocar = false;  // no trocar: three markers are needed to acquire
+    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
+    CHECK_FALSE(cur[0].measured());
+}

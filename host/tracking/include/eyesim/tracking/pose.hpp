@@ -63,6 +63,7 @@ struct PoseOptions {
     double eye_radius_tol_mm = 0.6; ///< |marker − centre| must match the model within this
     double eye_prior_gate_mm = 3.0; ///< eye markers are matched to their predicted positions within this
     int min_markers_acquire = 3;    ///< markers needed to report an instrument not measured in the last frame
+                                    ///< (2 suffice when the shaft's line passes through its trocar)
     int min_markers_keep = 2;       ///< markers needed to keep reporting an instrument measured last frame
     double max_tip_jump_mm = 6.0;   ///< a tracked instrument's tip moving further in one frame is rejected
     /// Use the trocar as a point the shaft passes through (when the tip is past it): the markers sit 26–38 mm
