@@ -7,6 +7,7 @@
 #include <fmt/ranges.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include <algorithm>
 #include <filesystem>
@@ -124,6 +125,46 @@ SceneCopy copy_scene(const Simulator& sim) {
 }
 
 bool Snapshotter::snap(const SceneCopy& c, const std::string& path) {
+    render::StereoImages img;
+    return render(c, img) && render::write_side_by_side_png(path, img, error_);
+}
+
+bool write_animation(const std::string& path, const std::vector<SceneCopy>& frames, double fps, Snapshotter& renderer,
+                     std::string& error) {
+    if (frames.empty() || !(fps > 0)) {
+        error = path + ": no frames to animate";
+        return false;
+    }
+    render::StereoImages img;
+    cv::VideoWriter video;
+    cv::Mat bgr;
+    for (const SceneCopy& c : frames) {
+        if (!renderer.render(c, img)) {
+            error = renderer.error();
+            return false;
+        }
+        if (!video.isOpened()) {
+            const cv::Size size(2 * img.width, img.height);
+            for (const int fourcc : {cv::VideoWriter::fourcc('a', 'v', 'c', '1'), cv::VideoWriter::fourcc('m', 'p', '4', 'v')})
+                if (video.open(path, cv::CAP_FFMPEG, fourcc, fps, size)) break;
+            if (!video.isOpened()) {
+                error = path + ": cannot write video (OpenCV has no FFmpeg H.264 or MPEG-4 encoder)";
+                return false;
+            }
+            bgr.create(size, CV_8UC3);
+        }
+        for (int v = 0; v < 2; ++v) {
+            const cv::Mat rgba(img.height, img.width, CV_8UC4, (v == 0 ? img.left_rgba : img.right_rgba).data());
+            cv::Mat half = bgr(cv::Rect(v * img.width, 0, img.width, img.height));
+            cv::cvtColor(rgba, half, cv::COLOR_RGBA2BGR);
+        }
+        video.write(bgr);
+    }
+    video.release();
+    return true;
+}
+
+bool Snapshotter::render(const SceneCopy& c, render::StereoImages& img) {
     if (!renderer_) return false;
     std::vector<render::InstrumentView> views;
     for (const auto& in : c.instruments) {
@@ -141,9 +182,8 @@ bool Snapshotter::snap(const SceneCopy& c, const std::string& path) {
     f.tissue_is_retina = c.tissue_is_retina;
     f.instruments = views;
     f.highlight_nodes_eye_mm = c.highlight_eye_mm;
-    render::StereoImages img;
     renderer_->render(f, img);
-    return render::write_side_by_side_png(path, img, error_);
+    return true;
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -259,6 +299,7 @@ nlohmann::json report_json(const RunReport& r) {
     j["warnings"] = r.warnings;
     j["snapshots"] = nlohmann::json::array();
     for (const auto& sn : r.snapshots) j["snapshots"].push_back({{"t_s", sn.time_s}, {"file", sn.file}});
+    if (!r.animation.empty()) j["animation"] = {{"file", r.animation}, {"frames", r.animation_frames}};
     return j;
 }
 
@@ -318,6 +359,10 @@ std::string write_report(const std::string& dir, const RunReport& r) {
         h << fmt::format("<h2>Latency</h2><p>Field end → poses ready: p50 {:.0f} µs, p99 {:.0f} µs. Parse errors: {}.</p>"
                          "<img src='latency.png' alt='latency'>\n",
                          percentile(r.stats->latency_us, 50), percentile(r.stats->latency_us, 99), r.stats->parse_errors);
+    if (!r.animation.empty())
+        h << fmt::format("<h2>The whole run</h2><p>Stereo microscope view, {} frames (left and right eyepiece side by "
+                         "side).</p><video src='{}' controls loop muted autoplay style='max-width:100%'></video>\n",
+                         r.animation_frames, r.animation);
     if (!r.snapshots.empty()) {
         h << "<h2>Stereo microscope views</h2>\n";
         for (const auto& sn : r.snapshots)

@@ -91,8 +91,15 @@ int run_scene(const SceneRunRequest& req) {
         for (int k = 0; k < req.snapshots; ++k) snap_times.push_back(expected_s * (k + 1) / (req.snapshots + 1));
     }
     // Snapshots: the state is copied during the run and rendered after it, so pictures never delay tracking.
-    std::vector<SceneCopy> copies;
+    std::vector<SceneCopy> copies, movie;
+    const bool animate = !req.report_dir.empty() && req.animation_fps > 0;
+    double next_movie_s = 0.0;
     auto maybe_snap = [&](double t_s) {
+        if (animate && t_s >= next_movie_s) {
+            // Copied now, rendered after the run (like the snapshots); a few frames per second of the run.
+            next_movie_s = t_s + 1.0 / req.animation_fps - 1e-6;
+            movie.push_back(copy_scene(sim));
+        }
         if (!snapper || !snapper->available() || next_snap >= snap_times.size() || t_s < snap_times[next_snap]) return;
         ++next_snap;
         copies.push_back(copy_scene(sim));
@@ -182,6 +189,18 @@ int run_scene(const SceneRunRequest& req) {
         report.stats = &stats;
     }
     render_snaps();
+    if (animate && !movie.empty()) {
+        // Half the snapshots' size per view: the animation is for following the procedure, the PNGs for detail.
+        Snapshotter small(320, 240);
+        std::string error;
+        if (!small.available()) report.warnings.push_back("no animation: " + small.error());
+        else if (write_animation(req.report_dir + "/animation.mp4", movie, req.animation_fps, small, error)) {
+            report.animation = "animation.mp4";
+            report.animation_frames = movie.size();
+        } else {
+            report.warnings.push_back("no animation: " + error);
+        }
+    }
     if (req.json) std::printf("%s\n", report_json(report).dump().c_str());
     else print_report(stdout, report);
     if (!req.report_dir.empty()) {

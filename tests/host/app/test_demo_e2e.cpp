@@ -69,6 +69,15 @@ TEST_CASE("eyesim demo: the surgeon peels the membrane through eyesim-device ove
     CHECK(j["stages"]["tissue"]["p50_us"].get<double>() > 0.0);
     CHECK(std::filesystem::exists(dir + "/report/index.html"));
     CHECK(std::filesystem::exists(dir + "/recording/truth.jsonl"));
+    // The stereo animation of the whole run: 10 frames per second of the 8 s procedure.
+    if (j.contains("animation")) {
+        CHECK(j["animation"]["frames"].get<int>() >= 75);
+        CHECK(std::filesystem::file_size(dir + "/report/animation.mp4") > 10000);
+    } else {
+        bool said = false;  // only a machine without EGL or an FFmpeg encoder has none, and says why
+        for (const auto& w : j["warnings"]) said = said || w.get<std::string>().rfind("no animation", 0) == 0;
+        CHECK(said);
+    }
     std::filesystem::remove_all(dir);
 }
 

@@ -19,6 +19,7 @@
 
 namespace eyesim::render {
 class SceneRenderer;
+struct StereoImages;
 }
 
 namespace eyesim::app {
@@ -73,11 +74,18 @@ public:
     std::string renderer_name() const;
     /// Renders a copied state to `path` (side-by-side PNG). Returns false with `error()` set.
     bool snap(const SceneCopy& scene, const std::string& path);
+    /// Renders a copied state into `out` (both views).
+    bool render(const SceneCopy& scene, render::StereoImages& out);
 
 private:
     std::unique_ptr<render::SceneRenderer> renderer_;
     std::string error_;
 };
+
+/// Writes `frames` as a side-by-side stereo animation (H.264 MP4 through OpenCV's FFmpeg back-end, MPEG-4 part 2
+/// if H.264 is missing) at `fps`. False and a one-line reason in `error` on failure.
+bool write_animation(const std::string& path, const std::vector<SceneCopy>& frames, double fps, Snapshotter& renderer,
+                     std::string& error);
 
 /// Everything a report needs.
 struct RunReport {
@@ -87,6 +95,8 @@ struct RunReport {
     const RunStats* stats = nullptr;     ///< counters and latencies (may be null)
     AccuracySummary accuracy;            ///< against truth, when available
     std::vector<Snapshot> snapshots;     ///< pictures taken
+    std::string animation;               ///< file name of the stereo animation ("" when none)
+    size_t animation_frames = 0;         ///< its frames
     std::string renderer;                ///< GL renderer used for pictures ("" when none)
     std::vector<std::string> warnings;   ///< non-fatal findings
 };

@@ -31,6 +31,7 @@ struct SceneRunRequest {
     uint64_t seed = 1;                 ///< scenario seed
     std::string report_dir;            ///< write a report folder here ("" = none)
     int snapshots = 3;                 ///< stereo snapshots spread over the run (needs report_dir; 0 = none)
+    double animation_fps = 10;         ///< stereo animation of the whole run, frames/s (needs report_dir; 0 = none)
     bool json = false;                 ///< one JSON object on stdout instead of the text report
     std::string title = "eyesim sim";  ///< report title
 };
