@@ -164,9 +164,22 @@ bool write_animation(const std::string& path, const std::vector<SceneCopy>& fram
     return true;
 }
 
+void Snapshotter::set_objects(const std::vector<sim::collision::ConvexObject>& objects) {
+    objects_.clear();
+    for (const auto& o : objects) objects_.push_back(sim::collision::convex_object_mesh(o));
+}
+
 bool Snapshotter::render(const SceneCopy& c, render::StereoImages& img) {
     if (!renderer_) return false;
     std::vector<render::InstrumentView> views;
+    for (const auto& m : objects_) {
+        render::InstrumentView ov;
+        ov.mesh.vertices_eye_mm = m.vertices_mm;
+        ov.mesh.triangles = m.triangles;
+        ov.tip_eye_mm = m.vertices_mm.front();
+        ov.forward_eye = Eigen::Vector3f::UnitZ();
+        views.push_back(ov);
+    }
     for (const auto& in : c.instruments) {
         render::InstrumentView iv;
         iv.mesh.vertices_eye_mm = in.vertices_eye_mm;

@@ -86,6 +86,7 @@ int run_scene(const SceneRunRequest& req) {
     const double expected_s = req.expected_s > 0 ? req.expected_s : req.seconds > 0 ? req.seconds : scene.duration_s;
     if (!req.report_dir.empty() && req.snapshots > 0) {
         snapper = std::make_unique<Snapshotter>(640, 480);
+        snapper->set_objects(scene.collision.convex_objects);
         if (!snapper->available()) report.warnings.push_back("no pictures: " + snapper->error());
         else report.renderer = snapper->renderer_name();
         for (int k = 0; k < req.snapshots; ++k) snap_times.push_back(expected_s * (k + 1) / (req.snapshots + 1));
@@ -192,6 +193,7 @@ int run_scene(const SceneRunRequest& req) {
     if (animate && !movie.empty()) {
         // Half the snapshots' size per view: the animation is for following the procedure, the PNGs for detail.
         Snapshotter small(320, 240);
+        small.set_objects(scene.collision.convex_objects);
         std::string error;
         if (!small.available()) report.warnings.push_back("no animation: " + small.error());
         else if (write_animation(req.report_dir + "/animation.mp4", movie, req.animation_fps, small, error)) {

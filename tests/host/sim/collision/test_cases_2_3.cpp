@@ -6,6 +6,8 @@
 #include <Eigen/Geometry>
 #include <catch2/catch.hpp>
 
+#include <map>
+
 #include <cmath>
 
 using namespace eyesim::sim;
@@ -113,4 +115,49 @@ TEST_CASE("case 2 allocates nothing; case 3 reports FCL's own allocations per qu
     INFO("FCL allocations per query: separated " << separated << ", colliding " << touching);
     CHECK(separated < 20);  // measured: 5 (separated), 4 (colliding)
     CHECK(touching < 20);
+}
+
+TEST_CASE("convex objects' picture meshes are closed, face outwards and enclose the shape's volume", "[collision][case3]") {
+    using eyesim::sim::collision::ConvexObject;
+    using eyesim::sim::collision::ConvexShape;
+    const float pi = 3.14159265f;
+    struct Case { ConvexShape shape; Eigen::Vector3f size; float volume; };
+    const float r = 0.8f, h = 2.0f;
+    const Case cases[] = {
+        {ConvexShape::Sphere, {r, 0, 0}, 4.0f / 3.0f * pi * r * r * r},
+        {ConvexShape::Box, {1.0f, 2.0f, 3.0f}, 6.0f},
+        {ConvexShape::Cylinder, {r, h, 0}, pi * r * r * h},
+        {ConvexShape::Cone, {r, h, 0}, pi * r * r * h / 3.0f},
+        {ConvexShape::Capsule, {r, h, 0}, pi * r * r * h + 4.0f / 3.0f * pi * r * r * r},
+    };
+    for (const Case& c : cases) {
+        INFO("shape " << int(c.shape));
+        ConvexObject o;
+        o.shape = c.shape;
+        o.size_mm = c.size;
+        o.object_to_eye = Eigen::Isometry3f::Identity();
+        o.object_to_eye.translation() = Eigen::Vector3f(1.0f, -2.0f, -6.0f);
+        o.object_to_eye.linear() = Eigen::AngleAxisf(0.7f, Eigen::Vector3f(1, 1, 0).normalized()).toRotationMatrix();
+        const auto m = eyesim::sim::collision::convex_object_mesh(o, 48);
+        REQUIRE(m.triangle_count() >= 12);
+        // Closed: every edge has exactly two triangles.
+        std::map<std::pair<uint32_t, uint32_t>, int> uses;
+        for (const auto& t : m.triangles)
+            for (int e = 0; e < 3; ++e) {
+                const uint32_t a = t[size_t(e)], b = t[size_t((e + 1) % 3)];
+                ++uses[{std::min(a, b), std::max(a, b)}];
+            }
+        for (const auto& [edge, n] : uses) REQUIRE(n == 2);
+        // Outward and enclosing: the signed volume (divergence theorem) is the shape's, within tessellation error;
+        // every face's normal points away from the centre.
+        const Eigen::Vector3f centre = o.object_to_eye.translation();
+        double vol = 0.0;
+        for (const auto& t : m.triangles) {
+            const Eigen::Vector3f a = m.vertices_mm[t[0]] - centre, b = m.vertices_mm[t[1]] - centre,
+                                  d = m.vertices_mm[t[2]] - centre;
+            vol += a.dot(b.cross(d)) / 6.0;
+            CHECK((b - a).cross(d - a).dot(a + b + d) >= 0.0f);
+        }
+        CHECK(vol == Approx(c.volume).epsilon(0.02));
+    }
 }

@@ -74,12 +74,16 @@ public:
     std::string renderer_name() const;
     /// Renders a copied state to `path` (side-by-side PNG). Returns false with `error()` set.
     bool snap(const SceneCopy& scene, const std::string& path);
+    /// The scene's rigid training objects (case 3), drawn in every picture like instruments: shaded, casting
+    /// shadows from the light pipe. They do not move, so they are meshed once here.
+    void set_objects(const std::vector<sim::collision::ConvexObject>& objects);
     /// Renders a copied state into `out` (both views).
     bool render(const SceneCopy& scene, render::StereoImages& out);
 
 private:
     std::unique_ptr<render::SceneRenderer> renderer_;
     std::string error_;
+    std::vector<sim::TriangleMesh> objects_;  // eye frame
 };
 
 /// Writes `frames` as a side-by-side stereo animation (H.264 MP4 through OpenCV's FFmpeg back-end, MPEG-4 part 2

@@ -25,6 +25,10 @@ struct ConvexObject {
     Eigen::Isometry3f object_to_eye = Eigen::Isometry3f::Identity();  ///< pose object → eye
 };
 
+/// A closed triangle mesh of the object's surface in the eye frame, for pictures (outward normals, counter-
+/// clockwise seen from outside). Curved shapes use `segments` around their axis (≥ 6).
+TriangleMesh convex_object_mesh(const ConvexObject& object, int segments = 32);
+
 /// Instrument vs one object.
 struct ConvexContact {
     uint32_t object = 0;              ///< index of the object
