@@ -50,27 +50,81 @@ std::string html_escape(const std::string& s) {
 }
 
 /// Minimal line plot (OpenCV), for the report. Text must be ASCII (OpenCV's Hershey fonts have no µ or →).
-void plot_lines(const std::string& path, const std::string& title, const std::string& ylabel,
+/// putText with the micro sign: Hershey fonts have no "µ", so it is drawn as a "u" with a descender.
+void put_text(cv::Mat& img, const std::string& text, cv::Point at, double scale, const cv::Scalar& ink) {
+    const std::string micro = "\u00b5";
+    size_t pos = 0;
+    int base = 0;
+    while (pos <= text.size()) {
+        const size_t next = text.find(micro, pos);
+        const std::string part = text.substr(pos, next == std::string::npos ? std::string::npos : next - pos);
+        cv::putText(img, part, at, cv::FONT_HERSHEY_SIMPLEX, scale, ink, 1, cv::LINE_AA);
+        at.x += cv::getTextSize(part, cv::FONT_HERSHEY_SIMPLEX, scale, 1, &base).width;
+        if (next == std::string::npos) break;
+        const cv::Size u = cv::getTextSize("u", cv::FONT_HERSHEY_SIMPLEX, scale, 1, &base);
+        cv::putText(img, "u", at, cv::FONT_HERSHEY_SIMPLEX, scale, ink, 1, cv::LINE_AA);
+        const int x = at.x + std::max(1, u.width / 6);
+        cv::line(img, {x, at.y - u.height / 2}, {x, at.y + u.height / 2}, ink, 1, cv::LINE_AA);
+        at.x += u.width;
+        pos = next + micro.size();
+    }
+}
+
+/// A "nice" tick step (1, 2 or 5 × 10^k) giving about `ticks` intervals over `range`.
+double nice_step(double range, int ticks) {
+    const double raw = range / std::max(1, ticks);
+    const double mag = std::pow(10.0, std::floor(std::log10(raw)));
+    for (const double f : {1.0, 2.0, 5.0, 10.0})
+        if (f * mag >= raw) return f * mag;
+    return 10.0 * mag;
+}
+
+/// Tick label with as many decimals as the step needs.
+std::string tick_label(double v, double step) {
+    const int decimals = std::max(0, int(std::ceil(-std::log10(step) - 1e-9)));
+    return fmt::format("{:.{}f}", v, decimals);
+}
+
+/// Line plot of per-frame series against time (frames spread evenly over `duration_s`). The y axis ends at the
+/// 99th percentile of all values (with margin) so that one spike cannot flatten the rest; values above it are
+/// drawn at the top edge and counted in the plot.
+void plot_lines(const std::string& path, const std::string& title, const std::string& ylabel, double duration_s,
                 const std::vector<std::pair<std::string, std::vector<double>>>& series) {
     const int W = 900, H = 360, L = 70, R = 170, T = 40, B = 50;
     cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
-    double ymax = 1e-9;
+    std::vector<double> all;
     size_t n = 0;
     for (const auto& [name, v] : series) {
         n = std::max(n, v.size());
-        for (double y : v) ymax = std::max(ymax, y);
+        for (double y : v)
+            if (std::isfinite(y)) all.push_back(y);
     }
-    ymax *= 1.1;
+    double ymax = all.empty() ? 1.0 : percentile(all, 99) * 1.25;
+    if (!(ymax > 0)) ymax = 1.0;
+    const double ystep = nice_step(ymax, 4);
+    ymax = std::ceil(ymax / ystep - 1e-9) * ystep;
+    size_t clipped = 0;
+    for (double y : all) clipped += y > ymax;
     const cv::Scalar ink(30, 30, 30), grid(220, 220, 220);
-    for (int k = 0; k <= 4; ++k) {
-        const int y = H - B - (H - T - B) * k / 4;
+    for (double v = 0; v <= ymax + 1e-9 * ymax; v += ystep) {
+        const int y = H - B - int(double(H - T - B) * v / ymax);
         cv::line(img, {L, y}, {W - R, y}, grid, 1);
-        cv::putText(img, fmt::format("{:.0f}", ymax * k / 4), {5, y + 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, ink, 1, cv::LINE_AA);
+        put_text(img, tick_label(v, ystep), {5, y + 4}, 0.4, ink);
+    }
+    const double xmax = duration_s > 0 ? duration_s : double(std::max<size_t>(n, 2) - 1) * 0.02;
+    const double xstep = nice_step(xmax, 8);
+    for (double v = 0; v <= xmax + 1e-9; v += xstep) {
+        const int x = L + int(double(W - L - R) * v / xmax);
+        cv::line(img, {x, H - B}, {x, H - B + 4}, ink, 1);
+        put_text(img, tick_label(v, xstep), {x - 8, H - B + 18}, 0.4, ink);
     }
     cv::rectangle(img, {L, T}, {W - R, H - B}, ink, 1);
-    cv::putText(img, title, {L, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.55, ink, 1, cv::LINE_AA);
-    cv::putText(img, ylabel, {5, T - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.4, ink, 1, cv::LINE_AA);
-    cv::putText(img, "frame", {W - R - 40, H - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.45, ink, 1, cv::LINE_AA);
+    put_text(img, title, {L, 25}, 0.55, ink);
+    put_text(img, ylabel, {5, T - 16}, 0.4, ink);
+    put_text(img, "time [s]", {W - R - 60, H - 8}, 0.45, ink);
+    if (clipped)
+        put_text(img, fmt::format("{} values above {} {} drawn at the top", clipped, tick_label(ymax, ystep), ylabel),
+                 {L + 5, T + 14}, 0.38, ink);
     static const cv::Scalar colours[] = {{180, 90, 20}, {30, 120, 230}, {40, 160, 40}, {160, 40, 160}, {20, 20, 200}, {120, 120, 0}};
     int si = 0;
     for (const auto& [name, v] : series) {
@@ -78,10 +132,10 @@ void plot_lines(const std::string& path, const std::string& title, const std::st
         std::vector<cv::Point> pts;
         for (size_t i = 0; i < v.size(); ++i)
             pts.emplace_back(L + int(double(W - L - R) * double(i) / double(std::max<size_t>(n - 1, 1))),
-                             H - B - int(double(H - T - B) * std::min(v[i], ymax) / ymax));
+                             H - B - int(double(H - T - B) * std::clamp(v[i], 0.0, ymax) / ymax));
         if (pts.size() > 1) cv::polylines(img, pts, false, c, 1, cv::LINE_AA);
         cv::line(img, {W - R + 10, T + 12 + 18 * si}, {W - R + 30, T + 12 + 18 * si}, c, 2);
-        cv::putText(img, name, {W - R + 35, T + 16 + 18 * si}, cv::FONT_HERSHEY_SIMPLEX, 0.42, ink, 1, cv::LINE_AA);
+        put_text(img, name, {W - R + 35, T + 16 + 18 * si}, 0.42, ink);
         ++si;
     }
     cv::imwrite(path, img);
@@ -334,9 +388,10 @@ std::string write_report(const std::string& dir, const RunReport& r) {
         stages.push_back({to_string(row.stage), std::move(v)});
     }
     stages.pop_back();  // render time is sparse (snapshot frames only): its own table row, not this plot
-    plot_lines(dir + "/stages.png", "Host stage times per frame", "us", stages);
+    plot_lines(dir + "/stages.png", "Host stage times per frame", "\u00b5s", sim.scores().task_time_s, stages);
     if (r.stats && !r.stats->latency_us.empty())
-        plot_lines(dir + "/latency.png", "Latency per frame: field end -> packet received -> poses ready", "us",
+        plot_lines(dir + "/latency.png", "Latency per frame: field end -> packet received -> poses ready", "\u00b5s",
+                   sim.scores().task_time_s,
                    {{"received", r.stats->transfer_us}, {"poses ready", r.stats->latency_us}});
 
     std::ofstream h(dir + "/index.html");
