@@ -98,7 +98,7 @@ int run_scene(const SceneRunRequest& req) {
     auto maybe_snap = [&](double t_s) {
         if (animate && t_s >= next_movie_s) {
             // Copied now, rendered after the run (like the snapshots); a few frames per second of the run.
-            next_movie_s = t_s + 1.0 / req.animation_fps - 1e-6;
+            next_movie_s = (std::floor(t_s * req.animation_fps + 1e-6) + 1.0) / req.animation_fps - 1e-6;  // on a grid
             movie.push_back(copy_scene(sim));
         }
         if (!snapper || !snapper->available() || next_snap >= snap_times.size() || t_s < snap_times[next_snap]) return;

@@ -326,10 +326,18 @@ void Simulator::step(const FramePoses& poses) {
             if (kind == col::InstrumentKind::InjectionNeedle) {
                 needle.tip_mm = tip;
                 needle.inserted = tip.norm() >= kRetinaRadius_mm - 0.05f;
-                needle.velocity_mm_per_s =
-                    dt > 0 ? sim::Vec3f((tip - prev_needle_tip_mm_) / float(dt)) : sim::Vec3f::Zero();
+                // Velocity over the last kNeedleWindow frames (≈ 60 ms): tracking noise of tens of µm per frame
+                // must not read as a fast move along the retina; a real flick lasts longer than the window.
+                const size_t head = needle_count_ % kNeedleWindow;
+                const size_t oldest = needle_count_ >= kNeedleWindow ? head : 0;
+                const double span_s = t - needle_t_s_[oldest];
+                needle.velocity_mm_per_s = needle_count_ > 0 && span_s > 0
+                                               ? sim::Vec3f((tip - needle_tip_mm_[oldest]) / float(span_s))
+                                               : sim::Vec3f::Zero();
                 needle.pressure = poses.pedal;
-                prev_needle_tip_mm_ = tip;
+                needle_tip_mm_[head] = tip;
+                needle_t_s_[head] = t;
+                ++needle_count_;
             }
         }
         tissue_->set_forceps(forceps);

@@ -350,6 +350,43 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
             }
         }
         ok = ok && (n >= need || through_trocar);
+        int single = -1;  // a lone marker that kept the instrument (below)
+        if (!ok && was && opt.trocar_constraint && model.has_trocar && eye.measured()) {
+            // One marker and the trocar still give the shaft's line: keep an instrument measured last frame when a
+            // marker of the right class lies where its last pose puts one of its markers (a needle deep in the eye
+            // shows only its proximal marker). Never used to acquire.
+            const InstrumentPose& last = previous_instruments[std::size_t(b)];
+            const Eigen::Vector3d p = Re * model.trocar_eye_mm + eye.centre_rig_mm;
+            const Eigen::Vector3d a_body = model.axis_body.normalized();
+            double best = opt.single_marker_gate_mm;
+            int best_i = -1;
+            for (int i = 0; i < model.marker_count; ++i) {
+                const double si = (model.markers[std::size_t(i)].pos_body_mm - model.tip_body_mm).dot(a_body);
+                const Eigen::Vector3d pred = last.tip_rig_mm + si * last.axis_rig;
+                for (int k = 0; k < found.count; ++k) {
+                    const MatchedMarker& mk = found.markers[std::size_t(k)];
+                    if (claimed[std::size_t(k)] || mk.colour_class != model.markers[std::size_t(i)].colour_class ||
+                        !mk.point.usable())
+                        continue;
+                    const double d = (mk.point.X_rig_mm - pred).norm();
+                    if (d < best) { best = d; best_i = i; single = k; }
+                }
+            }
+            if (single >= 0) {
+                const Eigen::Vector3d m = found.markers[std::size_t(single)].point.X_rig_mm;
+                const double si = (model.markers[std::size_t(best_i)].pos_body_mm - model.tip_body_mm).dot(a_body);
+                const Eigen::Vector3d A = (m - p).normalized();  // tip → handle: the marker is outside the trocar
+                fitted = last;
+                fitted.axis_rig = A;
+                fitted.tip_rig_mm = m - si * A;
+                fitted.rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(a_body, A).normalized();
+                fitted.fit_rms_mm = 0.0;
+                fitted.markers_used = 1;
+                fitted.flags = kPoseNoRoll | kPoseSingleMarker;
+                ok = (m - p).norm() > 1.0 && (m - p).dot(last.axis_rig) > 0.0 && si > (m - p).norm();
+                if (ok) search.best.fill(-1), search.best[std::size_t(best_i)] = single;
+            }
+        }
         bool jumped = false;
         if (ok && was && (fitted.tip_rig_mm - previous_instruments[std::size_t(b)].tip_rig_mm).norm() > opt.max_tip_jump_mm) {
             ok = false;  // markers of another instrument fitted by chance (crossing shafts): do not report it

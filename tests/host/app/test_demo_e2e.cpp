@@ -81,7 +81,7 @@ TEST_CASE("eyesim demo: the surgeon peels the membrane through eyesim-device ove
     std::filesystem::remove_all(dir);
 }
 
-TEST_CASE("eyesim sim on recorded device streams: peel-hard warns and fails, vitrectomy removes tissue",
+TEST_CASE("eyesim sim on recorded device streams: peel-hard warns, vitrectomy removes, injection detaches and warns",
           "[host][e2e]") {
     // Recordings of each synthetic surgeon through the FPGA model and the wire protocol (never the truth poses).
     const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_test_surgeons").string();
@@ -105,6 +105,12 @@ TEST_CASE("eyesim sim on recorded device streams: peel-hard warns and fails, vit
 
     const auto vit = sim("vitrectomy", "vitrectomy", 6.4);
     CHECK(vit["scores"]["removed_area_mm2"].get<double>() > 0.5);
+
+    const auto inj = sim("injection", "retina-relocation", 4.0);
+    CHECK(inj["scores"]["nodes_detached"].get<int>() > 0);
+    CHECK(inj["scores"]["tear_warnings"].get<int>() > 0);
+    for (const auto& e : inj["events"])  // one warning: the flick at 3 s, not tracking noise
+        if (e["kind"] == "tear_warning") CHECK((e["t_s"].get<double>() > 2.9 && e["t_s"].get<double>() < 3.4));
 
     std::filesystem::remove_all(dir);
 }

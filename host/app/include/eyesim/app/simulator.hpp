@@ -164,7 +164,10 @@ private:
     bool have_prev_ = false;
     double prev_time_s_ = 0.0, first_time_s_ = 0.0;
     Eigen::Vector3f prev_tip_mm_ = Eigen::Vector3f::Zero();
-    Eigen::Vector3f prev_needle_tip_mm_ = Eigen::Vector3f::Zero();
+    static constexpr size_t kNeedleWindow = 3;  // frames the needle's velocity is measured over
+    std::array<Eigen::Vector3f, kNeedleWindow> needle_tip_mm_{};
+    std::array<double, kNeedleWindow> needle_t_s_{};
+    size_t needle_count_ = 0;
     bool holding_ = false;                  // forceps held tissue after the last frame
     // Epiretinal membrane: rest distance of each node from the eye centre, peeled latch, rest triangles.
     std::vector<float> rest_radius_mm_;

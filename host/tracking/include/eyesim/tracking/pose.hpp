@@ -25,6 +25,7 @@ enum PoseFlag : std::uint32_t {
     kPoseHighResidual = 1u << 3,   ///< fit RMS above the gate: a marker is probably misassigned
     kPoseNoEye = 1u << 4,          ///< eye pose not available: eye-frame values use the last eye pose
     kPoseJumpRejected = 1u << 5,   ///< a fit jumped implausibly from the last frame (misassigned markers): held
+    kPoseSingleMarker = 1u << 6,   ///< kept from one marker and the trocar (the shaft's line; measured)
 };
 
 /// Eye pose: rotation about its fixed centre.
@@ -71,6 +72,9 @@ struct PoseOptions {
     bool trocar_constraint = true;
     double trocar_sigma_mm = 0.02;  ///< 1σ of the shaft's passage through the trocar (clearance, eye pose)
     double trocar_gate_mm = 1.0;    ///< the constraint is used only when the marker-only line passes this close
+    /// An instrument measured last frame is kept from a single marker (and its trocar) when that marker lies
+    /// this close to where the last pose puts it.
+    double single_marker_gate_mm = 1.5;
 };
 
 /// Which body (and which of its markers) each triangulated marker was assigned to.
