@@ -1,6 +1,6 @@
 // `eyesim track`: FieldMarkers from a device (TCP or USB) or a capture file → tracking frames → poses.jsonl.
 #include "eyesim/app/command.hpp"
-#include "eyesim/app/session.hpp"
+#include "eyesim/app/frame_loop.hpp"
 
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"

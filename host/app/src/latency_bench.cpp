@@ -1,9 +1,7 @@
 #include "eyesim/app/latency_bench.hpp"
 
 #include "eyesim/app/command.hpp"
-#include "eyesim/app/pose_source.hpp"
-#include "eyesim/app/session.hpp"
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/app/frame_loop.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/pal.hpp"
 #include "eyesim/rig/synth.hpp"

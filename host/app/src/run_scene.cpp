@@ -1,8 +1,7 @@
 #include "eyesim/app/run_scene.hpp"
 
 #include "eyesim/app/command.hpp"
-#include "eyesim/app/pose_source.hpp"
-#include "eyesim/app/session.hpp"
+#include "eyesim/app/frame_loop.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/truth.hpp"

@@ -4,8 +4,7 @@
 /// tracking accuracy against truth, latency, scores and events; printed as text, summarised as JSON, and
 /// written as a report folder (index.html with stereo snapshots and plots).
 
-#include "eyesim/app/session.hpp"
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/app/frame_loop.hpp"
 
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>

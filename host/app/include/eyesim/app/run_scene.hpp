@@ -4,7 +4,7 @@
 /// score against truth when there is one, take stereo snapshots, print and write the report.
 
 #include "eyesim/app/report.hpp"
-#include "eyesim/app/session.hpp"
+#include "eyesim/app/frame_loop.hpp"
 
 #include <string>
 #include <vector>

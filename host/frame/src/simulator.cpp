@@ -1,4 +1,4 @@
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/frame/simulator.hpp"
 
 #include "eyesim/sim/collision/view.hpp"
 
@@ -9,7 +9,7 @@
 #include <cstring>
 #include <stdexcept>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 namespace col = sim::collision;
 namespace tis = sim::tissue;
@@ -462,4 +462,4 @@ uint64_t Simulator::state_hash() const {
     return h;
 }
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

@@ -1,8 +1,8 @@
 // The synthetic surgeons against the scenes' tissue: where the tissue lies (checked against the rig's own
 // description of it), what each procedure does to it (truth poses, many seeds), and that the motions stay
 // physically possible.
-#include "eyesim/app/pose_source.hpp"
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/frame/pose_source.hpp"
+#include "eyesim/frame/simulator.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/surgeon.hpp"
@@ -15,7 +15,7 @@
 #include <memory>
 
 using namespace eyesim;
-using app::Simulator;
+using frame::Simulator;
 
 namespace {
 std::string scene_path(const char* name) { return std::string(EYESIM_SOURCE_DIR) + "/scenes/" + name + ".json"; }
@@ -26,7 +26,7 @@ std::unique_ptr<Simulator> run(const char* scene, const char* scenario, uint64_t
     const auto bodies = rig::load_bodies(rig::default_bodies_path());
     const auto motion = rig::Scenario::make(scenario, seed, sc.duration_s * 1e6, bodies);
     for (int k = 0; k < int(std::lround(sc.duration_s * 50)); ++k)
-        s->step(app::poses_from_truth(motion.state_at(k * 20000.0)));
+        s->step(frame::poses_from_truth(motion.state_at(k * 20000.0)));
     return s;
 }
 }  // namespace
@@ -59,7 +59,7 @@ TEST_CASE("the shipped scenes place their tissue where the rig's surgeons work",
 
 TEST_CASE("the epiretinal membrane lies on the retina with an irregular outline and its rim attached", "[sim][surgeon]") {
     Simulator s(sim::scenes::load_scene(scene_path("membrane-peel")));
-    s.step(app::FramePoses{});  // places the tissue
+    s.step(frame::FramePoses{});  // places the tissue
     const auto& m = s.tissue_mesh();
     REQUIRE(m.triangle_count() > 800);
     REQUIRE(m.triangle_count() < 1300);
@@ -102,7 +102,7 @@ TEST_CASE("peel: the forceps grasps, peels the membrane and tears springs withou
         CHECK(sc.springs_torn > 0);
         CHECK(sc.lift_off_warnings == 0);
         CHECK(sc.eye_contacts == 0);
-        CHECK(app::judge(s->scene().scoring, sc).passed);
+        CHECK(frame::judge(s->scene().scoring, sc).passed);
     }
 }
 
@@ -112,7 +112,7 @@ TEST_CASE("peel-hard: pulled too hard at the attached edge, the lift-off warning
         const auto s = run("membrane-peel", "peel-hard", seed);
         CHECK(s->scores().grabs >= 1);
         CHECK(s->scores().lift_off_warnings > 0);
-        const auto v = app::judge(s->scene().scoring, s->scores());
+        const auto v = frame::judge(s->scene().scoring, s->scores());
         CHECK_FALSE(v.passed);
         REQUIRE(!v.failed.empty());
         CHECK(v.failed[0].rfind("lift-off warnings", 0) == 0);

@@ -4,8 +4,8 @@
 /// model in-process) → tracker → simulator, with per-frame hooks for accuracy scoring and pictures, and the
 /// latency chain field end → packet received → poses ready.
 
-#include "eyesim/app/pose_source.hpp"
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/frame/pose_source.hpp"
+#include "eyesim/frame/simulator.hpp"
 #include "eyesim/protocol/frame.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/camera.hpp"
@@ -16,13 +16,20 @@
 
 #include <functional>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
-namespace eyesim::app {
+namespace eyesim::frame {
+
+/// A source or rig file that cannot be used: one line naming the file, device or field at fault.
+class SourceError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
 
 /// Tracker configuration for rig cameras and the listed instruments, with the FPGA's field timing (device
-/// field end → exposure mid-time). Throws Error naming the camera or body at fault.
+/// field end → exposure mid-time). Throws SourceError naming the camera or body at fault.
 tracking::TrackerConfig tracker_config(const std::vector<rig::CameraModel>& cams, const rig::Bodies& bodies,
                                        const std::vector<tracking::SceneInstrument>& instruments);
 
@@ -85,7 +92,7 @@ private:
 /// device would) into `run`; receive times follow the modelled device timing. `max_fields` ≤ 0: all.
 void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields = 0);
 
-/// Replays a capture file (or raw stream) into `run`. Throws Error on an unreadable file; a torn tail or a
+/// Replays a capture file (or raw stream) into `run`. Throws SourceError on an unreadable file; a torn tail or a
 /// damaged stretch is reported through `warning` and every good record is used.
 void run_capture(const std::string& path, HostRun& run, std::string& warning);
 
@@ -95,9 +102,9 @@ inline constexpr double kDefaultStallSeconds = 5.0;
 
 /// Connects to a device (`tcp://HOST:PORT`, `usb`, `usb://VID:PID`), estimates the clock offset by ping/pong,
 /// starts the stream and feeds `run` until the device closes the link, `max_seconds` pass, or no byte arrives for
-/// `stall_seconds` (then `warning` says so and what came before is used). Throws Error on a connection failure.
+/// `stall_seconds` (then `warning` says so and what came before is used). Throws SourceError on a connection failure.
 /// Returns the clock offset used (device − host, µs).
 double run_live(const std::string& uri, HostRun& run, double max_seconds, std::string& warning,
                 double stall_seconds = kDefaultStallSeconds);
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

@@ -1,9 +1,9 @@
-#include "eyesim/app/stage_timer.hpp"
+#include "eyesim/frame/stage_timer.hpp"
 
 #include <algorithm>
 #include <numeric>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 const char* to_string(Stage s) {
     switch (s) {
@@ -66,4 +66,4 @@ StageSummary StageTimer::summary_of_sum(std::initializer_list<Stage> stages) con
     return summarise(v);
 }
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

@@ -1,7 +1,7 @@
 // The host frame loop against independent truth: analytic contact geometry, the injection rule, determinism,
 // and "skip what a scene does not need".
-#include "eyesim/app/pose_source.hpp"
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/frame/pose_source.hpp"
+#include "eyesim/frame/simulator.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/scenario.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
@@ -12,8 +12,8 @@
 #include <memory>
 
 using namespace eyesim;
-using app::FramePoses;
-using app::Simulator;
+using frame::FramePoses;
+using frame::Simulator;
 
 namespace {
 std::string scene_path(const char* name) { return std::string(EYESIM_SOURCE_DIR) + "/scenes/" + name + ".json"; }
@@ -22,7 +22,7 @@ std::string scene_path(const char* name) { return std::string(EYESIM_SOURCE_DIR)
 void run_on_truth(Simulator& sim, const char* scenario, double seconds, uint64_t seed = 1) {
     const auto bodies = rig::load_bodies(rig::default_bodies_path());
     const auto sc = rig::Scenario::make(scenario, seed, seconds * 1e6, bodies);
-    for (int k = 0; k < int(seconds * 50); ++k) sim.step(app::poses_from_truth(sc.state_at(k * 20000.0)));
+    for (int k = 0; k < int(seconds * 50); ++k) sim.step(frame::poses_from_truth(sc.state_at(k * 20000.0)));
 }
 
 /// Distance between a point and the segment [a, b].
@@ -42,7 +42,7 @@ TEST_CASE("a rigid-only scene runs no tissue and no ZCOLL code", "[sim][frame]")
     CHECK(sim.use().eye_sphere > 0);
     CHECK(sim.tissue() == nullptr);
     CHECK(sim.timer().frames() == 100);
-    CHECK(sim.timer().summary(app::Stage::kTissue).max_us == 0.0);
+    CHECK(sim.timer().summary(frame::Stage::kTissue).max_us == 0.0);
 }
 
 TEST_CASE("case-3 contacts match the analytic capsule–sphere distance", "[sim][frame]") {
@@ -58,7 +58,7 @@ TEST_CASE("case-3 contacts match the analytic capsule–sphere distance", "[sim]
     int expected = 0, near_boundary = 0;
     bool was = false;
     for (int k = 0; k < 200; ++k) {
-        const FramePoses p = app::poses_from_truth(sc.state_at(k * 20000.0));
+        const FramePoses p = frame::poses_from_truth(sc.state_at(k * 20000.0));
         sim.step(p);
         const Eigen::Vector3f tip = p.tissue_to_eye.translation();
         const Eigen::Vector3f back = tip - 10.0f * p.tissue_to_eye.linear().col(2);
@@ -106,7 +106,7 @@ TEST_CASE("membrane peel: pushed nodes move out of the instrument's way, along i
     const auto sc = rig::Scenario::make("surgery", 1, 4e6, bodies);
     float max_penetration = 0, max_push = 0;
     for (int k = 0; k < 150; ++k) {
-        const FramePoses p = app::poses_from_truth(sc.state_at(k * 20000.0));
+        const FramePoses p = frame::poses_from_truth(sc.state_at(k * 20000.0));
         sim.step(p);
         const auto& sys = sim.tissue()->system();
         // Rest plane from three fixed rim nodes (they never move).
@@ -152,7 +152,7 @@ std::unique_ptr<Simulator> run_injection(double slide_mm_per_s, double peak_pres
         const double ang = t > 2.0 ? slide_mm_per_s * (t - 2.0) / 11.55 : 0.0;  // slide along the wall
         const Eigen::Vector3d dir(std::sin(ang), 0.0, -std::cos(ang));
         p.tissue_valid = true;
-        p.tissue_to_eye = app::instrument_pose_eye(r * dir, axis.normalized());
+        p.tissue_to_eye = frame::instrument_pose_eye(r * dir, axis.normalized());
         p.pedal = float(t < 1.3 ? 0.0 : std::min(peak_pressure, (t - 1.3) * 2.0));
         sim.step(p);
     }
@@ -193,7 +193,7 @@ TEST_CASE("retina relocation on the rig's injection scenario: detaches, then war
     REQUIRE(sim.scores().tear_warnings > 0);
     // The only fast move along the retina is the flick at 3.0–3.1 s.
     for (const auto& e : sim.events())
-        if (e.kind == app::EventKind::kTear) CHECK((e.time_s >= 2.98 && e.time_s <= 3.2));
+        if (e.kind == frame::EventKind::kTear) CHECK((e.time_s >= 2.98 && e.time_s <= 3.2));
 }
 
 TEST_CASE("every shipped scene runs headless for seconds with deterministic events", "[sim][frame]") {

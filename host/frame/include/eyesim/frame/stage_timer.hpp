@@ -8,7 +8,7 @@
 #include <cstddef>
 #include <vector>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 /// The Table-4 stages.
 enum class Stage : int { kTracking = 0, kCollision, kTissue, kTransfer, kMisc, kRender, kCount };
@@ -75,4 +75,4 @@ private:
 /// Percentile (0..100) of values by linear interpolation; 0 for an empty set. Sorts a copy.
 double percentile(std::vector<double> values, double pct);
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

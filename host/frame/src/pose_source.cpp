@@ -1,8 +1,8 @@
-#include "eyesim/app/pose_source.hpp"
+#include "eyesim/frame/pose_source.hpp"
 
 #include <cmath>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 Eigen::Isometry3f instrument_pose_eye(const Eigen::Vector3d& tip_eye_mm, const Eigen::Vector3d& axis_tip_to_handle) {
     const Eigen::Vector3f z = (-axis_tip_to_handle).cast<float>().normalized();
@@ -61,4 +61,4 @@ FramePoses poses_from_truth(const rig::SceneState& s) {
     return out;
 }
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

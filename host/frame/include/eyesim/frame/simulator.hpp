@@ -5,7 +5,7 @@
 /// Table 4 breakdown. Everything is sized in the constructor; `step` does not allocate (events go to a
 /// pre-reserved list whose overflow is counted).
 
-#include "eyesim/app/stage_timer.hpp"
+#include "eyesim/frame/stage_timer.hpp"
 #include "eyesim/sim/collision/convex_objects.hpp"
 #include "eyesim/sim/collision/eye_sphere.hpp"
 #include "eyesim/sim/collision/instrument.hpp"
@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 /// Poses of the two tracked handpieces for one frame, eye frame, in the collision convention (instrument
 /// frame: tip at the origin, +z forward into the eye).
@@ -178,4 +178,4 @@ private:
     std::vector<uint8_t> object_contact_;
 };
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

@@ -1,6 +1,5 @@
-#include "eyesim/app/session.hpp"
+#include "eyesim/frame/session.hpp"
 
-#include "eyesim/app/command.hpp"
 #include "eyesim/firmware/latency.hpp"
 #include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/fpga/pipeline.hpp"
@@ -20,7 +19,7 @@
 #include <chrono>
 #include <cmath>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 namespace proto = eyesim::protocol;
 namespace tr = eyesim::tracking;
@@ -36,17 +35,17 @@ tr::TrackerConfig tracker_config(const std::vector<rig::CameraModel>& cams, cons
     try {
         cfg.bodies = tr::body_set(bodies, instruments);
     } catch (const std::invalid_argument& e) {
-        throw Error(e.what());
+        throw SourceError(e.what());
     }
     if (cams.size() < 2 || cams.size() > size_t(tr::kMaxCameras))
-        throw Error(fmt::format("rig.yaml: camera_count: {} (need 2..{})", cams.size(), tr::kMaxCameras));
+        throw SourceError(fmt::format("rig.yaml: camera_count: {} (need 2..{})", cams.size(), tr::kMaxCameras));
     // Device field end = field start (vertical sync, end of exposure) + the FPGA's end of active video; the
     // frame instant is the exposure mid-time, half a shutter before the start.
     const double end_after_start_us =
         double(fpga::device_time_us(0, fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1)));
     for (size_t c = 0; c < cams.size(); ++c) {
         cfg.cameras.push_back(tr::camera_geometry(cams[c]));
-        if (!cfg.cameras.back().valid()) throw Error(fmt::format("rig.yaml: camera {}: invalid intrinsics or pose", c));
+        if (!cfg.cameras.back().valid()) throw SourceError(fmt::format("rig.yaml: camera {}: invalid intrinsics or pose", c));
         tr::CameraTiming t;
         t.end_to_sample_us = {end_after_start_us + 0.5 * cams[c].exposure_us, end_after_start_us + 0.5 * cams[c].exposure_us};
         cfg.timing.push_back(t);
@@ -59,7 +58,7 @@ HostRun::HostRun(tr::TrackerConfig config, Simulator& sim)
     try {
         tracker_ = std::make_unique<tr::Tracker>(std::move(config));
     } catch (const std::invalid_argument& e) {
-        throw Error(e.what());
+        throw SourceError(e.what());
     }
     stats_.latency_us.reserve(1 << 16);
     stats_.transfer_us.reserve(1 << 16);
@@ -122,7 +121,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
         try {
             pedal_track = firmware::pc::pedal_track_of(rig::read_truth(tp));
         } catch (const rig::RigError& e) {
-            throw Error(e.what());
+            throw SourceError(e.what());
         }
     }
     const firmware::pc::PedalTrack pedal(std::move(pedal_track), nullptr);
@@ -144,7 +143,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
             try {
                 rec.read_field(c, i, field.data());
             } catch (const rig::RigError& e) {
-                throw Error(e.what());
+                throw SourceError(e.what());
             }
             fpga::Pipeline& pipe = *pipes[size_t(c)];
             pipe.process_field(field.data(), rig::kFieldHeight, uint32_t(i), uint8_t(ft.parity));
@@ -171,13 +170,13 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
 
 void run_capture(const std::string& path, HostRun& run, std::string& warning) {
     auto replay = std::make_unique<proto::CaptureReplay>();  // ~18 KiB: keep it off the stack
-    if (!replay->open(path.c_str())) throw Error(path + ": cannot open capture");
+    if (!replay->open(path.c_str())) throw SourceError(path + ": cannot open capture");
     proto::DecodedFrame f;
     uint64_t rx_us = 0;
     while (replay->next(f, rx_us)) run.on_frame(f, double(rx_us));
     run.set_parse_errors(replay->stats().errors());
     run.finish();
-    if (replay->status() == proto::CaptureStatus::IoError) throw Error(path + ": read error");
+    if (replay->status() == proto::CaptureStatus::IoError) throw SourceError(path + ": read error");
     const proto::CaptureReader& reader = replay->reader();
     std::string what;
     if (reader.corrupt_regions() > 0)
@@ -201,7 +200,7 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds, std::s
     try {
         link = transport::open_transport(uri, 3000);
     } catch (const transport::TransportError& e) {
-        throw Error(e.what());
+        throw SourceError(e.what());
     }
     proto::StreamParser parser;
     transport::ClockOffsetEstimator clock;
@@ -230,7 +229,7 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds, std::s
     proto::Command start;
     start.command_id = id++;
     start.opcode = uint8_t(proto::Opcode::StreamStart);
-    if (!send_command(*link, start, seq)) throw Error(uri + ": cannot send stream_start: " + link->last_error());
+    if (!send_command(*link, start, seq)) throw SourceError(uri + ": cannot send stream_start: " + link->last_error());
     const double t0 = host_now_us();
     double last_ping = 0.0;
     double last_rx = t0;
@@ -252,7 +251,7 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds, std::s
             parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), [&](const proto::DecodedFrame& df) { handle(df, now); });
         }
         if (r.status == transport::IoStatus::closed) break;
-        if (r.status == transport::IoStatus::error) throw Error(uri + ": " + link->last_error());
+        if (r.status == transport::IoStatus::error) throw SourceError(uri + ": " + link->last_error());
     }
     parser.finish([&](const proto::DecodedFrame& df) { handle(df, host_now_us()); });
     run.set_parse_errors(parser.stats().errors());
@@ -261,4 +260,4 @@ double run_live(const std::string& uri, HostRun& run, double max_seconds, std::s
     return clock.offset_us();
 }
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame

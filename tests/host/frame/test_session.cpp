@@ -1,5 +1,5 @@
 // A recording through the FPGA model, the wire format, the tracker and the simulator, in-process, against truth.
-#include "eyesim/app/session.hpp"
+#include "eyesim/frame/session.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
@@ -27,21 +27,21 @@ TEST_CASE("a synthetic recording runs through FPGA model, tracker and simulator 
     const auto bodies = rig::load_bodies(rig::default_bodies_path());
     std::vector<tracking::SceneInstrument> inst;
     for (const auto& it : truth[0].instruments) inst.push_back({it.kind, it.trocar});
-    auto cfg = app::tracker_config(rec.cameras(), bodies, inst);
+    auto cfg = frame::tracker_config(rec.cameras(), bodies, inst);
     const tracking::BodySet body_set = cfg.bodies;
 
-    app::Simulator sim(sim::scenes::load_scene(std::string(EYESIM_SOURCE_DIR) + "/scenes/membrane-peel.json"));
-    app::HostRun run(std::move(cfg), sim);
+    frame::Simulator sim(sim::scenes::load_scene(std::string(EYESIM_SOURCE_DIR) + "/scenes/membrane-peel.json"));
+    frame::HostRun run(std::move(cfg), sim);
     std::vector<double> tip_um;
     int measured = 0;
-    run.set_hook([&](const tracking::TrackingFrame& f, const app::FramePoses& p) {
+    run.set_hook([&](const tracking::TrackingFrame& f, const frame::FramePoses& p) {
         if (f.reference_field >= truth.size()) return;
         const auto score = tracking::score_frame(f, body_set, truth[f.reference_field]);
         for (double e : score.tip_error_mm)
             if (e >= 0) tip_um.push_back(e * 1e3);
         measured += p.tissue_valid ? 1 : 0;
     });
-    app::run_recording(rec, run);
+    frame::run_recording(rec, run);
 
     CHECK(run.stats().frames >= 15);                       // 20 fields per camera; frames wait for neighbours
     CHECK(sim.timer().frames() == run.stats().frames);     // every tracking frame was simulated

@@ -4,13 +4,13 @@
 /// loop's FramePoses: the working-hand instrument and the light pipe in the eye frame, collision convention
 /// (tip at the origin, +z forward into the eye), and the main pedal axis.
 
-#include "eyesim/app/simulator.hpp"
+#include "eyesim/frame/simulator.hpp"
 #include "eyesim/rig/scenario.hpp"
 #include "eyesim/tracking/tracker.hpp"
 
 #include <array>
 
-namespace eyesim::app {
+namespace eyesim::frame {
 
 /// Collision-convention pose from a tip and a shaft direction (tip → handle), both eye frame.
 Eigen::Isometry3f instrument_pose_eye(const Eigen::Vector3d& tip_eye_mm, const Eigen::Vector3d& axis_tip_to_handle);
@@ -33,4 +33,4 @@ private:
 /// FramePoses from the rig scenario's truth at `state.t_us` (instrument 0: working hand, 1: light pipe).
 FramePoses poses_from_truth(const rig::SceneState& state);
 
-}  // namespace eyesim::app
+}  // namespace eyesim::frame
