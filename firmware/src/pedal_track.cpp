@@ -58,4 +58,13 @@ PedalReading PedalTrack::at(double t_us) const noexcept {
     return to_reading(s);
 }
 
+protocol::PedalState PedalTrack::message_at(double t_us, std::uint64_t device_us) const noexcept {
+    const PedalReading r = at(t_us);
+    protocol::PedalState m;
+    m.device_us = device_us;
+    for (std::size_t a = 0; a < protocol::kPedalAxisCount; ++a) m.axes[a] = r.axes[a];
+    m.buttons = r.buttons;
+    return m;
+}
+
 }  // namespace eyesim::firmware::pc

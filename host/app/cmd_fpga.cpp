@@ -4,6 +4,7 @@
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/fpga/wire.hpp"
+#include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/rig/error.hpp"
@@ -189,8 +190,16 @@ int run(const FpgaOptions& opt) {
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
     const bool progress = eyesim::app::show_progress(opt.json);
 
+    // The pedal, as eyesim-device sends it: one PedalState per field period from the truth (when there is one).
+    const eyesim::firmware::pc::PedalTrack pedal(eyesim::firmware::pc::pedal_track_of(truth), nullptr);
     for (int64_t i = 0; i < n_fields; ++i) {
         records.clear();
+        if (capture_on && !truth.empty()) {
+            const double t_us = std::max(0.0, rec.field_timing(cams.front(), i).start_us);
+            const uint64_t device_us = static_cast<uint64_t>(std::llround(t_us));
+            const size_t len = proto::encode_frame(proto::Message{pedal.message_at(t_us, device_us)}, sequence++, frame);
+            records.push_back({device_us, std::vector<uint8_t>(frame.begin(), frame.begin() + static_cast<long>(len))});
+        }
         for (size_t k = 0; k < cams.size(); ++k) {
             const int cam = cams[k];
             rec.read_field(cam, i, field.data());
@@ -321,7 +330,7 @@ eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording
     auto opt = std::make_shared<FpgaOptions>();
     sub.add_option("--recording", opt->recording, "recording directory (rig.yaml + cam*.uyvy or video)")->required();
     sub.add_option("--cameras", opt->cameras, "comma-separated camera indices (default: all)");
-    sub.add_option("--out", opt->out, "capture file of protocol FieldMarkers packets (device-time stamps)");
+    sub.add_option("--out", opt->out, "capture file of protocol FieldMarkers packets, and the pedal from the truth (device-time stamps)");
     sub.add_option("--csv", opt->csv, "CSV file with one row per blob");
     sub.add_option("--fields", opt->max_fields, "process at most this many fields per camera")
         ->check(CLI::Range(int64_t{1}, std::numeric_limits<int64_t>::max()));

@@ -128,12 +128,8 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
     for (int64_t i = 0; i < n; ++i) {
         {
             // One PedalState per field period, stamped at camera 0's field start (before that field's markers).
-            proto::PedalState ps;
             const double t_us = std::max(0.0, rec.field_timing(0, i).start_us);
-            ps.device_us = uint64_t(std::llround(t_us));
-            const firmware::PedalReading pr = pedal.at(t_us);
-            for (size_t a = 0; a < proto::kPedalAxisCount; ++a) ps.axes[a] = pr.axes[a];
-            ps.buttons = pr.buttons;
+            const proto::PedalState ps = pedal.message_at(t_us, uint64_t(std::llround(t_us)));
             const size_t len = proto::encode_frame(proto::Message{ps}, sequence++, bytes);
             parser.parse(std::span<const uint8_t>(bytes.data(), len),
                          [&](const proto::DecodedFrame& df) { run.on_frame(df, t_us); });

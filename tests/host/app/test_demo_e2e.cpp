@@ -167,7 +167,7 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     // Every FieldMarkers message of the capture decodes; its markers add up to the FPGA model's blobs.
     const std::string lines = run(exe + " protocol decode " + dir + "/cap.bin --json 2>/dev/null", rc);
     REQUIRE(rc == 0);
-    size_t markers = 0, messages = 0, pos = 0;
+    size_t markers = 0, messages = 0, pedals = 0, pos = 0;
     while (pos < lines.size()) {
         const size_t end = lines.find('\n', pos);
         const auto j = nlohmann::json::parse(lines.substr(pos, end - pos));
@@ -175,9 +175,11 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
             ++messages;
             markers += j["markers"].size();
         }
+        pedals += j["type"] == "PedalState";
         pos = end == std::string::npos ? lines.size() : end + 1;
     }
     CHECK(messages >= 45);  // 15 fields × 3 cameras, more when a field needs several parts
+    CHECK(pedals == 15);    // the truth's pedal, once per field period, as the device sends it
     CHECK(markers == fpga["blobs"].get<size_t>());
 
     // The capture replays into the simulator.

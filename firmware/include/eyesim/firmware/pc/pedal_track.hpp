@@ -4,6 +4,7 @@
 /// on the device clock. The track is on the recording's clock; `epoch_us` is the device time of its 0.
 
 #include "eyesim/firmware/hal.hpp"
+#include "eyesim/protocol/messages.hpp"
 
 #include <algorithm>
 #include <array>
@@ -49,6 +50,8 @@ public:
     PedalReading read() const noexcept override;
     /// The pedal at recording time t_us.
     PedalReading at(double t_us) const noexcept;
+    /// The PedalState a device sends for recording time t_us, stamped `device_us`.
+    protocol::PedalState message_at(double t_us, std::uint64_t device_us) const noexcept;
     /// Samples in the track.
     std::size_t size() const noexcept { return samples_.size(); }
 
