@@ -146,6 +146,7 @@ nlohmann::json summary_json(const eyesim::firmware::pc::LatencySummary& s) {
 int run(const Options& opt) {
     using namespace eyesim;
     using namespace eyesim::firmware;
+    const Clock::time_point power_up = Clock::now();  // device time 0
 
     if (opt.recording.empty() == opt.scenario.empty())
         throw std::runtime_error("give exactly one of --recording DIR or --scenario NAME");
@@ -214,7 +215,7 @@ int run(const Options& opt) {
     Clock::time_point finished_at{};
     // Idle: the device clock follows the wall clock from this anchor.
     bool was_playing = false;
-    Clock::time_point idle_wall0 = Clock::now();
+    Clock::time_point idle_wall0 = power_up;
     std::uint64_t idle_model0_us = 0, paused_model_us = 0;
     const std::size_t queue_pause_bytes = DeviceCore::TxQueue::byte_capacity() / 2;
 
