@@ -154,82 +154,35 @@ TEST_CASE("a tracked instrument that jumps is held, not reported", "[tracking][p
     CHECK(j["instruments"][0]["tip_rig_mm"][2].get<double>() == Approx(13.0));
 }
 
-TEST_CASE("an instrument deep in the eye is acquired from two markers when its shaft passes through its trocar",
-          "[tracking][pose]") {
-    // The distal marker is hidden behind the eye: two markers alone could be any body's, but two markers and the
-    // trocar are three points on one line.
+namespace {
+
+/// An eye with three markers at rest and one instrument (markers 26, 31, 38 mm behind the tip, classes 1–3) with
+/// a trocar at (0, 0, 11.5) in the eye frame; `frame(tip, n)` gives the eye's markers and the instrument's
+/// proximal n markers for a shaft from `tip` through the trocar.
+struct DeepShaft {
     BodySet bodies;
-    bodies.eye.marker_count = 3;
     const Eigen::Vector3d eye_m[3] = {{12, 0, 0}, {0, 12, 0}, {-8.5, -8.5, 0}};
-    for (int k = 0; k < 3; ++k) {
-        bodies.eye.markers[std::size_t(k)].colour_class = 4;
-        bodies.eye.markers[std::size_t(k)].pos_body_mm = eye_m[k];
-    }
-    bodies.instrument_count = 1;
-    InstrumentModel& im = bodies.instruments[0];
-    im.name = "forceps";
-    im.marker_count = 3;
-    im.has_trocar = true;
     const double s[3] = {26.0, 31.0, 38.0};
-    for (int k = 0; k < 3; ++k) {
-        im.markers[std::size_t(k)].colour_class = std::uint8_t(1 + k);
-        im.markers[std::size_t(k)].pos_body_mm = Eigen::Vector3d(0, 0, s[k]);
+    Eigen::Vector3d trocar{0, 0, 11.5};
+
+    DeepShaft() {
+        bodies.eye.marker_count = 3;
+        for (int k = 0; k < 3; ++k) {
+            bodies.eye.markers[std::size_t(k)].colour_class = 4;
+            bodies.eye.markers[std::size_t(k)].pos_body_mm = eye_m[k];
+        }
+        bodies.instrument_count = 1;
+        InstrumentModel& im = bodies.instruments[0];
+        im.name = "forceps";
+        im.marker_count = 3;
+        im.has_trocar = true;
+        im.trocar_eye_mm = trocar;
+        for (int k = 0; k < 3; ++k) {
+            im.markers[std::size_t(k)].colour_class = std::uint8_t(1 + k);
+            im.markers[std::size_t(k)].pos_body_mm = Eigen::Vector3d(0, 0, s[k]);
+        }
     }
-    const Eigen::Vector3d tip(0, 0, -10), axis = Eigen::Vector3d::UnitZ();  // tip near the back wall
-    CorrespondenceResult found;
-    auto add = [&](std::uint8_t cls, const Eigen::Vector3d& x) {
-        MatchedMarker& m = found.markers[std::size_t(found.count++)];
-        m.colour_class = cls;
-        m.point.X_rig_mm = x;
-        m.point.cov_mm2 = Eigen::Matrix3d::Identity() * 1e-4;
-        m.point.views = 2;
-    };
-    for (const auto& e : eye_m) add(4, e);
-    add(2, tip + s[1] * axis);  // markers 1 and 2 only
-    add(3, tip + s[2] * axis);
-    PoseOptions opt;
-    EyePose eye0, eye;
-    MarkerAssignment asg;
-    std::array<InstrumentPose, 1> prev{}, cur{};
-
-    im.trocar_eye_mm = Eigen::Vector3d(0, 0, 11.5);  // on the shaft's line
-    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
-    REQUIRE(eye.measured());
-    REQUIRE(cur[0].measured());
-    CHECK((cur[0].tip_rig_mm - tip).norm() < 1e-3);
-
-    im.trocar_eye_mm = Eigen::Vector3d(3, 0, 11.5);  // 3 mm off the line: the two markers are not confirmed
-    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
-    CHECK_FALSE(cur[0].measured());
-
-    im.has_trocar = false;  // no trocar: three markers are needed to acquire
-    fit_poses(bodies, found, opt, eye0, prev, eye, cur, asg);
-    CHECK_FALSE(cur[0].measured());
-}
-
-TEST_CASE("an instrument measured last frame is kept from one marker and its trocar, never acquired from one",
-          "[tracking][pose]") {
-    BodySet bodies;
-    bodies.eye.marker_count = 3;
-    const Eigen::Vector3d eye_m[3] = {{12, 0, 0}, {0, 12, 0}, {-8.5, -8.5, 0}};
-    for (int k = 0; k < 3; ++k) {
-        bodies.eye.markers[std::size_t(k)].colour_class = 4;
-        bodies.eye.markers[std::size_t(k)].pos_body_mm = eye_m[k];
-    }
-    bodies.instrument_count = 1;
-    InstrumentModel& im = bodies.instruments[0];
-    im.name = "injection";
-    im.marker_count = 3;
-    im.has_trocar = true;
-    im.trocar_eye_mm = Eigen::Vector3d(0, 0, 11.5);
-    const double s[3] = {26.0, 31.0, 38.0};
-    for (int k = 0; k < 3; ++k) {
-        im.markers[std::size_t(k)].colour_class = std::uint8_t(1 + k);
-        im.markers[std::size_t(k)].pos_body_mm = Eigen::Vector3d(0, 0, s[k]);
-    }
-    // The shaft tilted: tip deep in the eye, through the trocar.
-    const Eigen::Vector3d trocar = im.trocar_eye_mm;
-    auto frame = [&](const Eigen::Vector3d& tip, int markers) {
+    CorrespondenceResult frame(const Eigen::Vector3d& tip, int markers) const {
         const Eigen::Vector3d axis = (trocar - tip).normalized();
         CorrespondenceResult found;
         auto add = [&](std::uint8_t cls, const Eigen::Vector3d& x) {
@@ -242,23 +195,57 @@ TEST_CASE("an instrument measured last frame is kept from one marker and its tro
         for (const auto& e : eye_m) add(4, e);
         for (int k = 3 - markers; k < 3; ++k) add(std::uint8_t(1 + k), tip + s[k] * axis);
         return found;
-    };
+    }
+};
+
+}  // namespace
+
+TEST_CASE("an instrument deep in the eye is acquired from two markers when its shaft passes through its trocar",
+          "[tracking][pose]") {
+    // The distal marker is hidden behind the eye: two markers alone could be any body's, but two markers and the
+    // trocar are three points on one line.
+    DeepShaft d;
+    InstrumentModel& im = d.bodies.instruments[0];
+    const Eigen::Vector3d tip(0, 0, -10);  // near the back wall, on the line through the trocar
+    const CorrespondenceResult found = d.frame(tip, 2);
+    PoseOptions opt;
+    EyePose eye0, eye;
+    MarkerAssignment asg;
+    std::array<InstrumentPose, 1> prev{}, cur{};
+
+    fit_poses(d.bodies, found, opt, eye0, prev, eye, cur, asg);
+    REQUIRE(eye.measured());
+    REQUIRE(cur[0].measured());
+    CHECK((cur[0].tip_rig_mm - tip).norm() < 1e-3);
+
+    im.trocar_eye_mm = Eigen::Vector3d(3, 0, 11.5);  // 3 mm off the line: the two markers are not confirmed
+    fit_poses(d.bodies, found, opt, eye0, prev, eye, cur, asg);
+    CHECK_FALSE(cur[0].measured());
+
+    im.has_trocar = false;  // no trocar: three markers are needed to acquire
+    fit_poses(d.bodies, found, opt, eye0, prev, eye, cur, asg);
+    CHECK_FALSE(cur[0].measured());
+}
+
+TEST_CASE("an instrument measured last frame is kept from one marker and its trocar, never acquired from one",
+          "[tracking][pose]") {
+    DeepShaft d;
     PoseOptions opt;
     EyePose eye0, eye;
     MarkerAssignment asg;
     std::array<InstrumentPose, 1> none{}, prev{}, cur{};
-    const Eigen::Vector3d tip0(1.0, 0.5, -10.0), tip1(1.3, 0.4, -10.1);
-    fit_poses(bodies, frame(tip0, 2), opt, eye0, none, eye, prev, asg);
+    const Eigen::Vector3d tip0(1.0, 0.5, -10.0), tip1(1.3, 0.4, -10.1);  // the shaft tilted, deep in the eye
+    fit_poses(d.bodies, d.frame(tip0, 2), opt, eye0, none, eye, prev, asg);
     REQUIRE(prev[0].measured());
     // Next frame only the proximal marker: kept, with the tip on the line marker–trocar.
-    fit_poses(bodies, frame(tip1, 1), opt, eye0, prev, eye, cur, asg);
+    fit_poses(d.bodies, d.frame(tip1, 1), opt, eye0, prev, eye, cur, asg);
     REQUIRE(cur[0].measured());
     CHECK((cur[0].flags & kPoseSingleMarker) != 0);
     CHECK((cur[0].tip_rig_mm - tip1).norm() < 1e-6);
     // Not measured before: one marker does not acquire it.
-    fit_poses(bodies, frame(tip1, 1), opt, eye0, none, eye, cur, asg);
+    fit_poses(d.bodies, d.frame(tip1, 1), opt, eye0, none, eye, cur, asg);
     CHECK_FALSE(cur[0].measured());
     // A marker far from where the last pose puts it is not taken.
-    fit_poses(bodies, frame(Eigen::Vector3d(4.0, -3.0, -8.0), 1), opt, eye0, prev, eye, cur, asg);
+    fit_poses(d.bodies, d.frame(Eigen::Vector3d(4.0, -3.0, -8.0), 1), opt, eye0, prev, eye, cur, asg);
     CHECK_FALSE(cur[0].measured());
 }
