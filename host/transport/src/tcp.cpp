@@ -90,17 +90,17 @@ void parse_tcp_uri(const std::string& uri, std::string& host, std::uint16_t& por
     if (rest.rfind("tcp://", 0) == 0) rest = rest.substr(6);
     const auto colon = rest.rfind(':');
     if (colon == std::string::npos || colon == 0 || colon + 1 >= rest.size())
-        throw TransportError(uri + ": expected tcp://HOST:PORT");
+        throw UriError(uri + ": expected tcp://HOST:PORT");
     host = rest.substr(0, colon);
     if (host.size() > 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
     const std::string p = rest.substr(colon + 1);
     unsigned long v = 0;
     for (char c : p) {
-        if (c < '0' || c > '9') throw TransportError(uri + ": port '" + p + "' is not a number");
+        if (c < '0' || c > '9') throw UriError(uri + ": port '" + p + "' is not a number");
         v = v * 10 + static_cast<unsigned long>(c - '0');
-        if (v > 65535) throw TransportError(uri + ": port " + p + " is out of range 1..65535");
+        if (v > 65535) throw UriError(uri + ": port " + p + " is out of range 1..65535");
     }
-    if (v == 0) throw TransportError(uri + ": port 0 is not a valid destination");
+    if (v == 0) throw UriError(uri + ": port 0 is not a valid destination");
     port = static_cast<std::uint16_t>(v);
 }
 

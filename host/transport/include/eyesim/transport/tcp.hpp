@@ -14,7 +14,7 @@ namespace eyesim::transport {
 /// small command packets leave at once. Throws TransportError ("tcp://127.0.0.1:5100: connection refused").
 std::unique_ptr<Transport> connect_tcp(const std::string& host, std::uint16_t port, int timeout_ms = 2000);
 
-/// Splits `tcp://HOST:PORT` (or `HOST:PORT`); throws TransportError naming the URI when malformed.
+/// Splits `tcp://HOST:PORT` (or `HOST:PORT`, port 1..65535); throws UriError naming the URI when malformed.
 void parse_tcp_uri(const std::string& uri, std::string& host, std::uint16_t& port);
 
 }  // namespace eyesim::transport

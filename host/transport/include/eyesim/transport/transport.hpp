@@ -33,6 +33,13 @@ public:
     using std::runtime_error::runtime_error;
 };
 
+/// Thrown for a malformed or unsupported device URI (a usage error: nothing was tried); a link that was tried and
+/// failed (connection refused, no USB device) is a plain TransportError.
+class UriError : public TransportError {
+public:
+    using TransportError::TransportError;
+};
+
 /// A bidirectional byte stream to one device.
 class Transport {
 public:
@@ -52,7 +59,11 @@ public:
 };
 
 /// Opens a transport from a URI: `tcp://HOST:PORT`, `usb` (default ids) or `usb://VID:PID` (hex).
-/// Throws TransportError with a one-line reason (bad URI, connection refused, no USB device present).
+/// Throws UriError for a malformed URI, TransportError with a one-line reason otherwise (connection refused, no
+/// USB device present).
 std::unique_ptr<Transport> open_transport(const std::string& uri, int timeout_ms = 2000);
+
+/// Checks a URI's syntax as open_transport() reads it, without opening anything; throws UriError naming the URI.
+void check_transport_uri(const std::string& uri);
 
 }  // namespace eyesim::transport
