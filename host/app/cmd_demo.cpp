@@ -4,6 +4,7 @@
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/run_scene.hpp"
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
 
@@ -158,10 +159,13 @@ eyesim::app::Registrar reg{
         sub.add_option("--out", opt->out, "folder for the recording and the report")->capture_default_str();
         sub.add_option("--scene", opt->scene, "scene file (default: scenes/membrane-peel.json)");
         sub.add_option("--scenario", opt->scenario,
-                       "synthetic surgeon (default: the scene's, e.g. peel; peel-hard pulls too hard)");
+                       "synthetic surgeon (default: the scene's, e.g. peel; peel-hard pulls too hard)")
+            ->check(CLI::IsMember(eyesim::rig::scenario_names()));
         sub.add_option("--seconds", opt->seconds, "length of the synthetic recording (default: the scene's duration)")
             ->check(eyesim::app::finite_in(0.5, 60.0));
-        sub.add_option("--seed", opt->seed, "scenario and noise seed")->capture_default_str();
+        sub.add_option("--seed", opt->seed, "scenario and noise seed")
+            ->check(eyesim::app::unsigned_integer())
+            ->capture_default_str();
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");
         sub.add_flag("--json", opt->json, "one JSON object on stdout");
         return [opt]() -> int { return run_demo(*opt); };

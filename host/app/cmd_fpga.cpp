@@ -60,10 +60,10 @@ void apply_register_writes(const std::vector<std::string>& writes, fpga::Registe
                 ok = false;
             }
         }
-        if (!ok) throw eyesim::app::Error(fmt::format("--reg: '{}': expected ADDRESS=VALUE", w));
+        if (!ok) throw eyesim::app::Error(fmt::format("--reg: '{}': expected ADDRESS=VALUE", w), 2);
         const fpga::RegWriteResult r = map.write(static_cast<uint16_t>(addr), static_cast<uint32_t>(value));
         if (r != fpga::RegWriteResult::kOk)
-            throw eyesim::app::Error(fmt::format("--reg: '{}': register write refused: {}", w, fpga::to_string(r)));
+            throw eyesim::app::Error(fmt::format("--reg: '{}': register write refused: {}", w, fpga::to_string(r)), 2);
     }
 }
 
@@ -85,10 +85,10 @@ std::vector<int> parse_cameras(const std::string& text, int count) {
             used = 0;
         }
         if (used != item.size() || item.empty() || c < 0 || c >= count)
-            throw eyesim::app::Error(fmt::format("--cameras: '{}': not a camera index 0..{}", item, count - 1));
+            throw eyesim::app::Error(fmt::format("--cameras: '{}': not a camera index 0..{}", item, count - 1), 2);
         if (std::find(cams.begin(), cams.end(), c) == cams.end()) cams.push_back(c);
     }
-    if (cams.empty()) throw eyesim::app::Error("--cameras: empty list");
+    if (cams.empty()) throw eyesim::app::Error("--cameras: empty list", 2);
     return cams;
 }
 

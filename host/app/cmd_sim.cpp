@@ -1,6 +1,7 @@
 // `eyesim sim`: run a scene from a live device, a capture, a recording or a scripted scenario.
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/run_scene.hpp"
+#include "eyesim/rig/scenario.hpp"
 
 #include <memory>
 
@@ -14,7 +15,8 @@ eyesim::app::Registrar reg{
         src->add_option("--connect", req->source.connect, "live device: tcp://HOST:PORT, usb or usb://VID:PID");
         src->add_option("--capture", req->source.capture, "capture file (or raw protocol stream)");
         src->add_option("--recording", req->source.recording, "recording directory (run through the FPGA model)");
-        src->add_option("--scenario", req->source.scenario, "synthetic scenario, truth poses (no tracking)");
+        src->add_option("--scenario", req->source.scenario, "synthetic scenario, truth poses (no tracking)")
+            ->check(CLI::IsMember(eyesim::rig::scenario_names()));
         src->require_option(1);
         sub.add_option("--rig", req->rig_path, "rig.yaml for --connect/--capture (default: the synthetic rig)");
         sub.add_option("--truth", req->truth_path, "truth.jsonl to score tracking against");
@@ -23,7 +25,7 @@ eyesim::app::Registrar reg{
         sub.add_option("--stall-s", req->stall_seconds, "--connect: end the run when the device sends nothing for this long")
             ->check(eyesim::app::finite_in(0.1, 3600.0))
             ->capture_default_str();
-        sub.add_option("--seed", req->seed, "scenario seed");
+        sub.add_option("--seed", req->seed, "scenario seed")->check(eyesim::app::unsigned_integer());
         sub.add_option("--report", req->report_dir, "write a report folder (index.html, stereo snapshots, plots)");
         sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")
             ->check(CLI::Range(0, 100))

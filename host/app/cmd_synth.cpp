@@ -12,6 +12,10 @@
 
 namespace {
 
+/// Largest accepted read-noise sigma, 8-bit levels: a seventh of the 219-level studio luma swing (16..235), far
+/// beyond the 0–2 the benchmarks sweep; larger values only drive the pixels into the clamps.
+constexpr double kMaxNoiseSigma = 32.0;
+
 struct SynthOptions {
     std::string scenario = "static";
     double seconds = 1.0;
@@ -30,12 +34,16 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
     auto opt = std::make_shared<SynthOptions>();
     sub.add_option("--scenario", opt->scenario, "motion scenario or synthetic surgeon (docs/validation.md)")
         ->check(CLI::IsMember(eyesim::rig::scenario_names()));
-    sub.add_option("--seconds", opt->seconds, "recording length in seconds (50 fields per second)");
-    sub.add_option("--seed", opt->seed, "seed of the motion and the sensor noise");
+    sub.add_option("--seconds", opt->seconds,
+                   "recording length in seconds, 0.02 (one field) to 3600 (50 fields per second)")
+        ->check(eyesim::app::finite_in(0.02, 3600.0));
+    sub.add_option("--seed", opt->seed, "seed of the motion and the sensor noise (0 to 2^64 - 1)")
+        ->check(eyesim::app::unsigned_integer());
     sub.add_option("--out", opt->out, "output recording directory (created)")->required();
     sub.add_option("--format", opt->format, "uyvy (raw fields) or video (lossless FFV1 .mkv, else MJPG .avi)")
         ->check(CLI::IsMember({"uyvy", "video"}));
-    sub.add_option("--noise", opt->noise, "read-noise sigma in 8-bit levels (0: no noise at all)");
+    sub.add_option("--noise", opt->noise, "read-noise sigma in 8-bit levels, 0 to 32 (0: no noise at all)")
+        ->check(eyesim::app::finite_in(0.0, kMaxNoiseSigma));
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--rig", opt->rig, "rig.yaml to use instead of the default three cameras");
     sub.add_flag("--synchronised", opt->synchronised, "give every camera the same field clock (default: unsynchronised)");
@@ -58,7 +66,8 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
                 if (opt->exposure_us != 0.0) {
                     if (!(opt->exposure_us > 0.0) || opt->exposure_us > rig::kFieldPeriodUs)
                         throw eyesim::app::Error(fmt::format("synth: --exposure-us: must be in (0, 20000], got {}",
-                                                             opt->exposure_us));
+                                                             opt->exposure_us),
+                                                 2);
                     cam.exposure_us = opt->exposure_us;
                 }
             }

@@ -66,7 +66,11 @@ std::vector<tr::SceneInstrument> scene_from(const std::string& list, const rig::
                 out.push_back({ib.kind, ib.kind == rig::InstrumentKind::kLightPipe ? 1 : 0});
                 found = true;
             }
-        if (!found) throw Error("--instruments: unknown instrument \"" + name + "\"");
+        if (!found) {
+            std::string known;
+            for (const rig::InstrumentBody& ib : bodies.instruments) known += (known.empty() ? "" : ", ") + ib.name;
+            throw Error("--instruments: unknown instrument \"" + name + "\" (known: " + known + ")", 2);
+        }
     }
     return out;
 }
@@ -178,7 +182,14 @@ std::size_t send_command(eyesim::transport::Transport& t, proto::Opcode op, std:
 
 int run_track(const TrackOptions& opt) {
     const int sources = int(!opt.connect.empty()) + int(opt.usb) + int(!opt.capture.empty());
-    if (sources != 1) throw Error("track: give exactly one of --connect tcp://HOST:PORT, --usb, --capture FILE");
+    if (sources != 1) throw Error("track: give exactly one of --connect tcp://HOST:PORT, --usb, --capture FILE", 2);
+    if (!opt.connect.empty()) {  // a malformed URI is a usage error, found before any file is read
+        try {
+            eyesim::transport::check_transport_uri(opt.connect);
+        } catch (const eyesim::transport::UriError& e) {
+            throw Error(std::string("--connect: ") + e.what(), 2);
+        }
+    }
     tr::TrackerConfig cfg;
     rig::Bodies bodies;
     try {
@@ -244,6 +255,8 @@ int run_track(const TrackOptions& opt) {
         std::unique_ptr<eyesim::transport::Transport> link;
         try {
             link = eyesim::transport::open_transport(opt.usb ? std::string("usb") : opt.connect);
+        } catch (const eyesim::transport::UriError& e) {
+            throw Error(std::string("--connect: ") + e.what(), 2);
         } catch (const eyesim::transport::TransportError& e) {
             throw Error(e.what());
         }

@@ -763,7 +763,7 @@ eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_flag("--refine", opt->refine,
                  "refine each blob's centroid by the refinement stage (a marker model fit on its patch) before packing");
-    sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise");
+    sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise")->check(eyesim::app::unsigned_integer());
     sub.add_option("--write-capture", opt->write_capture,
                    "also write the FPGA chain's packets as a capture file (modelled receive times)");
     return [opt]() -> int { return run_validate(*opt); };

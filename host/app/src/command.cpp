@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 
 namespace eyesim::app {
@@ -26,6 +28,19 @@ CLI::Validator finite_in(double lo, double hi) {
             return {};
         },
         "FINITE in [" + CLI::detail::to_string(lo) + " - " + CLI::detail::to_string(hi) + "]");
+}
+
+CLI::Validator unsigned_integer() {
+    return CLI::Validator(
+        [](std::string& text) -> std::string {
+            const bool digits = !text.empty() && text.size() <= 20 &&
+                                std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+            std::uint64_t v = 0;
+            if (!digits || !CLI::detail::lexical_cast(text, v) || (text.size() == 20 && text > "18446744073709551615"))
+                return "Value " + text + " not a whole number in [0, 18446744073709551615]";
+            return {};
+        },
+        "UINT64");
 }
 
 bool show_progress(bool json) { return !json && ::isatty(STDERR_FILENO) == 1; }

@@ -7,6 +7,7 @@
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
 #include "eyesim/tracking/validation.hpp"
+#include "eyesim/transport/transport.hpp"
 
 #include <fmt/format.h>
 
@@ -59,7 +60,14 @@ int count_sources(const SourceSpec& s) {
 
 int run_scene(const SceneRunRequest& req) {
     if (count_sources(req.source) != 1)
-        throw Error("give exactly one source: --connect, --capture, --recording or --scenario");
+        throw Error("give exactly one source: --connect, --capture, --recording or --scenario", 2);
+    if (!req.source.connect.empty()) {  // a malformed URI is a usage error (a device that is not there: exit 1)
+        try {
+            transport::check_transport_uri(req.source.connect);
+        } catch (const transport::UriError& e) {
+            throw Error(std::string("--connect: ") + e.what(), 2);
+        }
+    }
     sim::scenes::Scene scene;
     try {
         scene = sim::scenes::load_scene(req.scene_path);

@@ -47,6 +47,10 @@ private:
 /// CLI validator: a finite number in [lo, hi]. (CLI::Range lets "nan" through: every comparison with NaN is false.)
 CLI::Validator finite_in(double lo, double hi);
 
+/// CLI validator: a whole number in 0..2^64 - 1, for unsigned options such as seeds. (CLI11 reads "-1" into an
+/// unsigned option as 2^64 - 1 without a word.)
+CLI::Validator unsigned_integer();
+
 /// True when progress lines should go to stderr: stderr is a terminal and `--json` was not given.
 bool show_progress(bool json);
 
