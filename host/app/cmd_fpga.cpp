@@ -140,6 +140,7 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
 int run(const FpgaOptions& opt) {
     rig::Recording rec = rig::Recording::open(opt.recording);
     const std::vector<int> cams = parse_cameras(opt.cameras, rec.camera_count());
+    for (const std::string& w : rec.warnings()) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
     int64_t n_fields = rec.common_field_count();
     if (opt.max_fields >= 0) n_fields = std::min(n_fields, opt.max_fields);
 

@@ -401,6 +401,7 @@ int run_validate(const ValidateOptions& opt) {
             throw Error(e.what());
         }
     }();
+    for (const std::string& w : rec.warnings()) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
     const std::string truth_path = rec.truth_path();
     if (truth_path.empty()) throw Error(opt.dir + "/truth.jsonl: missing (validate needs ground truth)");
     std::vector<rig::FieldTruth> truth;

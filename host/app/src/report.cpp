@@ -320,7 +320,6 @@ void print_report(std::FILE* out, const RunReport& r) {
         }
         std::fprintf(out, "  %7.2f s  %-16s %g\n", e.time_s, to_string(e.kind), double(e.value));
     }
-    for (const auto& w : r.warnings) std::fprintf(out, "warning: %s\n", w.c_str());
 }
 
 nlohmann::json report_json(const RunReport& r) {

@@ -153,6 +153,7 @@ int run_scene(const SceneRunRequest& req) {
         try {
             if (!req.source.recording.empty()) {
                 rec = std::make_unique<rig::Recording>(rig::Recording::open(req.source.recording));
+                for (const std::string& w : rec->warnings()) report.warnings.push_back(w);
                 cams = rec->cameras();
                 if (truth_path.empty()) truth_path = rec->truth_path();
             }
@@ -210,6 +211,8 @@ int run_scene(const SceneRunRequest& req) {
             report.warnings.push_back("no animation: " + error);
         }
     }
+    // Warnings go to stderr, one line each; stdout keeps the report (the JSON object also lists them).
+    for (const std::string& w : report.warnings) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
     if (req.json) std::printf("%s\n", report_json(report).dump().c_str());
     else print_report(stdout, report);
     if (!req.report_dir.empty()) {
