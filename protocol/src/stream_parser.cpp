@@ -41,15 +41,16 @@ void StreamParser::skip(std::size_t n) noexcept {
     stats_.skipped_bytes += n;
     pos_ += n;
     // Once the scan has passed a CRC-failed frame without finding a frame inside it, it was corrupted in place.
-    if (suspect_ && pos_ >= suspect_end_) {
-        suspect_ = false;
+    if (crc_pending_ && pos_ >= damage_end_) {
+        crc_pending_ = false;
         ++stats_.crc_errors;
     }
 }
 
 bool StreamParser::header_error_counted() const noexcept {
-    // A false header inside the span of a frame already counted as damaged is not a second error.
-    return !(suspect_ && pos_ < suspect_end_);
+    // A false header inside the span of a frame already counted (or about to be counted) as damaged is not a
+    // second error.
+    return pos_ >= damage_end_;
 }
 
 bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& used, DecodedFrame& out) noexcept {
@@ -76,7 +77,7 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
         }
         if (n - i < kFrameHeaderBytes) {      // need the whole header
             if (!eos_) break;
-            cut_short();
+            cut_short(pos_ + (n - i));        // its span: the rest of the stream
             ++i;
             continue;
         }
@@ -101,15 +102,20 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
             ++i;
             continue;
         }
-        // A plausible header inside the span of a CRC-failed frame marks where that frame was cut short.
-        if (suspect_ && pos_ < suspect_end_) {
-            suspect_ = false;
-            ++stats_.truncated;
+        // A plausible header inside the span of a damaged frame marks where that frame was cut short: its span
+        // ends here (a CRC-failed frame is truncated, not corrupted in place), and this header starts a candidate
+        // of its own.
+        if (pos_ < damage_end_) {
+            if (crc_pending_) {
+                crc_pending_ = false;
+                ++stats_.truncated;
+            }
+            damage_end_ = pos_;
         }
         const std::size_t total = frame_size(len);
         if (n - i < total) {  // need the rest of the frame
             if (!eos_) break;
-            cut_short();
+            cut_short(pos_ + total);
             ++i;
             continue;
         }
@@ -117,8 +123,8 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
         if (crc != frame_crc({p + 2, kFrameHeaderBytes - 2 + len}, schema_hash(type))) {
             // Corrupt in place, or cut short with the next frame's bytes inside: decided once the scan passes
             // the end of this span (crc_errors) or finds a plausible header inside it (truncated).
-            suspect_ = true;
-            suspect_end_ = pos_ + total;
+            crc_pending_ = true;
+            damage_end_ = pos_ + total;
             skip(1);
             ++i;
             continue;
@@ -145,16 +151,21 @@ bool StreamParser::scan(const std::uint8_t* data, std::size_t n, std::size_t& us
     return false;
 }
 
-void StreamParser::cut_short() noexcept {
-    if (header_error_counted()) ++stats_.truncated;
+void StreamParser::cut_short(std::uint64_t claimed_end) noexcept {
+    // Counted once; false headers inside its claimed span (up to a plausible header) are not counted again.
+    if (header_error_counted()) {
+        ++stats_.truncated;
+        damage_end_ = claimed_end;
+    }
     skip(1);
 }
 
 void StreamParser::close() noexcept {
-    if (suspect_) {
-        suspect_ = false;
+    if (crc_pending_) {
+        crc_pending_ = false;
         ++stats_.crc_errors;
     }
+    damage_end_ = 0;  // a new stream starts undamaged
     skipping_ = false;
     eos_ = false;
 }

@@ -6,6 +6,8 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
+
 using namespace eyesim::protocol;
 using namespace eyesim::protocol::test;
 
@@ -219,6 +221,124 @@ TEST_CASE("a stream ending inside a frame counts one truncation", "[protocol][pa
         CHECK(p.stats().skipped_bytes == keep);
         CHECK(p.buffered() == 0);
     }
+}
+
+namespace {
+
+/// A FieldMarkers frame with 14 markers (506 bytes) whose payload holds no sync byte, with a false header of each
+/// kind (bad version, unknown type, bad length) written into its payload at offsets 20, 40 and 60.
+Bytes long_frame_with_false_headers(std::uint16_t seq) {
+    FieldMarkers f;
+    f.camera_id = 1;
+    f.marker_count = kMaxMarkersPerMessage;
+    f.field_counter = 7;
+    f.field_end_us = 1000;
+    for (std::size_t i = 0; i < f.marker_count; ++i) {
+        f.markers[i].colour_class = 1;
+        f.markers[i].bbox_x1 = f.markers[i].bbox_y1 = 3;
+        f.markers[i].area_px = static_cast<std::uint32_t>(10 + i);
+    }
+    Bytes b = frame_of(Message{f}, seq);
+    REQUIRE(b.size() == kMaxFrameBytes - 6);
+    REQUIRE(std::count(b.begin() + 2, b.end() - 4, kSync0) == 0);
+    const Bytes bad_version = {kSync0, kSync1, 2, 2, 0, 0, 16, 0};
+    const Bytes unknown_type = {kSync0, kSync1, 1, 9, 0, 0, 16, 0};
+    const Bytes bad_length = {kSync0, kSync1, 1, 2, 0, 0, 17, 0};
+    std::copy(bad_version.begin(), bad_version.end(), b.begin() + 20);
+    std::copy(unknown_type.begin(), unknown_type.end(), b.begin() + 40);
+    std::copy(bad_length.begin(), bad_length.end(), b.begin() + 60);
+    return b;
+}
+
+}  // namespace
+
+TEST_CASE("false headers inside a damaged frame are not counted again, however it is recognised", "[protocol][parser]") {
+    // Each stream holds exactly one damaged frame (truth: one error counter at 1, all others 0) and the good frames
+    // around it, which must all be delivered.
+    std::mt19937_64 rng(21);
+    const Bytes damaged = long_frame_with_false_headers(100);
+    const Stream before = make_stream(rng, 3, 97);
+    const Stream next = make_stream(rng, 1, 101);
+    const Stream many = make_stream(rng, 40, 101);  // far more than the damaged frame's claimed 506 bytes
+    struct Case {
+        const char* name;
+        Bytes bytes;
+        std::vector<Got> expect;
+        std::uint64_t truncated, crc_errors;
+    };
+    auto join = [](std::initializer_list<const Bytes*> parts) {
+        Bytes b;
+        for (const Bytes* p : parts) b.insert(b.end(), p->begin(), p->end());
+        return b;
+    };
+    auto cat = [](std::vector<Got> a, const std::vector<Got>& b) {
+        a.insert(a.end(), b.begin(), b.end());
+        return a;
+    };
+    const Bytes cut(damaged.begin(), damaged.begin() + 80);  // all three false headers kept, the tail lost
+    Bytes flipped = damaged;                                 // whole length, one bit flipped: a CRC error
+    flipped[300] ^= 0x10;
+    const std::vector<Case> cases = {
+        // Cut short by the next header, the stream ending before the cut frame's claimed end.
+        {"cut by a header, then the end", join({&before.bytes, &cut, &next.bytes}), cat(before.sent, next.sent), 1, 0},
+        // Cut short by the next header, the stream going on past the cut frame's claimed end (found by its CRC).
+        {"cut by a header, stream goes on", join({&before.bytes, &cut, &many.bytes}), cat(before.sent, many.sent), 1,
+         0},
+        // Cut short by the end of the stream.
+        {"cut by the end", join({&before.bytes, &cut}), before.sent, 1, 0},
+        // Complete but corrupted in place.
+        {"crc error", join({&before.bytes, &flipped, &many.bytes}), cat(before.sent, many.sent), 0, 1},
+    };
+    for (const Case& c : cases) {
+        for (const std::size_t chunk : {std::size_t{0}, std::size_t{1}, std::size_t{37}, std::size_t{600}}) {
+            INFO(c.name << ", chunks up to " << chunk);
+            StreamParser p;
+            CHECK(parse_all(c.bytes, p, rng, chunk) == c.expect);
+            CHECK(p.stats().truncated == c.truncated);
+            CHECK(p.stats().crc_errors == c.crc_errors);
+            CHECK(p.stats().bad_version == 0);
+            CHECK(p.stats().unknown_type == 0);
+            CHECK(p.stats().bad_length == 0);
+            CHECK(p.stats().errors() == 1);
+            StreamParser q;
+            CHECK(feed_next_all(c.bytes, q) == c.expect);
+            CHECK(q.stats() == p.stats());
+        }
+    }
+    // The same false headers outside any damaged frame are each counted.
+    Bytes loose(damaged.begin() + 20, damaged.begin() + 68);
+    loose.insert(loose.end(), next.bytes.begin(), next.bytes.end());
+    StreamParser p;
+    CHECK(parse_all(loose, p, rng, 0) == next.sent);
+    CHECK(p.stats().bad_version == 1);
+    CHECK(p.stats().unknown_type == 1);
+    CHECK(p.stats().bad_length == 1);
+    CHECK(p.stats().errors() == 3);
+}
+
+TEST_CASE("a plausible header inside a damaged frame ends its span and counts on its own", "[protocol][parser]") {
+    std::mt19937_64 rng(22);
+    const Bytes damaged = long_frame_with_false_headers(5);
+    const Bytes pedal = frame_of(Message{PedalState{0x0102030405060708ull, {1, 2, 3}, 4}}, 6);
+    // The damaged frame cut after 80 bytes, then the first 20 bytes of a pedal frame (a plausible header), a
+    // false header after it (inside the pedal frame's claimed 28 bytes) and the end of the stream: two frames cut
+    // short, nothing else counted.
+    Bytes b(damaged.begin(), damaged.begin() + 80);
+    b.insert(b.end(), pedal.begin(), pedal.begin() + 20);
+    b[80 + 12] = kSync0, b[80 + 13] = kSync1, b[80 + 14] = 3;
+    StreamParser p;
+    CHECK(parse_all(b, p, rng, 0).empty());
+    CHECK(p.stats().truncated == 2);
+    CHECK(p.stats().errors() == 2);
+    CHECK(p.stats().skipped_bytes == b.size());
+    CHECK(p.stats().resyncs == 1);
+    // A stream ending inside a header with another sync pair in those last bytes: one truncation.
+    const Bytes tail = {kSync0, kSync1, 1, kSync0, kSync1, 1};
+    StreamParser q;
+    CHECK(parse_all(tail, q, rng, 0).empty());
+    CHECK(q.stats().truncated == 1);
+    CHECK(q.stats().errors() == 1);
+    CHECK(q.stats().skipped_bytes == tail.size());
 }
 
 TEST_CASE("oversize and invalid lengths, bad versions and unknown types are counted", "[protocol][parser]") {

@@ -105,15 +105,17 @@ private:
     void skip(std::size_t n) noexcept;
     void bytes_in_direct(std::size_t n) noexcept;
     bool header_error_counted() const noexcept;
-    void cut_short() noexcept;
+    void cut_short(std::uint64_t claimed_end) noexcept;
     void close() noexcept;
 
     std::array<std::uint8_t, kParserBufferBytes> buf_{};
     std::size_t fill_ = 0;          // bytes in buf_
     std::uint64_t pos_ = 0;         // stream offset of the next undecided byte
     bool skipping_ = false;         // inside a run of skipped bytes
-    bool suspect_ = false;          // a CRC-failed frame is awaiting classification (crc vs truncated)
-    std::uint64_t suspect_end_ = 0; // stream offset just past that frame
+    std::uint64_t damage_end_ = 0;  // stream offset just past the span of the last frame counted as damaged
+                                    // (header errors before it are not counted again); cut back to where a
+                                    // plausible header starts inside it
+    bool crc_pending_ = false;      // that frame failed its CRC and awaits classification (crc vs truncated)
     bool eos_ = false;              // finishing: incomplete candidates are truncated, not awaited
     bool have_seq_ = false;
     std::uint16_t last_seq_ = 0;
