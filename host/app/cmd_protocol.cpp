@@ -38,12 +38,10 @@ struct DecodeOptions {
 int run_decode(const DecodeOptions& opt) {
     // The replay holds ~18 KiB of buffers: keep it off the stack.
     auto replay = std::make_unique<proto::CaptureReplay>();
-    if (!replay->open(opt.file.c_str())) {
-        std::FILE* probe = std::fopen(opt.file.c_str(), "rb");
-        if (!probe) throw eyesim::app::Error(opt.file + ": cannot open for reading");
-        std::fclose(probe);
-        throw eyesim::app::Error(opt.file + ": capture header: unsupported format version or header size");
-    }
+    if (!replay->open(opt.file.c_str()))
+        throw eyesim::app::Error(opt.file + ": " + replay->reader().open_error_message());
+    // An empty file is not a stream that decoded cleanly: nothing was received at all.
+    if (replay->reader().file_bytes() == 0) throw eyesim::app::Error(opt.file + ": no bytes");
     const bool is_capture = replay->kind() == proto::CaptureKind::Capture;
     std::vector<char> line(proto::kMaxJsonBytes + 1);
     std::uint64_t messages = 0;
@@ -64,7 +62,8 @@ int run_decode(const DecodeOptions& opt) {
 
     const proto::ParserStats& s = replay->stats();
     const bool capture_ok = status == proto::CaptureStatus::End && reader->corrupt_regions() == 0;
-    const bool clean = s.errors() == 0 && s.skipped_bytes == 0 && capture_ok;
+    // Sequence gaps are frames lost before they reached the file: the stream is not complete either.
+    const bool clean = s.errors() == 0 && s.skipped_bytes == 0 && s.sequence_gaps == 0 && capture_ok;
     if (opt.json) {
         char buf[proto::kMaxJsonBytes];
         proto::format_stats_json(s, buf);

@@ -226,7 +226,7 @@ int run_track(const TrackOptions& opt) {
     if (!opt.capture.empty()) {
         source = opt.capture;
         proto::CaptureReader reader;
-        if (!reader.open(opt.capture.c_str())) throw Error(opt.capture + ": cannot open capture file");
+        if (!reader.open(opt.capture.c_str())) throw Error(opt.capture + ": " + reader.open_error_message());
         proto::CaptureRecord rec;
         double last_us = 0;
         for (;;) {

@@ -4,6 +4,7 @@
 #include "wire_io.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <system_error>
@@ -49,19 +50,62 @@ bool crc_matches(const std::uint8_t* r, std::size_t len) noexcept {
 
 // ---------------------------------------------------------------------------------------------------------------
 
+const char* to_string(CaptureOpenError e) noexcept {
+    switch (e) {
+        case CaptureOpenError::None: return "none";
+        case CaptureOpenError::CannotOpen: return "cannot_open";
+        case CaptureOpenError::ShortHeader: return "short_header";
+        case CaptureOpenError::UnsupportedVersion: return "unsupported_version";
+        case CaptureOpenError::BadHeaderSize: return "bad_header_size";
+    }
+    return "unknown";
+}
+
+bool CaptureReader::fail_open(CaptureOpenError e, std::uint64_t header_bytes_read) noexcept {
+    const int saved_errno = errno;
+    close();
+    open_error_ = e;
+    char* m = open_message_.data();
+    const std::size_t cap = open_message_.size();
+    switch (e) {
+        case CaptureOpenError::None: m[0] = '\0'; break;
+        case CaptureOpenError::CannotOpen:
+            std::snprintf(m, cap, "cannot open for reading: %s", std::strerror(saved_errno));
+            break;
+        case CaptureOpenError::ShortHeader:
+            std::snprintf(m, cap, "capture file header truncated (%llu of %zu bytes)",
+                          static_cast<unsigned long long>(header_bytes_read), kCaptureHeaderBytes);
+            break;
+        case CaptureOpenError::UnsupportedVersion:
+            std::snprintf(m, cap, "capture format version %u not supported (this build reads %u)",
+                          static_cast<unsigned>(found_version_), static_cast<unsigned>(kCaptureVersion));
+            break;
+        case CaptureOpenError::BadHeaderSize:
+            std::snprintf(m, cap, "capture header size %u not supported (this build reads %zu)",
+                          static_cast<unsigned>(found_header_bytes_), kCaptureHeaderBytes);
+            break;
+    }
+    return false;
+}
+
 bool CaptureReader::open(const char* path) noexcept {
     close();
+    open_error_ = CaptureOpenError::None;
+    open_message_[0] = '\0';
+    found_version_ = found_header_bytes_ = 0;
+    errno = 0;
     f_ = std::fopen(path, "rb");
-    if (!f_) return false;
+    if (!f_) return fail_open(CaptureOpenError::CannotOpen, 0);
     size_ = file_size(f_);
     std::uint8_t h[kCaptureHeaderBytes] = {};
     const std::size_t got = std::fread(h, 1, sizeof h, f_);
+    if (got == 0 && std::ferror(f_)) return fail_open(CaptureOpenError::CannotOpen, 0);  // e.g. a directory
     if (has_magic(h, got)) {
-        if (got < kCaptureHeaderBytes || get_u16(h + 8) != kCaptureVersion ||
-            get_u16(h + 10) != kCaptureHeaderBytes) {
-            close();
-            return false;
-        }
+        if (got < kCaptureHeaderBytes) return fail_open(CaptureOpenError::ShortHeader, got);
+        found_version_ = get_u16(h + 8);
+        found_header_bytes_ = get_u16(h + 10);
+        if (found_version_ != kCaptureVersion) return fail_open(CaptureOpenError::UnsupportedVersion, got);
+        if (found_header_bytes_ != kCaptureHeaderBytes) return fail_open(CaptureOpenError::BadHeaderSize, got);
         kind_ = CaptureKind::Capture;
         offset_ = kCaptureHeaderBytes;
     } else {

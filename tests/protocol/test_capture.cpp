@@ -9,6 +9,7 @@
 #include <iterator>
 #include <fstream>
 #include <memory>
+#include <string>
 
 using namespace eyesim::protocol;
 using namespace eyesim::protocol::test;
@@ -412,4 +413,77 @@ TEST_CASE("CaptureReplay yields every frame with its receive time, also from a t
     CHECK(replay->kind() == CaptureKind::Capture);
     CHECK(replay->stats().errors() == 0);
     CHECK(replay->records() == written.size() - 1);
+}
+
+TEST_CASE("a capture that cannot be opened says why, naming the unsupported version", "[protocol][capture]") {
+    // A good capture with its header then patched byte by byte (offsets of docs/protocol.md section 6).
+    std::mt19937_64 rng(27);
+    const fs::path good = temp_file("open_good.cap");
+    write_all(good, random_records(rng, 3));
+    Bytes file;
+    {
+        std::ifstream f(good, std::ios::binary);
+        file.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+    }
+    REQUIRE(file.size() > kCaptureHeaderBytes);
+    auto write_file = [](const fs::path& p, const Bytes& b) {
+        std::ofstream f(p, std::ios::binary | std::ios::trunc);
+        f.write(reinterpret_cast<const char*>(b.data()), static_cast<std::streamsize>(b.size()));
+    };
+    CaptureReader reader;
+    REQUIRE(reader.open(good.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::None);
+    CHECK(std::string(reader.open_error_message()).empty());
+    CHECK(reader.found_format_version() == 1);
+    CHECK(reader.file_bytes() == file.size());
+
+    Bytes v7 = file;
+    v7[8] = 7, v7[9] = 0;  // format_version 7
+    const fs::path p7 = temp_file("open_v7.cap");
+    write_file(p7, v7);
+    CHECK_FALSE(reader.open(p7.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::UnsupportedVersion);
+    CHECK(reader.found_format_version() == 7);
+    CHECK(std::string(reader.open_error_message()) == "capture format version 7 not supported (this build reads 1)");
+    // The replay reports the same reason through its reader.
+    auto replay = std::make_unique<CaptureReplay>();
+    CHECK_FALSE(replay->open(p7.c_str()));
+    CHECK(replay->reader().open_error() == CaptureOpenError::UnsupportedVersion);
+    CHECK(std::string(replay->reader().open_error_message()) ==
+          "capture format version 7 not supported (this build reads 1)");
+
+    Bytes v258 = file;
+    v258[8] = 2, v258[9] = 1;  // little-endian 0x0102 = 258
+    write_file(p7, v258);
+    CHECK_FALSE(reader.open(p7.c_str()));
+    CHECK(std::string(reader.open_error_message()) == "capture format version 258 not supported (this build reads 1)");
+
+    Bytes h20 = file;
+    h20[10] = 20;  // header_bytes 20
+    const fs::path p20 = temp_file("open_h20.cap");
+    write_file(p20, h20);
+    CHECK_FALSE(reader.open(p20.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::BadHeaderSize);
+    CHECK(reader.found_header_bytes() == 20);
+    CHECK(std::string(reader.open_error_message()) == "capture header size 20 not supported (this build reads 16)");
+
+    const fs::path short_header = temp_file("open_short.cap");
+    write_file(short_header, Bytes(file.begin(), file.begin() + 10));
+    CHECK_FALSE(reader.open(short_header.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::ShortHeader);
+    CHECK(std::string(reader.open_error_message()) == "capture file header truncated (10 of 16 bytes)");
+
+    const fs::path missing = temp_file("open_missing.cap");
+    fs::remove(missing);
+    CHECK_FALSE(reader.open(missing.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::CannotOpen);
+    CHECK(std::string(reader.open_error_message()).rfind("cannot open for reading: ", 0) == 0);
+    CHECK_FALSE(reader.open(temp_file("").parent_path().c_str()));  // a directory
+    CHECK(reader.open_error() == CaptureOpenError::CannotOpen);
+
+    // A successful open after a failed one clears the reason.
+    REQUIRE(reader.open(good.c_str()));
+    CHECK(reader.open_error() == CaptureOpenError::None);
+    CHECK(std::string(reader.open_error_message()).empty());
+    CHECK(std::string(to_string(CaptureOpenError::UnsupportedVersion)) == "unsupported_version");
 }

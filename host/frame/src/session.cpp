@@ -166,7 +166,7 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
 
 void run_capture(const std::string& path, HostRun& run, std::string& warning) {
     auto replay = std::make_unique<proto::CaptureReplay>();  // ~18 KiB: keep it off the stack
-    if (!replay->open(path.c_str())) throw SourceError(path + ": cannot open capture");
+    if (!replay->open(path.c_str())) throw SourceError(path + ": " + replay->reader().open_error_message());
     proto::DecodedFrame f;
     uint64_t rx_us = 0;
     while (replay->next(f, rx_us)) run.on_frame(f, double(rx_us));

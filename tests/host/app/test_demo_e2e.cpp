@@ -259,6 +259,21 @@ TEST_CASE("usage errors, garbage captures and empty truth are one line and a non
     }
     one_line_error("track --capture " + dir + "/garbage.bin --rig " + dir + "/rec/rig.yaml", 1,
                    dir + "/garbage.bin: no protocol frames received");
+    // A capture of a format version this build does not read: the reason, naming the version, for every command
+    // that opens captures.
+    {
+        std::ofstream f(dir + "/v7.cap", std::ios::binary);
+        f.write("EYESIMCP\x07\x00\x10\x00\x00\x00\x00\x00", 16);
+    }
+    const std::string v7 = dir + "/v7.cap: capture format version 7 not supported (this build reads 1)";
+    one_line_error("protocol decode " + dir + "/v7.cap", 1, v7);
+    one_line_error("track --capture " + dir + "/v7.cap --rig " + dir + "/rec/rig.yaml", 1, v7);
+    one_line_error("sim --scene " + std::string(EYESIM_SOURCE_DIR) + "/scenes/membrane-peel.json --capture " + dir +
+                       "/v7.cap --rig " + dir + "/rec/rig.yaml",
+                   1, v7);
+    // An empty file holds nothing to decode.
+    std::ofstream(dir + "/empty.bin").close();
+    one_line_error("protocol decode " + dir + "/empty.bin", 1, dir + "/empty.bin: no bytes");
     // A truth file that is present but empty is not silently ignored.
     std::ofstream(dir + "/rec/truth.jsonl", std::ios::trunc).close();
     one_line_error("fpga --recording " + dir + "/rec --json", 1, dir + "/rec/truth.jsonl: no lines");

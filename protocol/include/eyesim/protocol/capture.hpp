@@ -52,6 +52,18 @@ enum class CaptureStatus : std::uint8_t {
     IoError,  ///< read error
 };
 
+/// Why CaptureReader::open() failed.
+enum class CaptureOpenError : std::uint8_t {
+    None,                ///< opened (or not tried yet)
+    CannotOpen,          ///< the file cannot be opened for reading (missing, no permission, a directory, ...)
+    ShortHeader,         ///< it starts with the capture magic but ends inside the 16-byte file header
+    UnsupportedVersion,  ///< its format_version is not kCaptureVersion (found_format_version() says which)
+    BadHeaderSize,       ///< its header_bytes is not kCaptureHeaderBytes (found_header_bytes() says which)
+};
+
+/// Short name of an open error ("none", "cannot_open", "short_header", "unsupported_version", "bad_header_size").
+const char* to_string(CaptureOpenError e) noexcept;
+
 /// What kind of file a reader opened.
 enum class CaptureKind : std::uint8_t {
     Capture,    ///< "EYESIMCP" capture file
@@ -66,8 +78,19 @@ public:
     CaptureReader& operator=(const CaptureReader&) = delete;
     ~CaptureReader() { close(); }
 
-    /// Opens `path`; false when it cannot be opened or has a capture magic with an unsupported version/header.
+    /// Opens `path`; false when it cannot be opened or has a capture magic with an unsupported version/header
+    /// (open_error() and open_error_message() say why).
     bool open(const char* path) noexcept;
+    /// Why the last open() failed (None after a successful one).
+    CaptureOpenError open_error() const noexcept { return open_error_; }
+    /// The reason as one line without the path, e.g. "capture format version 7 not supported (this build reads
+    /// 1)"; empty after a successful open().
+    const char* open_error_message() const noexcept { return open_message_.data(); }
+    /// format_version and header_bytes of the capture header the last open() read (0 when it read none).
+    std::uint16_t found_format_version() const noexcept { return found_version_; }
+    std::uint16_t found_header_bytes() const noexcept { return found_header_bytes_; }
+    /// Size of the opened file in bytes.
+    std::uint64_t file_bytes() const noexcept { return size_; }
     /// Closes the file.
     void close() noexcept;
     /// Capture or raw stream (valid after open()).
@@ -95,6 +118,11 @@ private:
     std::uint64_t corrupt_regions_ = 0;
     std::uint64_t corrupt_bytes_ = 0;
     bool done_ = false;
+    CaptureOpenError open_error_ = CaptureOpenError::None;
+    std::uint16_t found_version_ = 0;
+    std::uint16_t found_header_bytes_ = 0;
+    std::array<char, 128> open_message_{};
+    bool fail_open(CaptureOpenError e, std::uint64_t header_bytes_read) noexcept;
     // Reads the record at `at` (whole, CRC checked) into buf_; its payload length, or 0 when none is there.
     std::size_t read_record_at(std::uint64_t at) noexcept;
     // First offset after `from` that holds a good record, or size_ when there is none.
