@@ -105,6 +105,7 @@ void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcep
     cam.blobs_dropped = false;
     cam.low_latency = low_latency_;
     cam.closed = false;
+    cam.abandoned = false;
     cam.sent = 0;
     cam.blobs.clear();
     cam.pending.clear();
@@ -117,8 +118,8 @@ void DeviceCore::blob_sink(void* context, const fpga::Blob& blob) {
 }
 
 void DeviceCore::on_blob(std::size_t camera, const fpga::Blob& blob) noexcept {
-    if (!streaming_) return;
     Camera& cam = cams_[camera];
+    if (!streaming_ || cam.abandoned) return;
     const PendingBlob p{cycle_time_ns(cam.field_start_us, blob.last_pixel_cycle),
                         cycle_time_ns(cam.field_start_us, blob.emit_cycle), blob.index};
     // The blob waits in the FPGA's output FIFO until the soft core takes it (flush_low_latency / end_field).
@@ -140,7 +141,7 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
         blobs_dropped_ += st.dropped_blobs;
         cam.blobs_dropped = true;
     }
-    if (!streaming_) return;
+    if (!streaming_ || cam.abandoned) return;
     // The field is over once its last active pixel is in and the last blob has left the pipeline.
     const std::uint32_t end_cycle =
         st.last_emit_cycle > st.last_active_line_end_cycle ? st.last_emit_cycle : st.last_active_line_end_cycle;
@@ -257,7 +258,39 @@ void DeviceCore::service() noexcept {
     pump_tx();
 }
 
+void DeviceCore::close_fields_for_stop() noexcept {
+    // Blobs already taken from the FIFOs go out first (step_cameras normally has sent them already).
+    flush_low_latency();
+    const std::uint64_t now_us = hal_.clock->now_us();
+    for (std::size_t c = 0; c < kCameras; ++c) {
+        Camera& cam = cams_[c];
+        // A low-latency field the host has seen parts of gets its last part now: no markers, more_follows clear,
+        // blobs_dropped set (the rest of the field is not sent), field_end_us = the stop time.
+        if (cam.low_latency && cam.part_index > 0) {
+            protocol::FieldMarkers& fm = parts_[0];
+            fm = protocol::FieldMarkers{};
+            fm.camera_id = static_cast<std::uint8_t>(c);
+            fm.field_parity = cam.parity;
+            fm.field_counter = cam.field;
+            fm.flags = protocol::kFieldFlagLowLatency | protocol::kFieldFlagBlobsDropped;
+            fm.field_end_us = now_us;
+            fm.marker_count = 0;
+            send_part(c, fm, cam.pending.data(), now_us * 1000u);
+        }
+        cam.low_latency = false;
+        cam.closed = false;
+        // Nothing more of a field in progress is sent, even if streaming starts again before it ends.
+        if (cam.in_field) cam.abandoned = true;
+    }
+}
+
 void DeviceCore::host_disconnected() noexcept {
+    // The fields in progress are not continued towards the next host (their first parts went to this one).
+    for (Camera& cam : cams_) {
+        cam.low_latency = false;
+        cam.closed = false;
+        if (cam.in_field) cam.abandoned = true;
+    }
     streaming_ = config_.stream_on_start;
     queue_.clear();
     tx_len_ = tx_off_ = 0;
@@ -377,6 +410,7 @@ Reply DeviceCore::execute(const Command& c) noexcept {
                 }
                 streaming_ = true;
             } else if (static_cast<Opcode>(c.opcode) == Opcode::StreamStop) {
+                if (streaming_) close_fields_for_stop();  // queued before this command's Reply
                 streaming_ = false;
             }
             break;

@@ -351,3 +351,95 @@ TEST_CASE("the core allocates nothing after start-up", "[firmware][core]") {
     REQUIRE(test::allocation_count() == before);
     REQUIRE(rig.core->counters().blobs_sent == 3 * 3 * 20);
 }
+
+TEST_CASE("stream_stop inside a field: a low-latency field gets its last part, nothing more of the field is sent",
+          "[firmware][core][commands]") {
+    using protocol::kFieldFlagBlobsDropped;
+    using protocol::kFieldFlagLowLatency;
+    using protocol::kFieldFlagMoreFollows;
+    for (const bool low_latency : {true, false}) {
+        DYNAMIC_SECTION("low_latency=" << low_latency) {
+            firmware::CoreConfig cfg;
+            cfg.low_latency = low_latency;
+            CoreRig rig(4, 20, cfg);  // 20 markers per field, on rows near y = 30, 90 and 150
+            rig.command(cmd(1, protocol::Opcode::StreamStart));
+            while (rig.cams[0]->fields_delivered() < 1) {
+                rig.core->step_cameras();
+                rig.core->service();
+            }
+            // 130 lines into field 1: the blobs of the first two rows are complete, those of the third are not.
+            for (int i = 0; i < 130; ++i) {
+                rig.core->step_cameras();
+                rig.core->service();
+            }
+            rig.command(cmd(2, protocol::Opcode::StreamStop));
+            rig.core->service();
+            REQUIRE_FALSE(rig.core->streaming());
+            rig.command(cmd(3, protocol::Opcode::StreamStart));  // again, still inside field 1
+            rig.core->service();
+            rig.run();
+
+            protocol::ParserStats stats;
+            const auto frames = test::decode_all(rig.sink.bytes, &stats);
+            REQUIRE(stats.errors() == 0);
+            REQUIRE(stats.sequence_gaps == 0);
+            std::size_t stop_at = frames.size(), restart_at = frames.size();
+            std::uint64_t stop_us = 0;
+            for (std::size_t i = 0; i < frames.size(); ++i)
+                if (const auto* r = std::get_if<protocol::Reply>(&frames[i].message)) {
+                    REQUIRE(r->status == 0);
+                    if (r->command_id == 2) stop_at = i, stop_us = r->device_us;
+                    if (r->command_id == 3) restart_at = i;
+                }
+            REQUIRE(stop_at < restart_at);
+            REQUIRE(restart_at < frames.size());
+            REQUIRE(stop_us > 20000);  // inside field 1 (it starts at 20 000 µs)
+            REQUIRE(stop_us < 40000);
+
+            const test::Reference ref = test::reference_output(rig.streams);
+            std::map<test::FieldKey, std::vector<protocol::FieldMarkers>> parts;
+            for (std::size_t i = 0; i < frames.size(); ++i) {
+                const auto* fm = std::get_if<protocol::FieldMarkers>(&frames[i].message);
+                if (!fm) continue;
+                INFO("frame " << i << ": camera " << int(fm->camera_id) << " field " << fm->field_counter);
+                REQUIRE((i < stop_at || i > restart_at));  // nothing while stopped
+                if (fm->field_counter == 1) REQUIRE(i < stop_at);  // nothing of field 1 after the stop
+                parts[{fm->camera_id, fm->field_counter}].push_back(*fm);
+            }
+            for (int c = 0; c < 3; ++c) {
+                INFO("camera " << c);
+                for (std::uint32_t k : {0u, 2u, 3u}) {  // whole fields, as the FPGA model has them
+                    std::vector<protocol::Marker> got;
+                    for (const auto& p : parts[{c, k}])
+                        for (int m = 0; m < p.marker_count; ++m) got.push_back(p.markers[m]);
+                    REQUIRE(got == ref.markers.at({c, k}));
+                    REQUIRE((parts[{c, k}].back().flags & kFieldFlagMoreFollows) == 0);
+                }
+                const auto& f1 = parts[{c, 1}];
+                if (!low_latency) {
+                    REQUIRE(f1.empty());  // per-field mode had sent nothing of it: nothing at all
+                    continue;
+                }
+                // Low-latency: the parts sent before the stop, then one last part at the stop.
+                REQUIRE(f1.size() >= 2);
+                std::vector<protocol::Marker> got;
+                for (std::size_t p = 0; p < f1.size(); ++p) {
+                    REQUIRE(f1[p].part_index == p);
+                    REQUIRE((f1[p].flags & kFieldFlagLowLatency) != 0);
+                    const bool last = p + 1 == f1.size();
+                    REQUIRE(((f1[p].flags & kFieldFlagMoreFollows) == 0) == last);
+                    for (int m = 0; m < f1[p].marker_count; ++m) got.push_back(f1[p].markers[m]);
+                }
+                const protocol::FieldMarkers& close = f1.back();
+                REQUIRE(close.marker_count == 0);
+                REQUIRE(close.flags == (kFieldFlagLowLatency | kFieldFlagBlobsDropped));
+                REQUIRE(close.field_end_us == stop_us);
+                // What was sent is the start of the field's markers, not all of them.
+                const auto& want = ref.markers.at({c, 1});
+                REQUIRE(!got.empty());
+                REQUIRE(got.size() < want.size());
+                REQUIRE(std::equal(got.begin(), got.end(), want.begin()));
+            }
+        }
+    }
+}

@@ -125,6 +125,7 @@ private:
         bool finished = false;
         bool low_latency = false;        // mode sampled at begin_field (a mode change applies from the next field)
         bool closed = false;             // low-latency: field ended, closing part not yet sent
+        bool abandoned = false;          // stream stopped (or host lost) inside this field: send no more of it
         std::uint64_t close_ready_ns = 0;
         std::uint64_t field_end_us = 0;
         std::size_t sent = 0;            // low-latency: blobs of `markers` already sent
@@ -138,6 +139,7 @@ private:
     void begin_field(std::size_t camera, const CameraLine& line) noexcept;
     void end_field(std::size_t camera) noexcept;
     void flush_low_latency() noexcept;
+    void close_fields_for_stop() noexcept;
     void send_part(std::size_t camera, protocol::FieldMarkers& part, const PendingBlob* pending,
                    std::uint64_t ready_ns) noexcept;
     std::size_t queue_message(const protocol::Message& m, std::uint32_t blobs) noexcept;
