@@ -4,6 +4,7 @@
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/fpga/wire.hpp"
+#include "eyesim/firmware/latency.hpp"
 #include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
@@ -179,12 +180,38 @@ int run(const FpgaOptions& opt) {
     std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
     std::vector<proto::FieldMarkers> msgs(fpga::field_markers_messages(fpga::kMaxBlobSlots * 4));
     std::array<uint8_t, proto::kMaxFrameBytes> frame{};
+    // Receive times. There is no host on this path: the capture uses the device clock as the host clock (offset 0)
+    // and stamps each record with the modelled time its frame has left the device (docs/protocol.md section 6):
+    // ready (a PedalState at its sample time; a field's messages once its last active pixel is in and its last
+    // blob has left the pipeline), then the soft core's encoding cost and the USB link, one frame after the other
+    // in the order they became ready (eyesim/firmware/latency.hpp, the model the device core uses).
+    // Sequence numbers follow the order the frames are sent, as on the device.
     struct Record {
-        uint64_t t_us;
-        std::vector<uint8_t> bytes;
+        uint64_t ready_ns;
+        uint32_t blobs;
+        proto::Message message;
     };
-    std::vector<Record> records;
+    std::vector<Record> records;  // ready, not yet sent
     uint16_t sequence = 0;
+    eyesim::firmware::LinkModel link;
+    uint64_t core_free_ns = 0;
+    // Sends every record ready before `horizon_ns` (no later field can produce an earlier one), in ready order.
+    auto send_ready = [&](uint64_t horizon_ns) {
+        std::stable_sort(records.begin(), records.end(),
+                         [](const Record& a, const Record& b) { return a.ready_ns < b.ready_ns; });
+        size_t k = 0;
+        for (; k < records.size() && records[k].ready_ns < horizon_ns; ++k) {
+            const Record& r = records[k];
+            const size_t len = proto::encode_frame(r.message, sequence++, frame);
+            if (len == 0) throw eyesim::app::Error("a message does not encode");
+            const uint64_t queued_ns = std::max(r.ready_ns, core_free_ns) + eyesim::firmware::frame_cost_ns(len, r.blobs);
+            core_free_ns = queued_ns;
+            const uint64_t rx_us = (link.transmit(queued_ns, len) + 999) / 1000;  // whole µs, not before
+            if (!capture.write(rx_us, std::span<const uint8_t>(frame.data(), len)))
+                throw eyesim::app::Error(fmt::format("{}: write failed", opt.out));
+        }
+        records.erase(records.begin(), records.begin() + static_cast<std::ptrdiff_t>(k));
+    };
     double model_s = 0, refine_s = 0;
     // Refinement stage: a model fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
@@ -194,12 +221,10 @@ int run(const FpgaOptions& opt) {
     // The pedal, as eyesim-device sends it: one PedalState per field period from the truth (when there is one).
     const eyesim::firmware::pc::PedalTrack pedal(eyesim::firmware::pc::pedal_track_of(truth), nullptr);
     for (int64_t i = 0; i < n_fields; ++i) {
-        records.clear();
         if (capture_on && !truth.empty()) {
             const double t_us = std::max(0.0, rec.field_timing(cams.front(), i).start_us);
             const uint64_t device_us = static_cast<uint64_t>(std::llround(t_us));
-            const size_t len = proto::encode_frame(proto::Message{pedal.message_at(t_us, device_us)}, sequence++, frame);
-            records.push_back({device_us, std::vector<uint8_t>(frame.begin(), frame.begin() + static_cast<long>(len))});
+            records.push_back({device_us * 1000u, 0, proto::Message{pedal.message_at(t_us, device_us)}});
         }
         for (size_t k = 0; k < cams.size(); ++k) {
             const int cam = cams[k];
@@ -244,20 +269,25 @@ int run(const FpgaOptions& opt) {
             if (capture_on) {
                 const fpga::FieldInfo info = fpga::field_info(fs, static_cast<uint8_t>(cam), static_cast<uint8_t>(parity), start_us);
                 const size_t n = fpga::to_field_markers(blobs.data(), blobs.size(), info, msgs.data(), msgs.size());
-                // Receive time: the field's end plus the pipeline's latency for its last blob.
-                const uint64_t t_us = msgs[0].field_end_us +
-                                      static_cast<uint64_t>(std::llround(fpga::cycles_to_us(fs.last_blob_latency_cycles)));
+                // Ready once the last active pixel is in and the last blob has left the pipeline (as the device).
+                const uint32_t end_cycle = std::max(fs.last_emit_cycle, fs.last_active_line_end_cycle);
+                const uint64_t ready_ns = start_us * 1000u + fpga::cycles_to_ns(end_cycle);
                 for (size_t m = 0; m < n; ++m) {
-                    const size_t len = proto::encode_frame(proto::Message{msgs[m]}, sequence++, frame);
-                    if (len == 0)
+                    if (!proto::valid_message(proto::Message{msgs[m]}))
                         throw eyesim::app::Error(fmt::format("camera {} field {}: message {} does not encode", cam, i, m));
-                    records.push_back({t_us, std::vector<uint8_t>(frame.begin(), frame.begin() + static_cast<long>(len))});
+                    records.push_back({ready_ns, msgs[m].marker_count, proto::Message{msgs[m]}});
                 }
             }
         }
-        std::stable_sort(records.begin(), records.end(), [](const Record& a, const Record& b) { return a.t_us < b.t_us; });
-        for (const Record& r : records)
-            if (!capture.write(r.t_us, r.bytes)) throw eyesim::app::Error(fmt::format("{}: write failed", opt.out));
+        if (capture_on) {
+            // Everything of the next field is ready no earlier than its earliest camera's vertical sync.
+            uint64_t horizon_ns = ~uint64_t{0};
+            if (i + 1 < n_fields)
+                for (int cam : cams)
+                    horizon_ns = std::min(horizon_ns, static_cast<uint64_t>(std::llround(std::max(
+                                                          0.0, rec.field_timing(cam, i + 1).start_us))) * 1000u);
+            send_ready(horizon_ns);
+        }
         if (progress && (i % 25 == 0 || i + 1 == n_fields))
             std::fprintf(stderr, "\rfpga: field %lld/%lld", static_cast<long long>(i + 1), static_cast<long long>(n_fields));
     }

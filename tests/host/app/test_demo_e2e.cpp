@@ -168,9 +168,20 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     const std::string lines = run(exe + " protocol decode " + dir + "/cap.bin --json 2>/dev/null", rc);
     REQUIRE(rc == 0);
     size_t markers = 0, messages = 0, pedals = 0, pos = 0;
+    uint64_t last_rx_us = 0;
     while (pos < lines.size()) {
         const size_t end = lines.find('\n', pos);
         const auto j = nlohmann::json::parse(lines.substr(pos, end - pos));
+        // Receive times of a model-written capture (docs/protocol.md section 6): the device clock, at or after the
+        // device time the frame carries, by the modelled transmission latency (well under 1 ms), never decreasing.
+        const uint64_t rx_us = j.at("host_rx_us").get<uint64_t>();
+        const uint64_t device_us =
+            j["type"] == "FieldMarkers" ? j.at("field_end_us").get<uint64_t>() : j.at("device_us").get<uint64_t>();
+        INFO(j.dump());
+        CHECK(rx_us > device_us);
+        CHECK(rx_us <= device_us + 1000);
+        CHECK(rx_us >= last_rx_us);
+        last_rx_us = rx_us;
         if (j["type"] == "FieldMarkers") {
             ++messages;
             markers += j["markers"].size();
