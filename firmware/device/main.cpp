@@ -10,6 +10,7 @@
 
 #include "eyesim/rig/pal.hpp"
 #include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
 
@@ -79,6 +80,7 @@ public:
             throw std::runtime_error(dir + "/rig.yaml: camera_count " + std::to_string(rec_.camera_count()) +
                                      " but the device has 3 cameras");
         if (rec_.common_field_count() <= 0) throw std::runtime_error(dir + ": the recording has no complete field");
+        for (const std::string& w : rec_.warnings()) std::fprintf(stderr, "eyesim-device: warning: %s\n", w.c_str());
     }
     std::int64_t fields() const override { return rec_.common_field_count(); }
     const std::vector<eyesim::rig::CameraModel>& cameras() const override { return rec_.cameras(); }
@@ -148,10 +150,6 @@ int run(const Options& opt) {
     using namespace eyesim::firmware;
     const Clock::time_point power_up = Clock::now();  // device time 0
 
-    if (opt.recording.empty() == opt.scenario.empty())
-        throw std::runtime_error("give exactly one of --recording DIR or --scenario NAME");
-    if (!opt.scenario.empty() && !(opt.seconds > 0 && std::isfinite(opt.seconds)))
-        throw std::runtime_error("--seconds: must be a positive number, got " + std::to_string(opt.seconds));
     std::shared_ptr<FieldProvider> recording;
     if (!opt.recording.empty()) recording = std::make_shared<RecordingProvider>(opt.recording);
     else recording = std::make_shared<ScenarioProvider>(opt.scenario, opt.seconds, opt.seed);
@@ -276,6 +274,17 @@ int run(const Options& opt) {
         if (core->step_cameras() == StepStatus::finished) {
             finished = true;
             finished_at = Clock::now();
+            // The host may still send commands (stream_stop, pings for its clock offset) and wait for their
+            // replies: the link stays open until it hangs up or --linger-ms passes. Say so, or the wait looks
+            // like a hang.
+            if (opt.linger_ms > 0 && server.connected())
+                std::fprintf(stderr,
+                             "eyesim-device: recording ended; keeping the link open %.1f s for late commands "
+                             "(--linger-ms)\n",
+                             opt.linger_ms / 1000.0);
+            else if (opt.linger_ms > 0 && !ever_connected)
+                std::fprintf(stderr, "eyesim-device: recording ended; waiting %.1f s for a host (--linger-ms)\n",
+                             opt.linger_ms / 1000.0);
         }
     }
 
@@ -318,11 +327,29 @@ int main(int argc, char** argv) {
     Options opt;
     auto* rec_opt = app.add_option("--recording", opt.recording, "recording directory (rig.yaml + cam0..2 streams)");
     auto* scn_opt = app.add_option("--scenario", opt.scenario,
-                                   "render this rig scenario live instead (static, sweep, surgery, fast, occlusion, injection, peel, peel-hard, vitrectomy)");
+                                   "render this rig scenario live instead (static, sweep, surgery, fast, occlusion, injection, peel, peel-hard, vitrectomy)")
+                        ->check(CLI::IsMember(eyesim::rig::scenario_names()));
     rec_opt->excludes(scn_opt);
-    app.add_option("--seconds", opt.seconds, "--scenario: length in seconds (fields = 50 per second)")
+    app.add_option("--seconds", opt.seconds, "--scenario: length in seconds, 0.02 to 3600 (fields = 50 per second)")
+        ->check(CLI::Validator(
+            [](std::string& text) -> std::string {
+                double v = 0;
+                if (!CLI::detail::lexical_cast(text, v) || !std::isfinite(v) || v < 0.02 || v > 3600.0)
+                    return "Value " + text + " not a finite number in [0.02, 3600]";
+                return {};
+            },
+            "FINITE in [0.02 - 3600]"))
         ->capture_default_str();
-    app.add_option("--seed", opt.seed, "--scenario: scenario and noise seed")->capture_default_str();
+    app.add_option("--seed", opt.seed, "--scenario: scenario and noise seed")
+        ->check(CLI::Validator(
+            [](std::string& text) -> std::string {  // CLI11 would read "-1" as 2^64 - 1
+                const auto digit = [](char c) { return c >= '0' && c <= '9'; };
+                if (text.empty() || !std::all_of(text.begin(), text.end(), digit))
+                    return "Value " + text + " not a whole number in [0, 18446744073709551615]";
+                return {};
+            },
+            "UINT64"))
+        ->capture_default_str();
     app.add_option("--address", opt.address, "loopback address to listen on")->capture_default_str();
     app.add_option("--bind", opt.bind, "listen on this address even if it is not loopback (explicit opt-in)");
     app.add_option("--port", opt.port, "TCP port; 0 picks a free one (printed as 'listening tcp://ADDR:PORT')")
@@ -349,6 +376,11 @@ int main(int argc, char** argv) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {  // usage error: one line, exit 2
         std::fprintf(stderr, "eyesim-device: error: %s (see --help)\n", e.what());
+        return 2;
+    }
+    if (opt.recording.empty() == opt.scenario.empty()) {  // --recording excludes --scenario: none was given
+        std::fprintf(stderr,
+                     "eyesim-device: error: give exactly one of --recording DIR or --scenario NAME (see --help)\n");
         return 2;
     }
     std::signal(SIGINT, on_signal);
