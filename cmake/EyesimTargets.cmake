@@ -24,11 +24,13 @@ function(eyesim_library target)
   eyesim_defaults(${target})
 endfunction()
 
-# eyesim_test(<name> [SERIAL] SOURCES ... LIBS ...) : a Catch2 test program registered with CTest.
+# eyesim_test(<name> [SERIAL] [STRESS] SOURCES ... LIBS ...) : a Catch2 test program registered with CTest.
 # Catch tags choose the CTest label: [stress] -> stress, [fuzz] -> fuzz, everything else -> unit.
 # SERIAL: its tests never run beside others (they measure time).
+# STRESS: the program has [stress] tests; only then are they looked for (a program without any would make the
+# discovery warn that the [stress] selection contains no tests).
 function(eyesim_test name)
-  cmake_parse_arguments(T "SERIAL" "" "SOURCES;LIBS" ${ARGN})
+  cmake_parse_arguments(T "SERIAL;STRESS" "" "SOURCES;LIBS" ${ARGN})
   set(serial "")
   if(T_SERIAL)
     set(serial RUN_SERIAL TRUE)
@@ -39,8 +41,28 @@ function(eyesim_test name)
   eyesim_defaults(${name})
   catch_discover_tests(${name} TEST_SPEC "~[stress]~[fuzz]" TEST_PREFIX "${name}: "
                        PROPERTIES LABELS unit ${serial})
-  catch_discover_tests(${name} TEST_SPEC "[stress]" TEST_PREFIX "${name}: "
-                       PROPERTIES LABELS stress ${serial})
+  # STRESS must match the sources: a [stress] tag in a test name's tag string ("...[stress]...").
+  set(has_stress FALSE)
+  foreach(src IN LISTS T_SOURCES)
+    if(NOT IS_ABSOLUTE "${src}")
+      set(src "${CMAKE_CURRENT_SOURCE_DIR}/${src}")
+    endif()
+    if(EXISTS "${src}")
+      file(STRINGS "${src}" tagged REGEX "\"[^\"]*\\[stress\\][^\"]*\"")
+      if(tagged)
+        set(has_stress TRUE)
+      endif()
+    endif()
+  endforeach()
+  if(has_stress AND NOT T_STRESS)
+    message(SEND_ERROR "eyesim_test(${name}): its sources have [stress] tests; add STRESS")
+  elseif(T_STRESS AND NOT has_stress)
+    message(SEND_ERROR "eyesim_test(${name}): STRESS given but no source has a [stress] test")
+  endif()
+  if(T_STRESS)
+    catch_discover_tests(${name} TEST_SPEC "[stress]" TEST_PREFIX "${name}: "
+                         PROPERTIES LABELS stress ${serial})
+  endif()
 endfunction()
 
 # eyesim_bench(<name> SOURCES ... LIBS ...) : a benchmark program under bench/.
