@@ -7,11 +7,15 @@
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
 
+#include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
+#include <numeric>
 #include <random>
 
 namespace eyesim::app {
@@ -19,68 +23,144 @@ namespace eyesim::app {
 namespace proto = eyesim::protocol;
 namespace tr = eyesim::tracking;
 
-double calibration_us() {
-    std::vector<double> t;
+namespace {
+constexpr int kCalLu = 48;
+constexpr size_t kCalSort = 2048;
+constexpr int kCalRotations = 600;
+constexpr size_t kCalNodes = 3000;
+constexpr size_t kCalSprings = 9000;
+}  // namespace
+
+const char* to_string(CalKernel k) {
+    switch (k) {
+        case CalKernel::kDense: return "dense";
+        case CalKernel::kGeometry: return "geometry";
+        case CalKernel::kSprings: return "springs";
+        case CalKernel::kCount: break;
+    }
+    return "?";
+}
+
+CalibrationWorkload::CalibrationWorkload() {
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> u(-1.0, 1.0);
-    Eigen::MatrixXd a(96, 96);
-    Eigen::VectorXd b(96);
-    std::vector<float> v(32768);
-    double sink = 0;
-    for (int r = 0; r < 31; ++r) {
-        for (int i = 0; i < a.size(); ++i) a.data()[i] = u(rng);
-        for (int i = 0; i < b.size(); ++i) b[i] = u(rng);
-        for (auto& x : v) x = float(u(rng));
-        const double t0 = host_now_us();
-        const Eigen::VectorXd x = a.partialPivLu().solve(b);
-        std::sort(v.begin(), v.end());
-        t.push_back(host_now_us() - t0);
-        sink += x[0] + v[100];
+    a0_.resize(kCalLu, kCalLu);
+    b0_.resize(kCalLu);
+    for (int i = 0; i < a0_.size(); ++i) a0_.data()[i] = u(rng);
+    for (int i = 0; i < b0_.size(); ++i) b0_[i] = u(rng);
+    v0_.resize(kCalSort);
+    for (auto& x : v0_) x = float(u(rng));
+    for (auto* p : {&px_, &py_, &pz_}) {
+        p->resize(kCalNodes);
+        for (auto& x : *p) x = float(u(rng));
     }
-    if (!std::isfinite(sink)) t.push_back(0.0);  // keeps the work observable
-    // The minimum: interference from other processes only ever adds time.
-    return *std::min_element(t.begin(), t.end());
+    for (auto* p : {&fx_, &fy_, &fz_}) p->assign(kCalNodes, 0.0f);
+    // A band of springs (each node to a near neighbour in mesh order) with the nodes stored shuffled, as a
+    // tissue mesh's springs reach nodes scattered in memory.
+    std::vector<unsigned> perm(kCalNodes);
+    std::iota(perm.begin(), perm.end(), 0u);
+    std::shuffle(perm.begin(), perm.end(), rng);
+    for (size_t k = 0; k < kCalSprings; ++k) {
+        const size_t i = k / 3, j = std::min(kCalNodes - 1, i + 1 + size_t(rng() % 60));
+        si_.push_back(perm[i]);
+        sj_.push_back(perm[j]);
+    }
+}
+
+std::array<double, size_t(CalKernel::kCount)> CalibrationWorkload::run_us() {
+    std::array<double, size_t(CalKernel::kCount)> t{};
+    // Inputs are restored outside the timed spans: every run does the same work.
+    a_ = a0_;
+    b_ = b0_;
+    v_ = v0_;
+    double t0 = host_now_us();
+    const Eigen::VectorXd x = a_.partialPivLu().solve(b_);
+    t[size_t(CalKernel::kDense)] = host_now_us() - t0;
+
+    t0 = host_now_us();
+    std::sort(v_.begin(), v_.end());
+    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d r(0.1, 0.2, 0.3);
+    for (int k = 0; k < kCalRotations; ++k) {
+        const double a = std::atan2(r.y(), r.x()) + std::sin(r.z());
+        m = m * Eigen::AngleAxisd(a * 1e-3, r.normalized()).toRotationMatrix();
+        r = m * r + Eigen::Vector3d(1e-3, 0, 0);
+    }
+    t[size_t(CalKernel::kGeometry)] = host_now_us() - t0;
+
+    std::fill(fx_.begin(), fx_.end(), 0.0f);
+    std::fill(fy_.begin(), fy_.end(), 0.0f);
+    std::fill(fz_.begin(), fz_.end(), 0.0f);
+    t0 = host_now_us();
+    for (size_t k = 0; k < kCalSprings; ++k) {
+        const unsigned i = si_[k], j = sj_[k];
+        const float dx = px_[j] - px_[i], dy = py_[j] - py_[i], dz = pz_[j] - pz_[i];
+        const float len = std::sqrt(dx * dx + dy * dy + dz * dz) + 1e-6f;
+        const float f = (len - 0.5f) / len;
+        fx_[i] += f * dx;
+        fy_[i] += f * dy;
+        fz_[i] += f * dz;
+        fx_[j] -= f * dx;
+        fy_[j] -= f * dy;
+        fz_[j] -= f * dz;
+    }
+    t[size_t(CalKernel::kSprings)] = host_now_us() - t0;
+    // Keeps the work observable.
+    sink_ += x[0] + double(v_[100]) + r.x() + double(fx_[7]);
+    if (!std::isfinite(sink_)) t[0] += 1.0;
+    return t;
 }
 
 namespace {
 
-/// One scene: per-frame stage times of the median repeat.
-nlohmann::json run_scene_once(const std::string& path, const LatencyBenchOptions& opt, std::vector<double>& compute_p50) {
+/// A scene with the marker images of all its fields, made before any timing.
+struct PreparedScene {
+    std::string name;
     sim::scenes::Scene scene;
+    rig::Bodies bodies;
+    std::vector<rig::CameraModel> cams;
+    std::vector<tr::SceneInstrument> instruments;
+    int64_t fields = 0;
+    std::vector<std::vector<proto::FieldMarkers>> msgs;  // [field * cams + camera]
+};
+
+PreparedScene prepare_scene(const std::string& path, double seconds) {
+    PreparedScene p;
     try {
-        scene = sim::scenes::load_scene(path);
+        p.scene = sim::scenes::load_scene(path);
     } catch (const sim::scenes::SceneError& e) {
         throw Error(e.what());
     }
-    rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
-    const std::vector<rig::CameraModel> cams = rig::default_rig();
-    const double dur_us = opt.seconds * 1e6;
+    p.name = p.scene.name;
+    p.bodies = rig::load_bodies(rig::default_bodies_path());
+    p.cams = rig::default_rig();
+    const double dur_us = seconds * 1e6;
     rig::Scenario scenario = [&] {
         try {
-            return rig::Scenario::make(scene.scenario, 1, dur_us, bodies);
+            return rig::Scenario::make(p.scene.scenario, 1, dur_us, p.bodies);
         } catch (const rig::RigError&) {
-            return rig::Scenario::make("surgery", 1, dur_us, bodies);  // scene for a scenario this rig lacks
+            return rig::Scenario::make("surgery", 1, dur_us, p.bodies);  // scene for a scenario this rig lacks
         }
     }();
-    std::vector<tr::SceneInstrument> instruments;
     for (auto k : scenario.kinds())
-        instruments.push_back({k, k == rig::InstrumentKind::kLightPipe ? 1 : 0});
+        p.instruments.push_back({k, k == rig::InstrumentKind::kLightPipe ? 1 : 0});
     rig::RenderOptions ropt;
-    rig::RigSynth synth(cams, bodies, scenario, ropt);
+    rig::RigSynth synth(p.cams, p.bodies, scenario, ropt);
 
-    // Marker images of every field (truth centroids + 0.03 px noise), made before timing starts.
-    const int64_t fields = int64_t(std::lround(opt.seconds * 50));
-    std::vector<std::vector<proto::FieldMarkers>> msgs(size_t(fields * int64_t(cams.size())));
+    // Marker images of every field (truth centroids + 0.03 px noise).
+    p.fields = int64_t(std::lround(seconds * 50));
+    const size_t nc = p.cams.size();
+    p.msgs.resize(size_t(p.fields) * nc);
     std::mt19937_64 rng(3);
     std::normal_distribution<double> noise(0.0, 0.03);
     rig::FieldTruth truth;
-    const std::vector<uint8_t*> none(cams.size(), nullptr);
-    for (int64_t i = 0; i < fields; ++i) {
+    const std::vector<uint8_t*> none(nc, nullptr);
+    for (int64_t i = 0; i < p.fields; ++i) {
         synth.render(i, none, truth);
-        for (size_t c = 0; c < cams.size(); ++c) {
-            const rig::FieldTiming ft = rig::field_timing(i, cams[c].field_time_offset_us, cams[c].exposure_us,
-                                                          cams[c].first_field_parity);
-            auto& list = msgs[size_t(i) * cams.size() + c];
+        for (size_t c = 0; c < nc; ++c) {
+            const rig::FieldTiming ft = rig::field_timing(i, p.cams[c].field_time_offset_us, p.cams[c].exposure_us,
+                                                          p.cams[c].first_field_parity);
+            auto& list = p.msgs[size_t(i) * nc + c];
             proto::FieldMarkers m;
             m.camera_id = uint8_t(c);
             m.field_parity = uint8_t(ft.parity);
@@ -107,88 +187,281 @@ nlohmann::json run_scene_once(const std::string& path, const LatencyBenchOptions
             list.push_back(m);
         }
     }
-
-    struct Run {
-        nlohmann::json stages;
-        double compute_p50 = 0;
-    };
-    std::vector<Run> runs;
-    for (int r = 0; r < opt.repeats; ++r) {
-        Simulator sim(scene);
-        sim.inject_collision_delay_us(opt.inject_collision_us);
-        HostRun run(tracker_config(cams, bodies, instruments), sim);
-        proto::DecodedFrame df;
-        for (int64_t i = 0; i < fields; ++i)
-            for (size_t c = 0; c < cams.size(); ++c)
-                for (const auto& m : msgs[size_t(i) * cams.size() + c]) {
-                    df.message = m;
-                    run.on_frame(df, double(m.field_end_us) + 100.0);
-                }
-        run.finish();
-        Run out;
-        const StageTimer& t = sim.timer();
-        for (Stage s : {Stage::kTracking, Stage::kCollision, Stage::kTissue, Stage::kTransfer, Stage::kMisc}) {
-            const StageSummary ss = t.summary(s);
-            out.stages[to_string(s)] = {{"p50_us", ss.p50_us}, {"p99_us", ss.p99_us}};
-        }
-        const StageSummary c = t.summary_of_sum({Stage::kTracking, Stage::kCollision, Stage::kTissue});
-        out.stages["host_compute"] = {{"p50_us", c.p50_us}, {"p99_us", c.p99_us}, {"max_us", c.max_us}};
-        out.stages["frames"] = t.frames();
-        out.compute_p50 = c.p50_us;
-        runs.push_back(std::move(out));
-    }
-    // The fastest repeat: interference from other processes only ever adds time.
-    std::sort(runs.begin(), runs.end(), [](const Run& a, const Run& b) { return a.compute_p50 < b.compute_p50; });
-    compute_p50.push_back(runs.front().compute_p50);
-    return runs.front().stages;
+    return p;
 }
+
+using Row = std::array<double, size_t(Stage::kCount)>;
+
+/// One pass over all fields of a scene through a fresh tracker and simulator; per-frame stage times.
+/// `inject_us[i]` (when not empty) is busy time added to frame i's collision stage.
+std::vector<Row> run_pass(const PreparedScene& p, const std::vector<double>& inject_us) {
+    Simulator sim(p.scene);
+    HostRun run(tracker_config(p.cams, p.bodies, p.instruments), sim);
+    // The next frame the simulator steps is row frames().
+    auto set_injection = [&] {
+        if (inject_us.empty()) return;
+        const size_t f = sim.timer().frames();
+        sim.inject_collision_delay_us(f < inject_us.size() ? inject_us[f] : inject_us.back());
+    };
+    proto::DecodedFrame df;
+    const size_t nc = p.cams.size();
+    for (int64_t i = 0; i < p.fields; ++i)
+        for (size_t c = 0; c < nc; ++c)
+            for (const auto& m : p.msgs[size_t(i) * nc + c]) {
+                set_injection();
+                df.message = m;
+                run.on_frame(df, double(m.field_end_us) + 100.0);
+            }
+    set_injection();
+    run.finish();
+    std::vector<Row> rows(sim.timer().frames());
+    for (size_t f = 0; f < rows.size(); ++f) rows[f] = sim.timer().row(f);
+    return rows;
+}
+
+constexpr std::array<Stage, 5> kStages{Stage::kTracking, Stage::kCollision, Stage::kTissue, Stage::kTransfer,
+                                       Stage::kMisc};
+constexpr size_t kCompute = kStages.size();  // the host compute column: tracking + collision + tissue
+
+/// Per-frame minima over passes, per stage and for host compute.
+struct FrameMinima {
+    std::vector<std::array<double, kCompute + 1>> min;  // [frame][stage index in kStages, then host compute]
+    int passes = 0;
+
+    void add(const std::vector<Row>& rows) {
+        if (passes == 0) min.assign(rows.size(), {});
+        // A pass is deterministic; should one end with fewer frames, only the frames all passes have count.
+        if (rows.size() < min.size()) min.resize(rows.size());
+        for (size_t f = 0; f < min.size(); ++f) {
+            std::array<double, kCompute + 1> v{};
+            for (size_t k = 0; k < kStages.size(); ++k) v[k] = rows[f][size_t(kStages[k])];
+            v[kCompute] = v[0] + v[1] + v[2];
+            for (size_t k = 0; k <= kCompute; ++k) min[f][k] = passes == 0 ? v[k] : std::min(min[f][k], v[k]);
+        }
+        ++passes;
+    }
+    std::vector<double> column(size_t k) const {
+        std::vector<double> c;
+        for (const auto& m : min) c.push_back(m[k]);
+        return c;
+    }
+};
+
+/// Blocks of pseudo-random sizes held while a pass runs, so that successive passes' tracker and simulator land at
+/// other addresses: a pass's speed depends on where its arrays fall relative to each other and in the caches, and
+/// without this every pass of a process reuses the same addresses (a process whose allocations land badly was
+/// 10–25 % slower in a tissue stage in every pass); the per-frame minimum over passes rejects a bad placement only
+/// if the passes do not all share it.
+class HeapShuffle {
+public:
+    void next() {
+        blocks_.clear();
+        const size_t n = 1 + rng_() % 96;
+        for (size_t i = 0; i < n; ++i) {
+            blocks_.emplace_back(16 + rng_() % 4096);
+            blocks_.back()[0] = char(i);
+        }
+        big_.assign(size_t(rng_() % 64) * 4096 + size_t(rng_() % 64) * 64, 1);
+    }
+
+private:
+    std::mt19937 rng_{12345};
+    std::vector<std::vector<char>> blocks_;
+    std::vector<char> big_;
+};
+
+struct SceneState {
+    PreparedScene p;
+    std::vector<double> inject;
+    FrameMinima minima;
+};
 
 }  // namespace
 
 nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
-    std::vector<std::string> scenes = opt.scenes;
-    if (scenes.empty())
+    if (opt.repeats < 1) throw Error("latency bench: repeats must be at least 1");
+    std::vector<std::string> paths = opt.scenes;
+    if (paths.empty())
         for (const char* s : {"abstract-shadow", "membrane-peel", "vitrectomy", "retina-relocation"})
-            scenes.push_back(std::string(EYESIM_SCENES_DIR) + "/" + s + ".json");
-    nlohmann::json j;
-    // Calibration before and after every scene; the least disturbed measurement stands for the machine.
-    std::vector<double> cal{calibration_us()};
-    nlohmann::json per_scene;
-    for (const auto& path : scenes) {
-        std::vector<double> c;
-        nlohmann::json s = run_scene_once(path, opt, c);
-        const std::string name = sim::scenes::load_scene(path).name;
-        per_scene[name] = s;
-        cal.push_back(calibration_us());
+            paths.push_back(std::string(EYESIM_SCENES_DIR) + "/" + s + ".json");
+    const double t_start = host_now_us();
+    std::vector<SceneState> scenes;
+    for (const auto& path : paths) {
+        SceneState s;
+        s.p = prepare_scene(path, opt.seconds);
+        if (opt.inject_collision_us > 0) s.inject.assign(size_t(s.p.fields) + 1, opt.inject_collision_us);
+        scenes.push_back(std::move(s));
     }
-    const double cal_min = *std::min_element(cal.begin(), cal.end());
-    for (auto& [name, s] : per_scene.items()) s["ratio"] = s["host_compute"]["p50_us"].get<double>() / cal_min;
-    j["calibration_us"] = cal_min;
-    j["calibration_spread"] = *std::max_element(cal.begin(), cal.end()) / cal_min;
+    constexpr size_t kKernels = size_t(CalKernel::kCount);
+    CalibrationWorkload cal;
+    std::array<std::vector<double>, kKernels> cal_us;
+    // Round robin: pass r of every scene, calibration runs after each.
+    HeapShuffle shuffle;
+    auto rounds = [&] {
+        for (auto& s : scenes) s.minima = FrameMinima{};
+        for (auto& c : cal_us) c.clear();
+        for (auto& s : scenes) (void)run_pass(s.p, s.inject);  // warm-up: caches, allocator, lazy tables
+        for (int r = 0; r < opt.repeats; ++r)
+            for (auto& s : scenes) {
+                shuffle.next();
+                s.minima.add(run_pass(s.p, s.inject));
+                for (int k = 0; k < opt.calibration_pieces; ++k) {
+                    const auto t = cal.run_us();
+                    for (size_t q = 0; q < kKernels; ++q) cal_us[q].push_back(t[q]);
+                }
+            }
+    };
+    rounds();
+    if (opt.inject_slowdown > 0) {
+        for (auto& s : scenes) {
+            const std::vector<double> clean = s.minima.column(kCompute);
+            s.inject.assign(clean.size() + 1, opt.inject_collision_us);
+            for (size_t f = 0; f < clean.size(); ++f) s.inject[f] += opt.inject_slowdown * clean[f];
+            s.inject.back() += opt.inject_slowdown * clean.back();
+        }
+        rounds();
+    }
+    std::array<double, kKernels> cal_min{};
+    nlohmann::json calj = nlohmann::json::object();
+    for (size_t q = 0; q < kKernels; ++q) {
+        if (cal_us[q].empty())  // no pieces between passes: a separate calibration
+            for (int k = 0; k < 16; ++k) cal_us[q].push_back(cal.run_us()[q]);
+        cal_min[q] = *std::min_element(cal_us[q].begin(), cal_us[q].end());
+        calj[to_string(CalKernel(q))] = {{"us", cal_min[q]}, {"p50_us", percentile(cal_us[q], 50)}};
+    }
+    const double cal_total = std::accumulate(cal_min.begin(), cal_min.end(), 0.0);
+    auto kernel_of = [](Stage st) {
+        switch (st) {
+            case Stage::kTracking:
+            case Stage::kMisc: return CalKernel::kGeometry;
+            case Stage::kTissue: return CalKernel::kSprings;
+            default: return CalKernel::kDense;
+        }
+    };
+
+    nlohmann::json per_scene = nlohmann::json::object();
+    for (const auto& s : scenes) {
+        nlohmann::json o;
+        auto summary = [&](size_t k) {
+            const std::vector<double> c = s.minima.column(k);
+            const double mean = c.empty() ? 0.0 : std::accumulate(c.begin(), c.end(), 0.0) / double(c.size());
+            return nlohmann::json{{"us", mean}, {"p50_us", percentile(c, 50)}, {"p99_us", percentile(c, 99)}};
+        };
+        double compute_us = 0;
+        for (size_t k = 0; k < kStages.size(); ++k) {
+            nlohmann::json st = summary(k);
+            const CalKernel q = kernel_of(kStages[k]);
+            st["calibration"] = to_string(q);
+            st["ratio"] = st["us"].get<double>() / cal_min[size_t(q)];
+            if (k < 3) compute_us += st["us"].get<double>();  // tracking, collision, tissue
+            o[to_string(kStages[k])] = st;
+        }
+        o["host_compute"] = summary(kCompute);
+        o["host_compute"]["us"] = compute_us;
+        o["host_compute"]["ratio"] = compute_us / cal_total;
+        if (!s.inject.empty()) {
+            const size_t n = std::min(s.inject.size(), s.minima.min.size());
+            o["injected_us"] = n ? std::accumulate(s.inject.begin(), s.inject.begin() + std::ptrdiff_t(n), 0.0) / double(n) : 0.0;
+        }
+        o["frames"] = s.minima.min.size();
+        o["passes"] = s.minima.passes;
+        o["ratio"] = compute_us / cal_total;
+        per_scene[s.p.name] = o;
+    }
+    nlohmann::json j;
+    j["calibration"] = calj;
     j["scenes"] = per_scene;
     j["seconds"] = opt.seconds;
     j["repeats"] = opt.repeats;
+    j["inject_slowdown"] = opt.inject_slowdown;
+    j["inject_collision_us"] = opt.inject_collision_us;
+    j["wall_s"] = (host_now_us() - t_start) * 1e-6;
     return j;
+}
+
+double LatencyComparison::change() const {
+    if (baseline_ratio > 0) return current_ratio / baseline_ratio - 1.0;
+    return current_ratio > 0 ? std::numeric_limits<double>::infinity() : 0.0;
+}
+
+std::vector<LatencyComparison> compare_latency(const nlohmann::json& current, const nlohmann::json& baseline,
+                                               double tolerance) {
+    const char* const stages[] = {"tracking", "collision", "tissue"};
+    auto number = [](const nlohmann::json& j, const std::string& where, const char* key) -> double {
+        if (!j.is_object() || !j.contains(key) || !j[key].is_number())
+            throw Error(where + "." + key + ": missing or not a number");
+        return j[key].get<double>();
+    };
+    auto kernel_us = [&](const nlohmann::json& run, const nlohmann::json& stage, const std::string& where,
+                         const std::string& what) -> double {
+        if (!stage.contains("calibration") || !stage["calibration"].is_string())
+            throw Error(what + ": " + where + ".calibration: missing");
+        const std::string k = stage["calibration"].get<std::string>();
+        if (!run.contains("calibration") || !run["calibration"].is_object() || !run["calibration"].contains(k))
+            throw Error(what + ": calibration." + k + ": missing");
+        const double us = number(run["calibration"][k], what + ": calibration." + k, "us");
+        if (!(us > 0)) throw Error(what + ": calibration." + k + ".us: must be positive");
+        return us;
+    };
+    if (!baseline.is_object() || !baseline.contains("scenes") || !baseline["scenes"].is_object())
+        throw Error("baseline: scenes: missing or not an object");
+    const std::string old_hint = " (a baseline from an older harness? write a new one with --write-baseline)";
+    std::vector<LatencyComparison> out;
+    for (const auto& [name, b] : baseline["scenes"].items()) {
+        if (!current.contains("scenes") || !current["scenes"].contains(name)) continue;
+        const auto& c = current["scenes"][name];
+        std::vector<LatencyComparison> rows;
+        LatencyComparison hc;
+        hc.scene = name;
+        hc.stage = "host_compute";
+        hc.gated = true;
+        for (const char* st : stages) {
+            const std::string where = "scenes." + name + "." + st;
+            if (!b.contains(st)) throw Error("baseline: " + where + ": missing" + old_hint);
+            if (!c.contains(st)) throw Error("current run: " + where + ": missing");
+            LatencyComparison r;
+            r.scene = name;
+            r.stage = st;
+            const double kb = kernel_us(baseline, b[st], where, "baseline");
+            (void)kernel_us(current, c[st], where, "current run");
+            r.baseline_ratio = number(b[st], "baseline: " + where, "ratio");
+            r.current_ratio = number(c[st], "current run: " + where, "ratio");
+            r.baseline_us = r.baseline_ratio * kb;
+            r.current_us = r.current_ratio * kb;
+            hc.baseline_us += r.baseline_us;
+            hc.current_us += r.current_us;
+            rows.push_back(r);
+        }
+        if (!(hc.baseline_us > 0)) throw Error("baseline: scenes." + name + ": no host compute time");
+        // As in the run's own host_compute ratio: host compute ÷ the whole calibration piece.
+        double scale = 0;
+        for (const auto& [k, v] : baseline["calibration"].items()) scale += number(v, "baseline: calibration." + k, "us");
+        hc.baseline_ratio = hc.baseline_us / scale;
+        hc.current_ratio = hc.current_us / scale;
+        hc.regression = hc.change() > tolerance;
+        for (auto& r : rows) {
+            r.gated = r.baseline_us >= kStageGateShare * hc.baseline_us;
+            r.regression = r.gated && r.change() > tolerance;
+        }
+        out.push_back(hc);
+        for (auto& r : rows) out.push_back(r);
+    }
+    return out;
 }
 
 std::vector<std::string> latency_regressions(const nlohmann::json& current, const nlohmann::json& baseline,
                                              double tolerance) {
     std::vector<std::string> out;
-    if (!baseline.contains("scenes") || !baseline["scenes"].is_object())
-        throw Error("baseline: scenes: missing or not an object");
-    for (const auto& [name, b] : baseline["scenes"].items()) {
-        if (!current["scenes"].contains(name)) {
+    const std::vector<LatencyComparison> rows = compare_latency(current, baseline, tolerance);
+    for (const auto& [name, b] : baseline["scenes"].items())
+        if (!current.contains("scenes") || !current["scenes"].contains(name))
             out.push_back(fmt::format("{}: in the baseline but not measured", name));
-            continue;
-        }
-        if (!b.contains("ratio") || !b["ratio"].is_number()) throw Error("baseline: scenes." + name + ".ratio: missing");
-        const double was = b["ratio"].get<double>();
-        const double now = current["scenes"][name]["ratio"].get<double>();
-        if (!(was > 0)) throw Error("baseline: scenes." + name + ".ratio: must be positive");
-        if (now > was * (1.0 + tolerance))
-            out.push_back(fmt::format("{}: host compute {:.2f}× calibration, baseline {:.2f}× (+{:.0f} %, tolerance {:.0f} %)",
-                                      name, now, was, (now / was - 1.0) * 100.0, tolerance * 100.0));
-    }
+    for (const auto& r : rows)
+        if (r.regression)
+            out.push_back(fmt::format("{} {}: ratio {:.4f}, baseline {:.4f} ({:+.1f} %, tolerance {:.0f} %); "
+                                      "{:.1f} µs at the baseline's speed, baseline {:.1f} µs",
+                                      r.scene, r.stage, r.current_ratio, r.baseline_ratio, r.change() * 100.0,
+                                      tolerance * 100.0, r.current_us, r.baseline_us));
     return out;
 }
 
