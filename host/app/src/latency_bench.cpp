@@ -271,6 +271,7 @@ private:
 };
 
 struct SceneState {
+    std::string file;
     PreparedScene p;
     std::vector<double> inject;
     FrameMinima minima;
@@ -288,6 +289,7 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
     std::vector<SceneState> scenes;
     for (const auto& path : paths) {
         SceneState s;
+        s.file = path;
         s.p = prepare_scene(path, opt.seconds);
         if (opt.inject_collision_us > 0) s.inject.assign(size_t(s.p.fields) + 1, opt.inject_collision_us);
         scenes.push_back(std::move(s));
@@ -363,6 +365,7 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
             const size_t n = std::min(s.inject.size(), s.minima.min.size());
             o["injected_us"] = n ? std::accumulate(s.inject.begin(), s.inject.begin() + std::ptrdiff_t(n), 0.0) / double(n) : 0.0;
         }
+        o["file"] = s.file;
         o["frames"] = s.minima.min.size();
         o["passes"] = s.minima.passes;
         o["ratio"] = compute_us / cal_total;
@@ -463,6 +466,38 @@ std::vector<std::string> latency_regressions(const nlohmann::json& current, cons
                                       r.scene, r.stage, r.current_ratio, r.baseline_ratio, r.change() * 100.0,
                                       tolerance * 100.0, r.current_us, r.baseline_us));
     return out;
+}
+
+LatencyGateResult run_latency_gate(const LatencyBenchOptions& opt, const nlohmann::json& baseline, double tolerance,
+                                   int attempts, const LatencyMeasure& measure) {
+    LatencyGateResult g;
+    g.current = measure(opt);
+    g.rows = compare_latency(g.current, baseline, tolerance);
+    g.regressions = latency_regressions(g.current, baseline, tolerance);
+    while (g.attempts < attempts) {
+        LatencyBenchOptions again = opt;
+        again.scenes.clear();
+        for (const auto& r : g.rows)
+            if (r.regression) {
+                const std::string file = g.current["scenes"][r.scene].value("file", std::string());
+                if (!file.empty() && std::find(again.scenes.begin(), again.scenes.end(), file) == again.scenes.end())
+                    again.scenes.push_back(file);
+            }
+        if (again.scenes.empty()) break;  // passed, or only scenes missing from the run
+        const nlohmann::json j = measure(again);
+        ++g.attempts;
+        for (auto& [name, s] : g.current["scenes"].items()) {
+            if (!j.contains("scenes") || !j["scenes"].contains(name)) continue;
+            const auto& t = j["scenes"][name];
+            // Each attempt's ratios are to its own kernels; a stage's lower ratio is kept with its times.
+            for (const char* st : {"tracking", "collision", "tissue", "geometry_transfer", "misc"})
+                if (t.contains(st) && t[st]["ratio"].get<double>() < s[st]["ratio"].get<double>()) s[st] = t[st];
+            s["attempts"] = g.attempts;
+        }
+        g.rows = compare_latency(g.current, baseline, tolerance);
+        g.regressions = latency_regressions(g.current, baseline, tolerance);
+    }
+    return g;
 }
 
 }  // namespace eyesim::app

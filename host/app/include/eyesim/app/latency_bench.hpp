@@ -16,13 +16,16 @@
 ///   other addresses each time (without it a process whose allocations land badly is 10–25 % slower in a stage
 ///   in every pass, which no minimum over passes can reject; 4 of 30 unchanged runs showed it);
 /// - each stage is a ratio to the calibration kernel whose speed follows that stage's most closely (CalKernel),
-///   taken as the fastest of all its runs.
+///   taken as the fastest of all its runs;
+/// - the gate (run_latency_gate) measures a scene with a regression again, in a fresh process from the command
+///   line, and fails only when every measurement shows it.
 
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
 #include <array>
 #include <cstddef>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -46,7 +49,7 @@ struct LatencyBenchOptions {
 /// p50/p99 of those minima, the kernel it is compared with and its `ratio` (us ÷ that kernel's us); per scene
 /// `host_compute` (tracking + collision + tissue): `us` the sum of the three, p50/p99 of the per-frame minima of
 /// the sum, and `ratio` = us ÷ the sum of the three kernels' us; the scene's `ratio` is host_compute's; with fault
-/// injection, `injected_us` (the mean busy time per frame).
+/// injection, `injected_us` (the mean busy time per frame); `file`, the scene file.
 nlohmann::json run_latency_bench(const LatencyBenchOptions& opt);
 
 /// One row of the gate: a stage of a scene (or its host compute), now and in the baseline.
@@ -77,6 +80,25 @@ std::vector<LatencyComparison> compare_latency(const nlohmann::json& current, co
 /// The gate: one line per regression and per baseline scene not measured; empty when it passes.
 std::vector<std::string> latency_regressions(const nlohmann::json& current, const nlohmann::json& baseline,
                                              double tolerance);
+
+/// The gate's verdict after confirmation.
+struct LatencyGateResult {
+    nlohmann::json current;                  ///< the measurement (per stage, the attempt with the lower ratio)
+    std::vector<LatencyComparison> rows;     ///< compare_latency(current, baseline)
+    std::vector<std::string> regressions;    ///< latency_regressions(current, baseline); empty: passed
+    int attempts = 1;                        ///< measurements made
+};
+
+/// Measures one set of scenes (the options' scenes, their other settings unchanged).
+using LatencyMeasure = std::function<nlohmann::json(const LatencyBenchOptions&)>;
+
+/// The gate: measures with `measure`; while a gated row has regressed and fewer than `attempts` measurements were
+/// made, measures the scenes with a regression again and keeps, for each of their stages, the lower of the
+/// ratios. A slow stretch of the machine or an unlucky placement in memory only ever adds time and rarely lasts
+/// into the next measurement, while a real slowdown is there in every one. `measure` defaults to
+/// run_latency_bench in this process; `eyesim bench latency` measures the repeats in a fresh process.
+LatencyGateResult run_latency_gate(const LatencyBenchOptions& opt, const nlohmann::json& baseline, double tolerance,
+                                   int attempts, const LatencyMeasure& measure = run_latency_bench);
 
 /// The calibration workload: three fixed kernels, independent of eyesim's code. A slow stretch of the machine slows
 /// memory-bound code more than compute-bound code, so one kernel cannot stand for every stage; each stage is
