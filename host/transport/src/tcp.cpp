@@ -39,6 +39,11 @@ public:
             return {0, IoStatus::closed};
         }
         if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR) return {0, IoStatus::timeout};
+        if (errno == ECONNRESET) {  // the peer aborted (a killed device): the bytes before it were delivered
+            error_ = "connection reset by peer";
+            close();
+            return {0, IoStatus::closed};
+        }
         return fail(std::strerror(errno));
     }
 
@@ -74,7 +79,7 @@ public:
 
 private:
     IoResult fail(const char* why) {
-        error_ = address_ + ": " + why;
+        error_ = why;  // callers prefix the address (describe())
         return {0, IoStatus::error};
     }
 

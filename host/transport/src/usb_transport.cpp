@@ -75,7 +75,8 @@ void UsbTransport::lost(UsbStatus why) {
     ++stats_.disconnects;
     backoff_ms_ = options_.reconnect_initial_ms;
     next_attempt_ms_ = now_ms();  // try at once: an unplug glitch may already be over
-    error_ = describe() + ": device lost (" + to_string(why) + "); reconnecting";
+    lost_why_ = std::string("device lost (") + to_string(why) + "); reconnecting";  // callers prefix describe()
+    error_ = lost_why_;
 }
 
 bool UsbTransport::ensure_connected(int timeout_ms) {
@@ -92,10 +93,13 @@ bool UsbTransport::ensure_connected(int timeout_ms) {
                 ++stats_.reconnects;
                 backoff_ms_ = options_.reconnect_initial_ms;
                 error_.clear();
+                lost_why_.clear();
                 return true;
             }
             device_.reset();
-            error_ = why + " (reconnecting, next try in " + std::to_string(backoff_ms_) + " ms)";
+            // While away after a loss the error keeps saying so, whichever call (read or write) saw it first.
+            error_ = lost_why_.empty() ? why + " (reconnecting, next try in " + std::to_string(backoff_ms_) + " ms)"
+                                       : lost_why_ + " (" + why + "; next try in " + std::to_string(backoff_ms_) + " ms)";
             next_attempt_ms_ = now + backoff_ms_;
             backoff_ms_ = std::min(backoff_ms_ * 2, options_.reconnect_max_ms);
         }

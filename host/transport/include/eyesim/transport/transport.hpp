@@ -54,8 +54,12 @@ public:
     virtual void close() = 0;
     /// Human-readable address, e.g. `tcp://127.0.0.1:5100` or `usb://1209:0001`.
     virtual std::string describe() const = 0;
-    /// Last error, one line (empty when none).
+    /// Last error, one line without the address (empty when none). After `closed` it says how the link ended
+    /// when that was not an orderly close ("connection reset by peer").
     virtual std::string last_error() const = 0;
+    /// True for a link that comes back by itself after an `error` (USB: reconnect after an unplug): the caller
+    /// keeps reading, and the device's stream starts again (commands sent before are lost with it).
+    virtual bool reconnects() const { return false; }
 };
 
 /// Opens a transport from a URI: `tcp://HOST:PORT`, `usb` (default ids) or `usb://VID:PID` (hex).

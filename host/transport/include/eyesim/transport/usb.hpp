@@ -141,6 +141,8 @@ public:
     std::string describe() const override;
     /// Why the last call failed (device lost, not found, permission), one line.
     std::string last_error() const override { return error_; }
+    /// Reconnects after an unplug (see the class comment).
+    bool reconnects() const override { return true; }
     /// Counters so far.
     const UsbStats& stats() const { return stats_; }
 
@@ -158,6 +160,7 @@ private:
     long long next_attempt_ms_ = 0;  // steady-clock ms of the next reconnect attempt
     bool closed_ = false;
     std::string error_;
+    std::string lost_why_;  // set by a loss, until the device is back
     UsbStats stats_;
 };
 
