@@ -1,6 +1,7 @@
 // `eyesim track`: FieldMarkers from a device (TCP or USB) or a capture file → tracking frames → poses.jsonl.
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/frame_loop.hpp"
+#include "eyesim/app/report.hpp"
 
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
@@ -49,9 +50,6 @@ struct TrackOptions {
     long max_frames = 0;
 };
 
-double host_now_us() {
-    return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
 
 /// The instruments to fit: named kinds ("pick,light_pipe"), or every kind of the bodies file.
 std::vector<tr::SceneInstrument> scene_from(const std::string& list, const rig::Bodies& bodies) {
@@ -73,111 +71,6 @@ std::vector<tr::SceneInstrument> scene_from(const std::string& list, const rig::
         }
     }
     return out;
-}
-
-/// Tracker + parser + output shared by the live and the capture paths.
-class Session {
-public:
-    Session(const TrackOptions& opt, tr::TrackerConfig cfg) : tracker_(std::move(cfg)), bodies_(tracker_.config().bodies) {
-        if (!opt.out.empty()) {
-            out_.open(opt.out);
-            if (!out_) throw Error(opt.out + ": cannot write");
-        }
-    }
-
-    /// Parses received bytes; `host_us` is their receive time.
-    void bytes(std::span<const std::uint8_t> data, double host_us) {
-        parser_.parse(data, [&](const proto::DecodedFrame& f) { message(f.message, host_us); });
-    }
-
-    void finish(double host_us) {
-        parser_.finish([&](const proto::DecodedFrame& f) { message(f.message, host_us); });
-        tracker_.finish();
-        drain(host_us);
-    }
-
-    eyesim::transport::ClockOffsetEstimator& clock() { return clock_; }
-    long frames() const { return frames_; }
-    long fields() const { return fields_; }
-    bool done(long max_frames) const { return max_frames > 0 && frames_ >= max_frames; }
-
-    nlohmann::json summary() {
-        nlohmann::json j;
-        j["frames"] = frames_;
-        j["fields"] = fields_;
-        j["latency_us"] = {{"p50", 0.0}, {"p99", 0.0}, {"max", 0.0}};
-        if (!latency_.empty()) {
-            const tr::ErrorSummary s = tr::summarise(latency_);
-            j["latency_us"] = {{"p50", s.p50}, {"p99", s.p99}, {"max", s.max}};
-        }
-        if (!compute_.empty()) {
-            const tr::ErrorSummary s = tr::summarise(compute_);
-            j["tracking_compute_us"] = {{"p50", s.p50}, {"p99", s.p99}, {"max", s.max}};
-        }
-        j["eye_measured_frames"] = eye_measured_;
-        nlohmann::json inst = nlohmann::json::object();
-        for (int b = 0; b < bodies_.instrument_count; ++b)
-            inst[bodies_.instruments[std::size_t(b)].name] = instrument_measured_[std::size_t(b)];
-        j["instrument_measured_frames"] = inst;
-        j["clock_offset_us"] = clock_.valid() ? clock_.offset_us() : 0.0;
-        j["clock_samples"] = clock_.samples();
-        j["errors"] = parser_.stats().errors();
-        j["parser"] = {{"frames", parser_.stats().frames}, {"crc_errors", parser_.stats().crc_errors},
-                       {"truncated", parser_.stats().truncated}, {"skipped_bytes", parser_.stats().skipped_bytes}};
-        return j;
-    }
-
-private:
-    void message(const proto::Message& m, double host_us) {
-        if (const auto* fm = std::get_if<proto::FieldMarkers>(&m)) {
-            if (!(fm->flags & proto::kFieldFlagMoreFollows)) ++fields_;
-            tracker_.push(*fm, host_us);
-            drain(host_us);
-        } else if (const auto* ps = std::get_if<proto::PedalState>(&m)) {
-            tracker_.push(*ps, host_us);
-        } else if (const auto* rp = std::get_if<proto::Reply>(&m)) {
-            if (rp->opcode == std::uint8_t(proto::Opcode::Ping) && rp->host_us != 0) {
-                eyesim::transport::PingSample s;
-                s.host_send_us = std::int64_t(rp->host_us);
-                s.device_rx_us = s.device_tx_us = std::int64_t(rp->device_us);
-                s.host_recv_us = std::int64_t(host_us);
-                if (clock_.add(s)) tracker_.set_clock_offset_us(clock_.offset_us());
-            }
-        }
-    }
-
-    void drain(double host_us) {
-        while (tracker_.pop(frame_, host_us)) {
-            ++frames_;
-            latency_.push_back(frame_.timing.poses_ready_host_us - frame_.timing.field_end_host_us);
-            compute_.push_back(frame_.timing.compute_us);
-            if (frame_.eye.measured()) ++eye_measured_;
-            for (int b = 0; b < frame_.instrument_count; ++b)
-                if (frame_.instruments[std::size_t(b)].measured()) ++instrument_measured_[std::size_t(b)];
-            if (out_.is_open()) out_ << tr::frame_json_line(frame_, bodies_) << '\n';
-        }
-    }
-
-    tr::Tracker tracker_;
-    tr::BodySet bodies_;
-    proto::StreamParser parser_;
-    eyesim::transport::ClockOffsetEstimator clock_;
-    tr::TrackingFrame frame_;
-    std::ofstream out_;
-    long frames_ = 0, fields_ = 0, eye_measured_ = 0;
-    std::array<long, tr::kMaxInstruments> instrument_measured_{};
-    std::vector<double> latency_, compute_;
-};
-
-std::size_t send_command(eyesim::transport::Transport& t, proto::Opcode op, std::uint32_t id, std::uint64_t host_us) {
-    proto::Command c;
-    c.command_id = id;
-    c.opcode = std::uint8_t(op);
-    c.host_us = host_us;
-    std::array<std::uint8_t, proto::kMaxFrameBytes> buf{};
-    const std::size_t n = proto::encode_frame(c, std::uint16_t(id), buf);
-    if (n == 0) return 0;
-    return t.write(std::span<const std::uint8_t>(buf.data(), n), 200).bytes;
 }
 
 int run_track(const TrackOptions& opt) {
@@ -211,109 +104,98 @@ int run_track(const TrackOptions& opt) {
     cfg.sync.mode = opt.sync == "extrapolate" ? tr::SyncMode::Extrapolate
                     : opt.sync == "nearest"   ? tr::SyncMode::Nearest
                                               : tr::SyncMode::Interpolate;
-    std::unique_ptr<Session> session;
+    const tr::BodySet body_set = cfg.bodies;
+    std::unique_ptr<eyesim::frame::HostRun> run;
     try {
-        session = std::make_unique<Session>(opt, cfg);
-    } catch (const std::invalid_argument& e) {
+        run = std::make_unique<eyesim::frame::HostRun>(std::move(cfg));
+    } catch (const eyesim::frame::SourceError& e) {
         throw Error(opt.rig + ": " + e.what());
     }
-    const bool progress = eyesim::app::show_progress(opt.json);
-    const double t0 = host_now_us();
-    std::string source;
-    bool torn = false;
-    std::string stall;  // why a live run ended early
-
-    if (!opt.capture.empty()) {
-        source = opt.capture;
-        proto::CaptureReader reader;
-        if (!reader.open(opt.capture.c_str())) throw Error(opt.capture + ": " + reader.open_error_message());
-        proto::CaptureRecord rec;
-        double last_us = 0;
-        for (;;) {
-            const proto::CaptureStatus st = reader.next(rec);
-            if (st == proto::CaptureStatus::Torn) {  // a crash mid-write: earlier records are good
-                torn = true;
-                std::fprintf(stderr, "eyesim: warning: %s: torn tail at byte %llu (%llu bytes) skipped\n",
-                             opt.capture.c_str(), static_cast<unsigned long long>(reader.bad_offset()),
-                             static_cast<unsigned long long>(reader.dropped_bytes()));
-                break;
-            }
-            if (st == proto::CaptureStatus::End) break;
-            if (st == proto::CaptureStatus::Corrupt) {  // skipped; the records after it are good
-                std::fprintf(stderr, "eyesim: warning: %s: damaged stretch at byte %llu (%llu bytes) skipped\n",
-                             opt.capture.c_str(), static_cast<unsigned long long>(reader.bad_offset()),
-                             static_cast<unsigned long long>(reader.last_skipped_bytes()));
-                continue;
-            }
-            if (st == proto::CaptureStatus::IoError) throw Error(opt.capture + ": read error");
-            last_us = rec.has_time ? double(rec.host_rx_us) : last_us;
-            session->bytes(rec.bytes, last_us);
-            if (session->done(opt.max_frames)) break;
-        }
-        session->finish(last_us);
-    } else {
-        std::unique_ptr<eyesim::transport::Transport> link;
-        try {
-            link = eyesim::transport::open_transport(opt.usb ? std::string("usb") : opt.connect);
-        } catch (const eyesim::transport::UriError& e) {
-            throw Error(std::string("--connect: ") + e.what(), 2);
-        } catch (const eyesim::transport::TransportError& e) {
-            throw Error(e.what());
-        }
-        source = link->describe();
-        std::uint32_t id = 1;
-        if (send_command(*link, proto::Opcode::StreamStart, id++, 0) == 0)
-            throw Error(source + ": cannot send StreamStart: " + link->last_error());
-        std::array<std::uint8_t, 8192> buf{};
-        double next_ping = 0;
-        double last_rx = host_now_us();
-        for (;;) {
-            const double now = host_now_us();
-            if (opt.seconds > 0 && now - t0 > opt.seconds * 1e6) break;
-            if (now - last_rx > opt.stall_s * 1e6) {  // a live device answers the pings even between fields
-                stall = fmt::format("no bytes for {:.1f} s: device stalled", opt.stall_s);
-                std::fprintf(stderr, "eyesim: warning: %s: %s, run ended\n", source.c_str(), stall.c_str());
-                break;
-            }
-            if (session->done(opt.max_frames)) break;
-            if (now >= next_ping) {  // ping/pong for the clock offset, 5 per second
-                send_command(*link, proto::Opcode::Ping, id++, std::uint64_t(now));
-                next_ping = now + 200000.0;
-            }
-            const auto r = link->read(buf, 50);
-            if (r.bytes) {
-                last_rx = host_now_us();
-                session->bytes(std::span<const std::uint8_t>(buf.data(), r.bytes), last_rx);
-            }
-            if (r.status == eyesim::transport::IoStatus::closed) break;
-            if (r.status == eyesim::transport::IoStatus::error)
-                throw Error(source + ": " + link->last_error());
-            if (progress && session->frames() % 50 == 0 && r.bytes)
-                std::fprintf(stderr, "\rtrack: %ld frames", session->frames());
-        }
-        send_command(*link, proto::Opcode::StreamStop, id++, 0);
-        session->finish(host_now_us());
-        link->close();
+    std::ofstream out;
+    if (!opt.out.empty()) {
+        out.open(opt.out);
+        if (!out) throw Error(opt.out + ": cannot write");
     }
-    if (progress) std::fprintf(stderr, "\n");
-    const double wall_s = (host_now_us() - t0) * 1e-6;
-    nlohmann::json j = session->summary();
-    if (j["parser"]["frames"].get<std::uint64_t>() == 0)  // garbage or silence is not a result
-        throw Error(fmt::format("{}: no protocol frames received ({} bytes skipped{})", source,
-                                j["parser"]["skipped_bytes"].get<std::uint64_t>(), stall.empty() ? "" : "; " + stall));
-    if (!stall.empty()) j["stalled"] = stall;
+    long eye_measured = 0;
+    std::array<long, tr::kMaxInstruments> instrument_measured{};
+    run->set_hook([&](const tr::TrackingFrame& f, const eyesim::frame::FramePoses&) {
+        if (f.eye.measured()) ++eye_measured;
+        for (int b = 0; b < f.instrument_count; ++b)
+            if (f.instruments[std::size_t(b)].measured()) ++instrument_measured[std::size_t(b)];
+        if (out.is_open()) out << tr::frame_json_line(f, body_set) << '\n';
+    });
+    std::string source, end;
+    bool clean = true;
+    std::vector<std::string> warnings;
+    double wall_s = 0.0;
+    try {
+        if (!opt.capture.empty()) {
+            source = opt.capture;
+            const double t0 = eyesim::frame::host_now_us();
+            eyesim::frame::run_capture(opt.capture, *run, warnings, opt.max_frames);
+            wall_s = (eyesim::frame::host_now_us() - t0) * 1e-6;
+            end = "end of capture";
+        } else {
+            eyesim::frame::LiveOptions lo;
+            lo.max_seconds = opt.seconds;
+            lo.stall_seconds = opt.stall_s;
+            lo.max_frames = opt.max_frames;
+            lo.progress = eyesim::app::show_progress(opt.json);
+            const eyesim::frame::LiveResult live =
+                eyesim::frame::run_live(opt.usb ? std::string("usb") : opt.connect, *run, lo);
+            source = live.source;
+            end = live.end;
+            clean = live.clean;
+            wall_s = live.wall_s;
+            warnings.insert(warnings.end(), live.warnings.begin(), live.warnings.end());
+        }
+    } catch (const eyesim::transport::UriError& e) {
+        throw Error(std::string("--connect: ") + e.what(), 2);
+    } catch (const eyesim::frame::SourceError& e) {
+        throw Error(e.what());
+    }
+    const eyesim::frame::RunStats& st = run->stats();
+    if (st.parser.frames == 0)  // garbage or silence is not a result
+        throw Error(fmt::format("{}: no protocol frames received ({} bytes skipped; {})", source, st.parser.skipped_bytes, end));
+    if (const std::string lost = eyesim::frame::loss_summary(st.loss); !lost.empty()) warnings.push_back(source + ": " + lost);
+    for (const std::string& w : warnings) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+
+    nlohmann::json j;
     j["source"] = source;
-    if (!opt.capture.empty()) j["capture_torn"] = torn;
-    j["fields_per_s"] = double(session->fields()) / std::max(wall_s, 1e-9);
+    j["end"] = end;
+    j["clean_end"] = clean;
+    j["frames"] = st.frames;
+    j["fields"] = st.fields;
+    j.update(eyesim::app::latency_json(st));
+    if (!st.compute_us.empty()) {
+        std::vector<double> compute = st.compute_us.v;  // summarise sorts
+        const tr::ErrorSummary s = tr::summarise(compute);
+        j["tracking_compute_us"] = {{"p50", s.p50}, {"p99", s.p99}, {"max", s.max}};
+    }
+    j["eye_measured_frames"] = eye_measured;
+    nlohmann::json inst = nlohmann::json::object();
+    for (int b = 0; b < body_set.instrument_count; ++b)
+        inst[body_set.instruments[std::size_t(b)].name] = instrument_measured[std::size_t(b)];
+    j["instrument_measured_frames"] = inst;
+    j["clock_offset_us"] = run->clock().valid() ? run->clock().offset_us() : 0.0;
+    j["clock_samples"] = run->clock().samples();
+    j["errors"] = st.parser.errors();
+    j["parser"] = {{"frames", st.parser.frames}, {"crc_errors", st.parser.crc_errors}, {"truncated", st.parser.truncated},
+                   {"skipped_bytes", st.parser.skipped_bytes}, {"resyncs", st.parser.resyncs},
+                   {"sequence_gaps", st.parser.sequence_gaps}};
+    j["loss"] = eyesim::app::loss_json(st.loss);
+    j["warnings"] = warnings;
+    j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
     if (!opt.out.empty()) j["out"] = opt.out;
     if (opt.json) {
         std::printf("%s\n", j.dump().c_str());
     } else {
-        std::printf("%s: %ld frames from %ld fields; latency field end -> poses p50 %.0f us, p99 %.0f us; eye measured "
-                    "in %ld frames; %s\n",
-                    source.c_str(), session->frames(), session->fields(), j["latency_us"]["p50"].get<double>(),
-                    j["latency_us"]["p99"].get<double>(), j["eye_measured_frames"].get<long>(),
-                    j["instrument_measured_frames"].dump().c_str());
+        const std::string lat = eyesim::app::latency_line(st);
+        const std::string lost = eyesim::frame::loss_summary(st.loss);
+        std::printf("%s: %llu frames from %llu fields; eye measured in %ld frames; %s\n%s\nLink: %s; ended: %s\n",
+                    source.c_str(), static_cast<unsigned long long>(st.frames), static_cast<unsigned long long>(st.fields),
+                    eye_measured, inst.dump().c_str(), lat.empty() ? "Latency: no frames" : lat.c_str(),
+                    lost.empty() ? "nothing lost" : lost.c_str(), end.c_str());
     }
     return 0;
 }

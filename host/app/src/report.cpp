@@ -33,10 +33,57 @@ StageSummary compute_summary(const StageTimer& t) {
     return t.summary_of_sum({Stage::kTracking, Stage::kCollision, Stage::kTissue});
 }
 
-nlohmann::json pct_json(const std::vector<double>& v) {
-    return {{"p50", percentile(v, 50)}, {"p99", percentile(v, 99)},
-            {"max", v.empty() ? 0.0 : *std::max_element(v.begin(), v.end())}};
+
+}  // namespace
+
+nlohmann::json loss_json(const LossCounts& c) {
+    return {{"sequence_gaps", c.sequence_gaps},
+            {"frames_lost", c.frames_lost},
+            {"frames_repeated", c.frames_repeated},
+            {"frames_late", c.frames_late},
+            {"fields_lost", c.fields_lost},
+            {"fields_out_of_order", c.fields_out_of_order},
+            {"time_jumps", c.time_jumps},
+            {"resyncs", c.resyncs},
+            {"skipped_bytes", c.skipped_bytes},
+            {"parse_errors", c.parse_errors},
+            {"queue_overflows", c.device_queue_overflows},
+            {"device_blobs_dropped", c.device_blobs_dropped},
+            {"link_drops", c.link_drops}};
 }
+
+nlohmann::json latency_json(const RunStats& s) {
+    auto pct = [](const frame::Samples& x) -> nlohmann::json {
+        if (x.empty()) return nullptr;
+        return {{"p50", percentile(x.v, 50)}, {"p99", percentile(x.v, 99)}, {"max", x.max}, {"frames", x.count}};
+    };
+    nlohmann::json j;
+    j["latency_us"] = pct(s.latency_us);
+    j["transfer_us"] = pct(s.transfer_us);
+    j["ready_after_receive_us"] = pct(s.ready_us);
+    j["latency_clocks"] = "latency_us: device field end (placed on the host clock through the ping offset) -> poses "
+                          "ready (host clock); transfer_us: field end -> last packet received; ready_after_receive_us: "
+                          "last packet received -> poses ready (host clock)";
+    if (!s.latency_note.empty()) j["latency_note"] = s.latency_note;
+    if (s.device_clock_rate != 0.0) j["device_clock_rate"] = s.device_clock_rate;
+    return j;
+}
+
+std::string latency_line(const RunStats& s) {
+    std::string line;
+    if (!s.latency_us.empty())
+        line = fmt::format("Latency field end → poses ready: p50 {:.0f} µs, p99 {:.0f} µs (field end → received p50 {:.0f} "
+                           "µs; received → poses ready p50 {:.0f} µs)",
+                           percentile(s.latency_us.v, 50), percentile(s.latency_us.v, 99), percentile(s.transfer_us.v, 50),
+                           percentile(s.ready_us.v, 50));
+    else if (!s.ready_us.empty())
+        line = fmt::format("Latency received → poses ready: p50 {:.0f} µs, p99 {:.0f} µs; field end → poses ready not "
+                           "measured: {}",
+                           percentile(s.ready_us.v, 50), percentile(s.ready_us.v, 99), s.latency_note);
+    return line;
+}
+
+namespace {
 
 std::string html_escape(const std::string& s) {
     std::string o;
@@ -285,10 +332,12 @@ void print_report(std::FILE* out, const RunReport& r) {
                           "(p95 %.1f), eye rotation %.4f° RMS\n",
                      r.accuracy.frames, r.accuracy.marker3d_rms_um, r.accuracy.marker3d_p95_um, r.accuracy.tip_rms_um,
                      r.accuracy.tip_p95_um, r.accuracy.eye_rot_rms_deg);
-    if (r.stats && !r.stats->latency_us.empty())
-        std::fprintf(out, "Latency field end → poses ready: p50 %.0f µs, p99 %.0f µs (field end → received p50 %.0f µs)\n",
-                     percentile(r.stats->latency_us, 50), percentile(r.stats->latency_us, 99),
-                     percentile(r.stats->transfer_us, 50));
+    if (r.stats) {
+        if (const std::string l = latency_line(*r.stats); !l.empty()) std::fprintf(out, "%s\n", l.c_str());
+        const std::string lost = loss_summary(r.stats->loss);
+        std::fprintf(out, "Link: %s%s%s\n", lost.empty() ? "nothing lost" : lost.c_str(),
+                     r.link_end.empty() ? "" : "; ended: ", r.link_end.c_str());
+    }
     const Scores& s = sim.scores();
     std::fprintf(out, "\nScores: task %.2f s, path %.1f mm, grabs %llu, ", s.task_time_s, s.path_length_mm,
                  (unsigned long long)s.grabs);
@@ -344,8 +393,9 @@ nlohmann::json report_json(const RunReport& r) {
         j["eye_rot_rms_deg"] = r.accuracy.eye_rot_rms_deg;
     }
     if (r.stats) {
-        j["latency_us"] = pct_json(r.stats->latency_us);
+        j.update(latency_json(*r.stats));
         j["errors"] = r.stats->parse_errors;
+        j["loss"] = loss_json(r.stats->loss);
     }
     const Scores& s = sim.scores();
     j["scores"] = {{"task_time_s", s.task_time_s}, {"path_length_mm", s.path_length_mm},
@@ -363,6 +413,7 @@ nlohmann::json report_json(const RunReport& r) {
     for (const Event& e : sim.events()) ev.push_back({{"t_s", e.time_s}, {"kind", to_string(e.kind)}, {"value", e.value}});
     j["events"] = ev;
     j["warnings"] = r.warnings;
+    if (!r.link_end.empty()) j["link_end"] = r.link_end;
     j["snapshots"] = nlohmann::json::array();
     for (const auto& sn : r.snapshots) j["snapshots"].push_back({{"t_s", sn.time_s}, {"file", sn.file}});
     if (!r.animation.empty()) j["animation"] = {{"file", r.animation}, {"frames", r.animation_frames}};
@@ -391,7 +442,7 @@ std::string write_report(const std::string& dir, const RunReport& r) {
     if (r.stats && !r.stats->latency_us.empty())
         plot_lines(dir + "/latency.png", "Latency per frame: field end -> packet received -> poses ready", "\u00b5s",
                    sim.scores().task_time_s,
-                   {{"received", r.stats->transfer_us}, {"poses ready", r.stats->latency_us}});
+                   {{"received", r.stats->transfer_us.v}, {"poses ready", r.stats->latency_us.v}});
 
     std::ofstream h(dir + "/index.html");
     if (!h) throw Error(dir + "/index.html: cannot write");
@@ -425,7 +476,7 @@ std::string write_report(const std::string& dir, const RunReport& r) {
     if (r.stats && !r.stats->latency_us.empty())
         h << fmt::format("<h2>Latency</h2><p>Field end → poses ready: p50 {:.0f} µs, p99 {:.0f} µs. Parse errors: {}.</p>"
                          "<img src='latency.png' alt='latency'>\n",
-                         percentile(r.stats->latency_us, 50), percentile(r.stats->latency_us, 99), r.stats->parse_errors);
+                         percentile(r.stats->latency_us.v, 50), percentile(r.stats->latency_us.v, 99), r.stats->parse_errors);
     if (!r.animation.empty())
         h << fmt::format("<h2>The whole run</h2><p>Stereo microscope view, {} frames (left and right eyepiece side by "
                          "side).</p><video src='{}' controls loop muted autoplay style='max-width:100%'></video>\n",

@@ -183,15 +183,18 @@ int run_scene(const SceneRunRequest& req) {
             run_recording(*rec, run, req.seconds > 0 ? int64_t(std::lround(req.seconds * 50)) : 0);
         } else if (!req.source.capture.empty()) {
             report.source = "capture " + req.source.capture;
-            std::string warning;
-            run_capture(req.source.capture, run, warning);
-            if (!warning.empty()) report.warnings.push_back(warning);
+            run_capture(req.source.capture, run, report.warnings);
         } else {
             report.source = "device " + req.source.connect;
-            std::string warning;
-            run_live(req.source.connect, run, req.seconds, warning, req.stall_seconds);
-            if (!warning.empty()) report.warnings.push_back(warning);
+            frame::LiveOptions lo;
+            lo.max_seconds = req.seconds;
+            lo.stall_seconds = req.stall_seconds;
+            const frame::LiveResult live = run_live(req.source.connect, run, lo);
+            report.link_end = live.end;
+            for (const std::string& w : live.warnings) report.warnings.push_back(w);
         }
+        if (const std::string lost = frame::loss_summary(run.stats().loss); !lost.empty())
+            report.warnings.push_back(report.source + ": " + lost);
         report.accuracy = acc.summary();
         if (run.stats().frames == 0) throw Error(report.source + ": no tracking frames (no markers received)");
         stats = run.stats();

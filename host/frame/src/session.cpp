@@ -53,50 +53,139 @@ tr::TrackerConfig tracker_config(const std::vector<rig::CameraModel>& cams, cons
     return cfg;
 }
 
-HostRun::HostRun(tr::TrackerConfig config, Simulator& sim)
-    : sim_(sim), adapter_(config.bodies) {
+void Samples::add(double x) {
+    max = count == 0 ? x : std::max(max, x);
+    ++count;
+    if (v.size() < kMaxSamples) {
+        v.push_back(x);
+        return;
+    }
+    rng_ ^= rng_ << 13, rng_ ^= rng_ >> 7, rng_ ^= rng_ << 17;  // xorshift64
+    const uint64_t k = rng_ % count;                           // keep with probability kMaxSamples / count
+    if (k < kMaxSamples) v[size_t(k)] = x;
+}
+
+HostRun::HostRun(tr::TrackerConfig config, Simulator& sim) : HostRun(std::move(config)) {
+    sim_ = &sim;
+}
+
+HostRun::HostRun(tr::TrackerConfig config) : adapter_(config.bodies) {
     try {
         tracker_ = std::make_unique<tr::Tracker>(std::move(config));
     } catch (const std::invalid_argument& e) {
         throw SourceError(e.what());
     }
-    stats_.latency_us.reserve(1 << 16);
-    stats_.transfer_us.reserve(1 << 16);
+}
+
+void HostRun::set_clock_offset_us(double offset) {
+    tracker_->set_clock_offset_us(offset);
+    clock_fixed_ = clock_known_ = true;
+}
+
+void HostRun::set_parser_stats(const proto::ParserStats& s) {
+    loss_.set_parser(s);
+    stats_.parser = s;
+    stats_.parse_errors = s.errors();
+    stats_.loss = loss_.counts();
+}
+
+void HostRun::link_dropped() {
+    loss_.link_dropped();
+    stats_.loss = loss_.counts();
+}
+
+void HostRun::on_pong(const proto::Reply& r, double rx_host_us) {
+    if (clock_fixed_ || r.host_us == 0) return;
+    // The device stamps one time (execution) for receive and send alike.
+    const transport::PingSample s{int64_t(r.host_us), int64_t(r.device_us), int64_t(r.device_us), int64_t(rx_host_us)};
+    if (!clock_.add(s)) return;
+    tracker_->set_clock_offset_us(clock_.offset_us());
+    clock_known_ = true;
+    if (!have_pong_) {
+        have_pong_ = true;
+        pong0_dev_ = double(r.device_us);
+        pong0_host_ = rx_host_us;
+    }
+    pong1_dev_ = double(r.device_us);
+    pong1_host_ = rx_host_us;
+    // Rate over at least half a second: a device not at real-time pace cannot be placed on the host clock.
+    if (pong1_host_ - pong0_host_ > 5e5) {
+        const double rate = (pong1_dev_ - pong0_dev_) / (pong1_host_ - pong0_host_);
+        // The worst rate over any prefix of the run: a device that ran ahead for a while is caught too.
+        if (stats_.device_clock_rate == 0.0 || std::abs(rate - 1.0) > std::abs(stats_.device_clock_rate - 1.0))
+            stats_.device_clock_rate = rate;
+    }
 }
 
 void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
     ++stats_.messages;
+    last_rx_us_ = rx_host_us;
+    loss_.observe(f);
     if (const auto* fm = std::get_if<proto::FieldMarkers>(&f.message)) {
         ++stats_.field_markers;
+        if (!(fm->flags & proto::kFieldFlagMoreFollows)) ++stats_.fields;
+        // Device time of this message: the field end, or (a low-latency part) its newest blob.
+        double t_us = double(fm->field_end_us);
+        for (uint8_t k = 0; t_us == 0.0 && k < fm->marker_count; ++k)
+            t_us = std::max(t_us, double(fm->markers[k].complete_us));
+        if (t_us > 0.0 && newest_device_us_ >= 0.0 && t_us + kTimeJumpUs < newest_device_us_) {
+            // Time went back by more than kTimeJumpUs: a new segment (device restarted, captures joined). The old
+            // segment's frames are built with what it had; the new one starts afresh, clock offset included.
+            tracker_->finish();
+            drain(run_clock_ == RunClock::kHost ? host_now_us() : rx_host_us);
+            tracker_->restart();
+            loss_.add_time_jump();
+            newest_device_us_ = -1.0;
+            if (!clock_fixed_) {
+                clock_ = transport::ClockOffsetEstimator{};
+                clock_known_ = have_pong_ = false;
+            }
+        }
+        if (t_us > 0.0) newest_device_us_ = std::max(newest_device_us_, t_us);
         tracker_->push(*fm, rx_host_us);
     } else if (const auto* ped = std::get_if<proto::PedalState>(&f.message)) {
         tracker_->push(*ped, rx_host_us);
-    } else if (const auto* st = std::get_if<proto::DeviceStatus>(&f.message)) {
-        stats_.device_queue_drops = st->queue_overflows;
+    } else if (const auto* r = std::get_if<proto::Reply>(&f.message)) {
+        if (r->opcode == uint8_t(proto::Opcode::Ping) && r->status == uint8_t(proto::ReplyStatus::Ack))
+            on_pong(*r, rx_host_us);
     }
-    drain();
+    stats_.loss = loss_.counts();
+    drain(run_clock_ == RunClock::kHost ? host_now_us() : rx_host_us);
 }
 
 void HostRun::finish() {
     tracker_->finish();
-    drain();
+    drain(run_clock_ == RunClock::kHost ? host_now_us() : last_rx_us_);
+    stats_.loss = loss_.counts();
+    if (stats_.device_clock_rate != 0.0 && std::abs(stats_.device_clock_rate - 1.0) > kMaxClockRateError) {
+        stats_.latency_note = fmt::format(
+            "device clock ran at {:.3g}× the host clock (not at real-time pace): field-end latencies not measured",
+            stats_.device_clock_rate);
+        stats_.latency_us.clear();
+        stats_.transfer_us.clear();
+    } else if (stats_.frames > 0 && stats_.latency_us.empty()) {
+        stats_.latency_note = "no ping replies: the device clock could not be placed on the host clock";
+    }
 }
 
-void HostRun::drain() {
-    while (tracker_->pop(frame_, host_now_us())) {
+void HostRun::drain(double now_us) {
+    while (tracker_->pop(frame_, now_us)) {
         adapter_.convert(frame_, poses_);
-        sim_.step(poses_);
+        if (sim_) sim_->step(poses_);
         ++stats_.frames;
         const auto& t = frame_.timing;
+        stats_.compute_us.add(t.compute_us);
+        if (t.received_host_us > 0) stats_.ready_us.add(t.poses_ready_host_us - t.received_host_us);
         if (clock_known_ && t.field_end_host_us > 0) {
-            stats_.latency_us.push_back(t.poses_ready_host_us - t.field_end_host_us);
-            stats_.transfer_us.push_back(t.received_host_us - t.field_end_host_us);
+            stats_.latency_us.add(t.poses_ready_host_us - t.field_end_host_us);
+            stats_.transfer_us.add(t.received_host_us - t.field_end_host_us);
         }
         if (hook_) hook_(frame_, poses_);
     }
 }
 
-void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
+void for_each_recording_frame(rig::Recording& rec, int64_t max_fields,
+                              const std::function<void(std::span<const uint8_t>, double)>& on_bytes) {
     const int ncam = rec.camera_count();
     int64_t n = rec.common_field_count();
     if (max_fields > 0) n = std::min(n, max_fields);
@@ -111,10 +200,8 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
     blobs.reserve(256);
     std::vector<proto::FieldMarkers> msgs(64);
     std::array<uint8_t, proto::kMaxFrameBytes> bytes{};
-    proto::StreamParser parser;
     firmware::LinkModel link;
     uint16_t sequence = 0;
-    run.set_clock_offset_us(0.0);  // receive times are modelled on the device clock itself
     // The pedal, as eyesim-device sends it: the recording's truth.jsonl (a recording without one: pedal at rest).
     std::vector<firmware::pc::PedalSample> pedal_track;
     if (const std::string tp = rec.truth_path(); !tp.empty()) {
@@ -131,8 +218,9 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
             const double t_us = std::max(0.0, rec.field_timing(0, i).start_us);
             const proto::PedalState ps = pedal.message_at(t_us, uint64_t(std::llround(t_us)));
             const size_t len = proto::encode_frame(proto::Message{ps}, sequence++, bytes);
-            parser.parse(std::span<const uint8_t>(bytes.data(), len),
-                         [&](const proto::DecodedFrame& df) { run.on_frame(df, t_us); });
+            // Through the same first-in first-out link as the markers, so receive times never go back.
+            const uint64_t queued_ns = uint64_t(std::llround(t_us * 1000.0)) + firmware::frame_cost_ns(len, 0);
+            on_bytes(std::span<const uint8_t>(bytes.data(), len), double(link.transmit(queued_ns, len)) * 1e-3);
         }
         for (int c = 0; c < ncam; ++c) {
             const rig::FieldTiming ft = rec.field_timing(c, i);
@@ -154,106 +242,191 @@ void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
                 // Modelled device: parts queued at the field end, then the link; the host clock equals the device
                 // clock here (offset 0).
                 const uint64_t queued_ns = msgs[k].field_end_us * 1000ull + firmware::frame_cost_ns(len, msgs[k].marker_count);
-                const double rx_us = double(link.transmit(queued_ns, len)) * 1e-3;
-                parser.parse(std::span<const uint8_t>(bytes.data(), len),
-                             [&](const proto::DecodedFrame& df) { run.on_frame(df, rx_us); });
+                on_bytes(std::span<const uint8_t>(bytes.data(), len), double(link.transmit(queued_ns, len)) * 1e-3);
             }
         }
     }
-    run.set_parse_errors(parser.stats().errors());
+}
+
+void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields) {
+    proto::StreamParser parser;
+    run.set_run_clock(RunClock::kRecorded);
+    run.set_clock_offset_us(0.0);  // receive times are modelled on the device clock itself
+    for_each_recording_frame(rec, max_fields, [&](std::span<const uint8_t> bytes, double rx_us) {
+        parser.parse(bytes, [&](const proto::DecodedFrame& df) { run.on_frame(df, rx_us); });
+    });
+    parser.finish([&](const proto::DecodedFrame& df) { run.on_frame(df, 0.0); });
+    run.set_parser_stats(parser.stats());
     run.finish();
 }
 
-void run_capture(const std::string& path, HostRun& run, std::string& warning) {
-    auto replay = std::make_unique<proto::CaptureReplay>();  // ~18 KiB: keep it off the stack
-    if (!replay->open(path.c_str())) throw SourceError(path + ": " + replay->reader().open_error_message());
-    proto::DecodedFrame f;
-    uint64_t rx_us = 0;
-    while (replay->next(f, rx_us)) run.on_frame(f, double(rx_us));
-    run.set_parse_errors(replay->stats().errors());
+void run_capture(const std::string& path, HostRun& run, std::vector<std::string>& warnings, int64_t max_frames) {
+    auto reader = std::make_unique<proto::CaptureReader>();  // buffers of ~16 KiB: keep them off the stack
+    if (!reader->open(path.c_str())) throw SourceError(path + ": " + reader->open_error_message());
+    run.set_run_clock(RunClock::kRecorded);
+    proto::StreamParser parser;
+    proto::CaptureRecord rec;
+    double rx_us = 0.0, last_rx_us = -1.0;
+    uint64_t records = 0, rx_backwards = 0;
+    bool torn = false;
+    auto deliver = [&](const proto::DecodedFrame& df) { run.on_frame(df, rx_us); };
+    for (;;) {
+        if (max_frames > 0 && int64_t(run.stats().frames) >= max_frames) break;
+        const proto::CaptureStatus st = reader->next(rec);
+        if (st == proto::CaptureStatus::End) break;
+        if (st == proto::CaptureStatus::IoError) throw SourceError(path + ": read error");
+        if (st == proto::CaptureStatus::Torn) {  // a crash mid-write: earlier records are good
+            torn = true;
+            break;
+        }
+        if (st == proto::CaptureStatus::Corrupt) {  // skipped; the records after it are good
+            warnings.push_back(fmt::format("{}: damaged stretch at byte {} ({} bytes) skipped", path, reader->bad_offset(),
+                                           reader->last_skipped_bytes()));
+            continue;
+        }
+        ++records;
+        if (rec.has_time) {
+            rx_us = double(rec.host_rx_us);
+            // Receive times going back: the records are not in the order they arrived (files joined or reordered).
+            if (last_rx_us >= 0.0 && rx_us < last_rx_us && ++rx_backwards <= 3)
+                warnings.push_back(fmt::format("{}: receive time goes back {:.3f} s at byte {} (record {})", path,
+                                               (last_rx_us - rx_us) * 1e-6, rec.file_offset, records));
+            last_rx_us = rx_us;
+        }
+        const uint64_t jumps = run.time_jumps();
+        parser.parse(rec.bytes, deliver);
+        if (run.time_jumps() > jumps)
+            warnings.push_back(fmt::format("{}: device time goes back at byte {} (record {}): replayed from there as a "
+                                           "new segment", path, rec.file_offset, records));
+    }
+    parser.finish(deliver);
+    run.set_parser_stats(parser.stats());
     run.finish();
-    if (replay->status() == proto::CaptureStatus::IoError) throw SourceError(path + ": read error");
-    const proto::CaptureReader& reader = replay->reader();
-    std::string what;
-    if (reader.corrupt_regions() > 0)
-        what = fmt::format("{} damaged stretch(es), {} bytes, skipped", reader.corrupt_regions(), reader.corrupt_bytes());
-    if (replay->status() == proto::CaptureStatus::Torn)
-        what += fmt::format("{}torn tail at byte {} ({} bytes) skipped", what.empty() ? "" : "; ", reader.bad_offset(),
-                            reader.dropped_bytes());
-    if (!what.empty()) warning = fmt::format("{}: {}; {} good records used", path, what, replay->records());
+    if (rx_backwards > 3)
+        warnings.push_back(fmt::format("{}: receive time goes back at {} records in all", path, rx_backwards));
+    if (torn)
+        warnings.push_back(fmt::format("{}: torn tail at byte {} ({} bytes) skipped; {} good records used", path,
+                                       reader->bad_offset(), reader->dropped_bytes(), records));
 }
 
 namespace {
-bool send_command(transport::Transport& t, const proto::Command& cmd, uint16_t& seq) {
+
+bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint16_t& seq, uint64_t host_us = 0) {
+    proto::Command c;
+    c.command_id = id++;
+    c.opcode = uint8_t(op);
+    c.host_us = host_us;
     std::array<uint8_t, proto::kMaxFrameBytes> bytes{};
-    const size_t len = proto::encode_frame(proto::Message{cmd}, seq++, bytes);
+    const size_t len = proto::encode_frame(proto::Message{c}, seq++, bytes);
     return len > 0 && t.write(std::span<const uint8_t>(bytes.data(), len), 1000).status == transport::IoStatus::ok;
 }
+
+std::string seconds_text(double s) { return fmt::format("{:.1f} s", s); }
+
 }  // namespace
 
-double run_live(const std::string& uri, HostRun& run, double max_seconds, std::string& warning, double stall_seconds) {
-    std::unique_ptr<transport::Transport> link;
-    try {
-        link = transport::open_transport(uri, 3000);
-    } catch (const transport::TransportError& e) {
-        throw SourceError(e.what());
-    }
+LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions& opt) {
+    LiveResult res;
+    res.source = link.describe();
     proto::StreamParser parser;
-    transport::ClockOffsetEstimator clock;
     uint16_t seq = 0;
     uint32_t id = 1;
     std::array<uint8_t, 16384> buf{};
-    auto ping = [&] {
-        proto::Command c;
-        c.command_id = id++;
-        c.opcode = uint8_t(proto::Opcode::Ping);
-        c.host_us = uint64_t(host_now_us());
-        send_command(*link, c, seq);
-    };
-    auto handle = [&](const proto::DecodedFrame& df, double now) {
-        if (const auto* r = std::get_if<proto::Reply>(&df.message)) {
-            if (r->opcode == uint8_t(proto::Opcode::Ping) && r->status == uint8_t(proto::ReplyStatus::Ack)) {
-                transport::PingSample s{int64_t(r->host_us), int64_t(r->device_us), int64_t(r->device_us), int64_t(now)};
-                if (clock.add(s)) run.set_clock_offset_us(clock.offset_us());
-            }
-            return;
-        }
-        run.on_frame(df, now);
-    };
-    // The device clock is modelled and runs with the played fields, so the offset is estimated once the stream
-    // runs: pings every 50 ms for the first half second, then every 500 ms (the minimum-delay sample wins).
-    proto::Command start;
-    start.command_id = id++;
-    start.opcode = uint8_t(proto::Opcode::StreamStart);
-    if (!send_command(*link, start, seq)) throw SourceError(uri + ": cannot send stream_start: " + link->last_error());
     const double t0 = host_now_us();
-    double last_ping = 0.0;
-    double last_rx = t0;
-    while (true) {
-        const double now0 = host_now_us();
-        if (max_seconds > 0 && now0 - t0 > max_seconds * 1e6) break;
-        if (now0 - last_rx > stall_seconds * 1e6) {  // a live device answers pings even between fields
-            warning = fmt::format("{}: no bytes for {:.1f} s: device stalled, run ended", uri, stall_seconds);
+    double rx_us = t0;
+    auto deliver = [&](const proto::DecodedFrame& df) { run.on_frame(df, rx_us); };
+    auto end = [&](std::string why, bool clean) {
+        res.end = std::move(why);
+        res.clean = clean;
+    };
+    bool streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+    if (!streaming && !link.reconnects()) {
+        end("cannot send stream_start: " + (link.last_error().empty() ? std::string("link closed") : link.last_error()), false);
+    }
+    double last_ping = 0.0, last_rx = t0, lost_at = 0.0;
+    bool away = false;
+    int64_t last_progress = -1;
+    while (res.end.empty()) {
+        const double now = host_now_us();
+        if (opt.max_seconds > 0 && now - t0 > opt.max_seconds * 1e6) {
+            end("time limit (" + seconds_text(opt.max_seconds) + ")", true);
             break;
         }
-        if (now0 - last_ping > (now0 - t0 < 500000.0 ? 50000.0 : 500000.0)) {
-            ping();
-            last_ping = now0;
+        if (opt.max_frames > 0 && int64_t(run.stats().frames) >= opt.max_frames) {
+            end(fmt::format("frame limit ({} frames)", opt.max_frames), true);
+            break;
         }
-        const auto r = link->read(buf, 100);
+        if (now - last_rx > opt.stall_seconds * 1e6) {  // a live device answers pings even between fields
+            end(away ? "device lost and not back within " + seconds_text(opt.stall_seconds)
+                     : "no bytes for " + seconds_text(opt.stall_seconds) + ": device stalled",
+                false);
+            break;
+        }
+        if (!away && link.connected()) {
+            if (!streaming) streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+            // Pings for the clock offset: every 50 ms for the first half second, then every 200 ms.
+            if (now - last_ping > (now - t0 < 500000.0 ? 50000.0 : 200000.0)) {
+                send_command(link, proto::Opcode::Ping, id, seq, uint64_t(now));
+                last_ping = now;
+            }
+        }
+        const transport::IoResult r = link.read(buf, 50);
         if (r.bytes) {
-            const double now = host_now_us();
-            last_rx = now;
-            parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), [&](const proto::DecodedFrame& df) { handle(df, now); });
+            rx_us = last_rx = host_now_us();
+            if (away) {  // back after an unplug: the device starts afresh and needs stream_start again
+                away = false;
+                res.warnings.push_back(fmt::format("{}: device back after {:.2f} s; stream restarted", res.source,
+                                                   (rx_us - lost_at) * 1e-6));
+            }
+            parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), deliver);
         }
-        if (r.status == transport::IoStatus::closed) break;
-        if (r.status == transport::IoStatus::error) throw SourceError(uri + ": " + link->last_error());
+        if (r.status == transport::IoStatus::closed) {
+            const std::string why = link.last_error();
+            end(why.empty() ? "device closed the link" : why, why.empty());
+        } else if (r.status == transport::IoStatus::error) {
+            if (!link.reconnects()) {
+                end(link.last_error().empty() ? "link failed" : link.last_error(), false);
+            } else if (!away) {
+                // Unplugged: what was received is delivered; the transport reconnects on the next reads.
+                away = true;
+                lost_at = host_now_us();
+                last_rx = lost_at;
+                streaming = false;
+                res.warnings.push_back(res.source + ": " + link.last_error());
+                rx_us = lost_at;
+                parser.finish(deliver);
+                run.link_dropped();
+            }
+        } else if (away && link.connected() && !streaming) {
+            streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+        }
+        if (opt.progress && int64_t(run.stats().frames) / 50 != last_progress) {
+            last_progress = int64_t(run.stats().frames) / 50;
+            std::fprintf(stderr, "\r%s: %llu frames", res.source.c_str(), static_cast<unsigned long long>(run.stats().frames));
+        }
     }
-    parser.finish([&](const proto::DecodedFrame& df) { handle(df, host_now_us()); });
-    run.set_parse_errors(parser.stats().errors());
+    if (opt.progress) std::fprintf(stderr, "\n");
+    if (link.connected()) send_command(link, proto::Opcode::StreamStop, id, seq);
+    rx_us = host_now_us();
+    parser.finish(deliver);
+    run.set_parser_stats(parser.stats());
     run.finish();
-    link->close();
-    return clock.offset_us();
+    link.close();
+    res.wall_s = (host_now_us() - t0) * 1e-6;
+    if (!res.clean) res.warnings.push_back(res.source + ": " + res.end + "; the run ended there, with every frame received");
+    return res;
+}
+
+LiveResult run_live(const std::string& uri, HostRun& run, const LiveOptions& opt) {
+    std::unique_ptr<transport::Transport> link;
+    try {
+        link = transport::open_transport(uri, 3000);
+    } catch (const transport::UriError&) {
+        throw;  // a usage error: the caller maps it
+    } catch (const transport::TransportError& e) {
+        throw SourceError(e.what());
+    }
+    return run_live(*link, run, opt);
 }
 
 }  // namespace eyesim::frame

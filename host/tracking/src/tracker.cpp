@@ -69,8 +69,16 @@ Tracker::Tracker(TrackerConfig config)
     // correspondence_ holds a span over cameras_, which is never resized after construction.
 }
 
+void Tracker::restart() {
+    for (const FieldAssembler& a : assemblers_) rejected_before_restart_ += a.rejected_images();
+    assemblers_.fill(FieldAssembler{});
+    sync_ = FrameSync(int(cameras_.size()), config_.sync);
+    last_eye_ = EyePose{};
+    last_instruments_.fill(InstrumentPose{});
+}
+
 int Tracker::rejected_images() const {
-    int n = rejected_non_finite_;
+    int n = rejected_non_finite_ + rejected_before_restart_;
     for (const FieldAssembler& a : assemblers_) n += a.rejected_images();
     return n;
 }

@@ -17,6 +17,8 @@ using frame::host_now_us;
 using frame::instrument_pose_eye;
 using frame::judge;
 using frame::kDefaultStallSeconds;
+using frame::LossCounts;
+using frame::loss_summary;
 using frame::peeled_percent;
 using frame::percentile;
 using frame::poses_from_truth;

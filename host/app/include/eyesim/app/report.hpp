@@ -94,6 +94,7 @@ bool write_animation(const std::string& path, const std::vector<SceneCopy>& fram
 struct RunReport {
     std::string title;                   ///< e.g. "eyesim demo: membrane-peel"
     std::string source;                  ///< where the markers came from
+    std::string link_end;                ///< live runs: how the link ended ("device closed the link", …)
     const Simulator* sim = nullptr;      ///< the run
     const RunStats* stats = nullptr;     ///< counters and latencies (may be null)
     AccuracySummary accuracy;            ///< against truth, when available
@@ -103,6 +104,17 @@ struct RunReport {
     std::string renderer;                ///< GL renderer used for pictures ("" when none)
     std::vector<std::string> warnings;   ///< non-fatal findings
 };
+
+/// The loss counters as a JSON object (docs/host.md: `sequence_gaps`, `frames_lost`, `resyncs`, …).
+nlohmann::json loss_json(const LossCounts& c);
+
+/// The latency figures of a run, each a difference of two named clocks: `latency_us` (field end → poses ready),
+/// `transfer_us` (field end → received), `ready_after_receive_us` (received → poses ready, host clock only),
+/// each {p50, p99, max, frames} or null with `latency_note` saying why.
+nlohmann::json latency_json(const RunStats& s);
+
+/// One text line of the latency figures (or why they are missing).
+std::string latency_line(const RunStats& s);
 
 /// Prints the Table-4 breakdown (this machine beside the paper), accuracy, latency, scores and events.
 void print_report(std::FILE* out, const RunReport& r);

@@ -4,6 +4,7 @@
 /// model in-process) → tracker → simulator, with per-frame hooks for accuracy scoring and pictures, and the
 /// latency chain field end → packet received → poses ready.
 
+#include "eyesim/frame/loss.hpp"
 #include "eyesim/frame/pose_source.hpp"
 #include "eyesim/frame/simulator.hpp"
 #include "eyesim/protocol/frame.hpp"
@@ -13,9 +14,11 @@
 #include "eyesim/tracking/rig_adapter.hpp"
 #include "eyesim/tracking/tracker.hpp"
 #include "eyesim/transport/clock_offset.hpp"
+#include "eyesim/transport/transport.hpp"
 
 #include <functional>
 #include <memory>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -36,75 +39,160 @@ tracking::TrackerConfig tracker_config(const std::vector<rig::CameraModel>& cams
 /// Host clock, µs (steady).
 double host_now_us();
 
+/// Per-frame samples of one figure: every sample up to kMaxSamples, then a uniform random sample of that many
+/// (reservoir sampling), so a run of any length holds bounded memory; `count` and `max` stay exact.
+struct Samples {
+    static constexpr size_t kMaxSamples = size_t(1) << 16;  ///< ≈ 22 minutes of frames at 50 per second
+    std::vector<double> v;   ///< the samples kept (in arrival order until the reservoir is full)
+    uint64_t count = 0;      ///< samples offered
+    double max = 0.0;        ///< largest sample offered
+    Samples() { v.reserve(kMaxSamples); }
+    /// Offers one sample (no allocation).
+    void add(double x);
+    bool empty() const { return count == 0; }
+    void clear() { v.clear(), count = 0, max = 0.0; }
+
+private:
+    uint64_t rng_ = 0x9E3779B97F4A7C15ull;
+};
+
 /// Counters of one run.
 struct RunStats {
     uint64_t messages = 0;            ///< decoded messages
     uint64_t field_markers = 0;       ///< FieldMarkers messages
-    uint64_t frames = 0;              ///< tracking frames simulated
+    uint64_t fields = 0;              ///< camera fields completed (FieldMarkers without more_follows)
+    protocol::ParserStats parser;     ///< the source's stream parser counters
+    uint64_t frames = 0;              ///< tracking frames built (and simulated, when there is a simulator)
     uint64_t parse_errors = 0;        ///< stream parser errors (CRC, truncation, …)
-    uint64_t device_queue_drops = 0;  ///< packets the device dropped (from its DeviceStatus)
-    std::vector<double> latency_us;   ///< per frame: field end → poses ready (host clock)
-    std::vector<double> transfer_us;  ///< per frame: field end → packet received
+    LossCounts loss;                  ///< what the stream lost (sequence numbers, fields, device drops, resyncs)
+    /// Per frame: field end (device clock, placed on the host clock through the ping/pong offset) → poses ready
+    /// (host clock). Empty when the clocks cannot be related (no pong received, or a device that does not run
+    /// at real-time pace: see latency_note).
+    Samples latency_us;
+    Samples transfer_us;              ///< per frame: field end → its last packet received (same clocks)
+    Samples ready_us;                 ///< per frame: last packet received → poses ready (host clock only)
+    Samples compute_us;               ///< per frame: tracking stage wall time
+    std::string latency_note;         ///< why latency_us is empty, when it is
+    double device_clock_rate = 0.0;   ///< device µs per host µs between the run's pongs, the furthest from 1 over
+                                      ///< spans of ≥ 0.5 s from the first (0: unknown)
 };
 
-/// Tracker + simulator, fed one decoded frame at a time.
+/// Where a run's receive times come from, which decides what "poses ready" is measured against.
+enum class RunClock : uint8_t {
+    kHost,      ///< live: receive times and "poses ready" are this machine's clock now
+    kRecorded,  ///< replay (a capture, a modelled link): receive times are those recorded; poses are ready at
+                ///< the receive time of the packet that completed the frame plus the compute time measured now
+};
+
+/// Tracker (+ simulator), fed one decoded frame at a time. Handles pongs (clock offset), backward time jumps
+/// (a new segment: the tracker restarts), and counts losses.
 class HostRun {
 public:
-    /// Called after each simulated frame with the tracking frame and the poses given to the simulator.
+    /// Called after each frame with the tracking frame and the poses given to the simulator.
     using FrameHook = std::function<void(const tracking::TrackingFrame&, const FramePoses&)>;
 
+    /// Tracking and simulation.
     HostRun(tracking::TrackerConfig config, Simulator& sim);
-    /// Per-frame hook (accuracy scoring, pictures).
+    /// Tracking only (`eyesim track`).
+    explicit HostRun(tracking::TrackerConfig config);
+    /// Which clock receive times are on (run_recording and run_capture set kRecorded; default kHost).
+    void set_run_clock(RunClock c) { run_clock_ = c; }
+    /// Per-frame hook (accuracy scoring, pictures, poses.jsonl).
     void set_hook(FrameHook hook) { hook_ = std::move(hook); }
-    /// Device − host clock offset (µs); latencies are measured on the host clock through it. Until the first
-    /// call, frames are not counted in the latency figures (their device times cannot be placed on the host
-    /// clock); sources whose host and device clocks coincide call it with 0 at the start.
-    void set_clock_offset_us(double offset) {
-        tracker_->set_clock_offset_us(offset);
-        clock_known_ = true;
-    }
+    /// Fixes the device − host clock offset (µs) for sources whose clocks are related by construction (a
+    /// modelled link: 0). Without it the offset comes from the ping replies in the stream, and until the first
+    /// one frames are not counted in the latency figures.
+    void set_clock_offset_us(double offset);
     /// One decoded message received at `rx_host_us`.
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
-    /// End of stream: frames still waiting are built and simulated.
+    /// End of stream: frames still waiting are built (and simulated); the latency figures are settled.
     void finish();
-    /// Stream parser errors seen by the source (CRC, truncation, …), for the run's counters.
-    void set_parse_errors(uint64_t n) { stats_.parse_errors = n; }
+    /// The source's stream parser counters (errors, resyncs), for the run's counters.
+    void set_parser_stats(const protocol::ParserStats& s);
+    /// The link dropped and came back (USB unplug): sequence numbers and field counters start again.
+    void link_dropped();
     /// Counters.
     const RunStats& stats() const { return stats_; }
     /// The tracker.
     const tracking::Tracker& tracker() const { return *tracker_; }
     /// Whether the last simulated frame had the working hand measured.
     const FramePoses& last_poses() const { return poses_; }
+    /// Clock offset from the pongs (or fixed).
+    const transport::ClockOffsetEstimator& clock() const { return clock_; }
+    /// Backward time jumps so far (each began a new segment).
+    uint64_t time_jumps() const { return stats_.loss.time_jumps; }
 
 private:
-    void drain();
+    void drain(double now_us);
+    void on_pong(const protocol::Reply& r, double rx_host_us);
     std::unique_ptr<tracking::Tracker> tracker_;
-    Simulator& sim_;
+    Simulator* sim_ = nullptr;
+    RunClock run_clock_ = RunClock::kHost;
     TrackingPoseAdapter adapter_;
     tracking::TrackingFrame frame_;
     FramePoses poses_;
     FrameHook hook_;
     RunStats stats_;
+    LossCounter loss_;
+    transport::ClockOffsetEstimator clock_;
+    bool clock_fixed_ = false;
     bool clock_known_ = false;
+    double last_rx_us_ = 0.0;
+    double newest_device_us_ = -1.0;   // newest field time of the current segment
+    // First and latest pong of the segment (device µs, host µs): the device clock's rate.
+    bool have_pong_ = false;
+    double pong0_dev_ = 0, pong0_host_ = 0, pong1_dev_ = 0, pong1_host_ = 0;
 };
 
-/// Pushes a recording through the FPGA model in-process (wire conversion, framing and parsing included, as the
-/// device would) into `run`; receive times follow the modelled device timing. `max_fields` ≤ 0: all.
+/// A device clock whose rate differs from the host's by more than this (fraction) is not at real-time pace:
+/// its field times cannot be placed on the host clock, and no field-end latency is reported.
+inline constexpr double kMaxClockRateError = 0.02;
+
+/// Calls `on_bytes(span<const uint8_t> frame, double rx_us)` for every frame the device would send for a
+/// recording: the FPGA model in-process, wire conversion and framing, one PedalState per field period, receive
+/// times from the modelled device timing and link (device clock = host clock). `max_fields` ≤ 0: all.
+void for_each_recording_frame(rig::Recording& rec, int64_t max_fields,
+                              const std::function<void(std::span<const uint8_t>, double)>& on_bytes);
+
+/// Pushes a recording through the FPGA model in-process (for_each_recording_frame, parsed) into `run` on the
+/// modelled clock (RunClock::kRecorded, offset 0). `max_fields` ≤ 0: all.
 void run_recording(rig::Recording& rec, HostRun& run, int64_t max_fields = 0);
 
-/// Replays a capture file (or raw stream) into `run`. Throws SourceError on an unreadable file; a torn tail or a
-/// damaged stretch is reported through `warning` and every good record is used.
-void run_capture(const std::string& path, HostRun& run, std::string& warning);
+/// Replays a capture file (or raw stream) into `run` (RunClock::kRecorded). Throws SourceError on an
+/// unreadable file. Damage (a torn tail, a damaged stretch), receive times going backwards and device time
+/// going backwards (a new segment) are reported in `warnings`, one line each naming the byte offset; every good
+/// record is used.
+void run_capture(const std::string& path, HostRun& run, std::vector<std::string>& warnings, int64_t max_frames = 0);
 
-/// A device that keeps its link open but sends nothing (not even the replies to the pings sent every 0.5 s)
-/// for this long is taken as stalled.
+/// A device that keeps its link open but sends nothing (not even the replies to the pings) for this long is
+/// taken as stalled.
 inline constexpr double kDefaultStallSeconds = 5.0;
 
-/// Connects to a device (`tcp://HOST:PORT`, `usb`, `usb://VID:PID`), estimates the clock offset by ping/pong,
-/// starts the stream and feeds `run` until the device closes the link, `max_seconds` pass, or no byte arrives for
-/// `stall_seconds` (then `warning` says so and what came before is used). Throws SourceError on a connection failure.
-/// Returns the clock offset used (device − host, µs).
-double run_live(const std::string& uri, HostRun& run, double max_seconds, std::string& warning,
-                double stall_seconds = kDefaultStallSeconds);
+/// Settings of a live run.
+struct LiveOptions {
+    double max_seconds = 0.0;                   ///< stop after this long (0: until the link ends)
+    double stall_seconds = kDefaultStallSeconds;  ///< end the run after this long without a byte
+    int64_t max_frames = 0;                     ///< stop after this many tracking frames (0: no limit)
+    bool progress = false;                      ///< a progress line on stderr
+};
+
+/// How a live run ended.
+struct LiveResult {
+    std::string source;                 ///< the link (`tcp://…`, `usb://…`)
+    std::string end;                    ///< why it ended: "device closed the link", "connection reset by peer", …
+    bool clean = true;                  ///< false for a reset, a stall, a lost device
+    std::vector<std::string> warnings;  ///< one line each (link drops, the end when not clean)
+    double wall_s = 0.0;                ///< run time
+};
+
+/// Runs a live session over an open transport: sends stream_start (again after a reconnect), pings for the
+/// clock offset, feeds `run` until the link ends however it ends (FIN, RST, stall, device gone), the time or
+/// frame limit is reached; then every frame still in the parser and the tracker is delivered. Never throws for
+/// a link that fails after it opened: the end is in the result.
+LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions& opt);
+
+/// Opens `uri` (`tcp://HOST:PORT`, `usb`, `usb://VID:PID`) and runs run_live on it. Throws SourceError when the
+/// link cannot be opened.
+LiveResult run_live(const std::string& uri, HostRun& run, const LiveOptions& opt);
 
 }  // namespace eyesim::frame

@@ -100,6 +100,10 @@ public:
     void push(const protocol::PedalState& pedal, double received_host_us);
     /// End of stream: frames still waiting for later fields are built with what there is.
     void finish() { sync_.finish(); }
+    /// A new stream segment (the device restarted, or the stream's time jumped back): forgets the fields,
+    /// pending frames and pose history of the old one (pop them first: finish(), then pop until false). Keeps
+    /// the configuration, the clock offset and the counters.
+    void restart();
     /// Builds the next ready frame into `out`; `now_host_us` is the host time of the call (poses ready = now +
     /// compute time). Returns false when no frame is ready.
     bool pop(TrackingFrame& out, double now_host_us);
@@ -132,6 +136,7 @@ private:
     std::array<CameraField, kMaxCameras> aligned_{};
     std::array<CameraObservations, kMaxCameras> views_{};
     int rejected_non_finite_ = 0;
+    int rejected_before_restart_ = 0;
 };
 
 }  // namespace eyesim::tracking
