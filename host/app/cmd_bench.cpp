@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <climits>
 #include <cmath>
@@ -29,6 +30,7 @@ struct BenchOptions {
     std::string write_baseline;
     double tolerance = 0.15;
     int attempts = 3;
+    bool no_heap_shuffle = false;
     bool json = false;
 };
 
@@ -48,6 +50,7 @@ nlohmann::json measure_in_fresh_process(const eyesim::app::LatencyBenchOptions& 
                                   std::to_string(o.repeats)};
     if (o.inject_collision_us > 0) args.insert(args.end(), {"--inject-collision-us", num(o.inject_collision_us)});
     if (o.inject_slowdown > 0) args.insert(args.end(), {"--inject-slowdown", num(o.inject_slowdown)});
+    if (!o.shuffle_heap) args.push_back("--no-heap-shuffle");
     for (const auto& s : o.scenes) args.insert(args.end(), {"--scene", s});
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
@@ -192,14 +195,21 @@ int run_latency(const BenchOptions& o) {
         if (regressions.empty())
             std::printf("no regression beyond %.0f %% against %s\n", o.tolerance * 100, o.baseline.c_str());
         // One line for logs: the verdict, every scene's host compute change, the largest change of a gated row.
-        std::string hc;
+        std::string hc, flagged;
         const eyesim::app::LatencyComparison* top = nullptr;
         for (const auto& r : rows) {
             if (r.stage == "host_compute") hc += (hc.empty() ? "" : ", ") + r.scene + " " + change_text(r);
             if (r.gated && (!top || r.change() > top->change())) top = &r;
+            if (r.regression && flagged.find(r.scene + ",") == std::string::npos) flagged += r.scene + ",";
         }
+        const size_t n_flagged = size_t(std::count(flagged.begin(), flagged.end(), ','));
         std::printf("gate: %s; host compute %s; largest gated change %s (%s %s); %d measurement%s, %.1f s\n",
-                    regressions.empty() ? "pass" : "REGRESSION (exit 3)", hc.c_str(),
+                    regressions.empty()
+                        ? "pass"
+                        : ("REGRESSION in " + std::to_string(n_flagged) + " of " +
+                           std::to_string(j["scenes"].size()) + " scenes (exit 3)")
+                              .c_str(),
+                    hc.c_str(),
                     top ? change_text(*top).c_str() : "-", top ? top->scene.c_str() : "-",
                     top ? top->stage.c_str() : "-", attempts, attempts == 1 ? "" : "s",
                     (host_now() - t0) * 1e-6);
@@ -230,12 +240,18 @@ eyesim::app::Registrar reg{"bench", "Benchmarks: `bench latency` is the frame-bu
                     "fault injection: after the clean passes, as many again with busy time in the collision stage "
                     "equal to this fraction of each frame's clean host compute (0.3: 30 % slower); reports those")
         ->check(eyesim::app::finite_in(0.0, 10.0));
+    lat->add_flag("--no-heap-shuffle", o->no_heap_shuffle,
+                  "diagnosis: every pass of a scene at the same addresses (shows how much placement in memory moves "
+                  "the figures)");
     lat->add_option("--attempts", o->attempts,
                     "measurements at most: a scene with a regression is measured again in a fresh process and each "
                     "stage keeps its lower ratio; the gate fails only on a regression in every one")
         ->capture_default_str()->check(CLI::Range(1, 10));
     lat->add_flag("--json", o->json, "one JSON object on stdout");
-    return [o]() -> int { return run_latency(*o); };
+    return [o]() -> int {
+        o->bench.shuffle_heap = !o->no_heap_shuffle;
+        return run_latency(*o);
+    };
 }};
 
 }  // namespace

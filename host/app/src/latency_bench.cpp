@@ -273,7 +273,8 @@ private:
 struct SceneState {
     std::string file;
     PreparedScene p;
-    std::vector<double> inject;
+    std::vector<double> inject;   // busy time per frame in the collision stage, µs
+    std::vector<double> slow_us;  // --inject-slowdown: the fraction of each frame's clean host compute, µs
     FrameMinima minima;
 };
 
@@ -299,27 +300,58 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
     std::array<std::vector<double>, kKernels> cal_us;
     // Round robin: pass r of every scene, calibration runs after each.
     HeapShuffle shuffle;
+    const size_t dense = size_t(CalKernel::kDense);
+    // With --inject-slowdown, the busy time follows the machine's speed as the collision stage's kernel sees it
+    // (a busy wait alone does not slow down with the machine, slower code would): before each pass it is scaled by
+    // the median of the dense kernel's last 8 figures (each the fastest of the runs after a pass) over the
+    // median of those figures in the clean passes.
+    std::vector<double> recent_dense;  // per pass: the fastest dense run after it
+    double clean_dense_us = 0;
+    std::vector<double> scales;
+    auto set_slowdown = [&](SceneState& s) {
+        if (s.slow_us.empty()) return;
+        double scale = 1.0;
+        if (!recent_dense.empty() && clean_dense_us > 0) {
+            const size_t n = std::min<size_t>(8, recent_dense.size());
+            scale = std::clamp(percentile({recent_dense.end() - std::ptrdiff_t(n), recent_dense.end()}, 50) /
+                                   clean_dense_us,
+                               0.5, 4.0);
+        }
+        scales.push_back(scale);
+        s.inject.assign(s.slow_us.size(), opt.inject_collision_us);
+        for (size_t f = 0; f < s.slow_us.size(); ++f) s.inject[f] += scale * s.slow_us[f];
+    };
     auto rounds = [&] {
         for (auto& s : scenes) s.minima = FrameMinima{};
         for (auto& c : cal_us) c.clear();
-        for (auto& s : scenes) (void)run_pass(s.p, s.inject);  // warm-up: caches, allocator, lazy tables
+        recent_dense.clear();
+        for (auto& s : scenes) {  // warm-up: caches, allocator, lazy tables
+            set_slowdown(s);
+            (void)run_pass(s.p, s.inject);
+        }
         for (int r = 0; r < opt.repeats; ++r)
             for (auto& s : scenes) {
-                shuffle.next();
+                if (opt.shuffle_heap) shuffle.next();
+                set_slowdown(s);
                 s.minima.add(run_pass(s.p, s.inject));
+                double fastest = std::numeric_limits<double>::infinity();
                 for (int k = 0; k < opt.calibration_pieces; ++k) {
                     const auto t = cal.run_us();
                     for (size_t q = 0; q < kKernels; ++q) cal_us[q].push_back(t[q]);
+                    fastest = std::min(fastest, t[dense]);
                 }
+                if (opt.calibration_pieces > 0) recent_dense.push_back(fastest);
             }
     };
     rounds();
     if (opt.inject_slowdown > 0) {
+        clean_dense_us = recent_dense.empty() ? 0.0 : percentile(recent_dense, 50);
+        recent_dense.clear();
         for (auto& s : scenes) {
             const std::vector<double> clean = s.minima.column(kCompute);
-            s.inject.assign(clean.size() + 1, opt.inject_collision_us);
-            for (size_t f = 0; f < clean.size(); ++f) s.inject[f] += opt.inject_slowdown * clean[f];
-            s.inject.back() += opt.inject_slowdown * clean.back();
+            s.slow_us.clear();
+            for (double c : clean) s.slow_us.push_back(opt.inject_slowdown * c);
+            s.slow_us.push_back(s.slow_us.empty() ? 0.0 : s.slow_us.back());  // frames stepped at the end
         }
         rounds();
     }
@@ -362,8 +394,13 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
         o["host_compute"]["us"] = compute_us;
         o["host_compute"]["ratio"] = compute_us / cal_total;
         if (!s.inject.empty()) {
+            // The busy time per frame at the clean passes' speed (and its scale with the machine's, p50).
+            double sum = 0;
             const size_t n = std::min(s.inject.size(), s.minima.min.size());
-            o["injected_us"] = n ? std::accumulate(s.inject.begin(), s.inject.begin() + std::ptrdiff_t(n), 0.0) / double(n) : 0.0;
+            for (size_t f = 0; f < n; ++f)
+                sum += s.slow_us.empty() ? s.inject[f] : opt.inject_collision_us + s.slow_us[f];
+            o["injected_us"] = n ? sum / double(n) : 0.0;
+            if (!scales.empty()) o["injection_scale_p50"] = percentile(scales, 50);
         }
         o["file"] = s.file;
         o["frames"] = s.minima.min.size();

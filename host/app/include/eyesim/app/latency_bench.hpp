@@ -40,8 +40,11 @@ struct LatencyBenchOptions {
     double inject_collision_us = 0.0;    ///< fault injection: busy time added to every frame's collision stage
     double inject_slowdown = 0.0;        ///< fault injection: after the clean passes, the same number of passes
                                          ///< again with busy time in the collision stage equal to this fraction
-                                         ///< of each frame's clean host compute (0.3: every frame 30 % slower);
-                                         ///< the result is the slowed passes
+                                         ///< of each frame's clean host compute (0.3: every frame 30 % slower),
+                                         ///< scaled before each pass by the machine's speed then as the dense
+                                         ///< kernel sees it (its recent times ÷ those in the clean passes), as
+                                         ///< slower code would be; the result is the slowed passes
+    bool shuffle_heap = true;            ///< hold blocks of pseudo-random sizes during each pass (off: diagnosis)
 };
 
 /// Measures; returns a JSON object: `calibration` (per kernel the fastest run `us`), per scene per stage
