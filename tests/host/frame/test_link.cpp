@@ -109,18 +109,24 @@ std::string temp_path(const std::string& name) {
 
 enum class End { Fin, Reset };
 
+/// A listening loopback socket on a free port.
+int listen_loopback(int& port) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    REQUIRE(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+    REQUIRE(::listen(fd, 1) == 0);
+    socklen_t n = sizeof a;
+    ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &n);
+    port = ntohs(a.sin_port);
+    return fd;
+}
+
 class TcpDevice {
 public:
     TcpDevice(std::vector<uint8_t> bytes, End end) : bytes_(std::move(bytes)), end_(end) {
-        fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
-        sockaddr_in a{};
-        a.sin_family = AF_INET;
-        a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-        REQUIRE(::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-        REQUIRE(::listen(fd_, 1) == 0);
-        socklen_t n = sizeof a;
-        ::getsockname(fd_, reinterpret_cast<sockaddr*>(&a), &n);
-        port_ = ntohs(a.sin_port);
+        fd_ = listen_loopback(port_);
         thread_ = std::thread([this] { serve(); });
     }
     ~TcpDevice() {
@@ -562,15 +568,9 @@ TEST_CASE("soak: 30 minutes of live streaming through a lossy loopback link, mem
     const double seconds = env ? std::atof(env) : 1800.0;
     const Stream& s = recording_stream();
     const double period_us = 1e6;  // the recording is 1 s long; it is played in a loop with time running on
-    int lfd = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    REQUIRE(::bind(lfd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-    REQUIRE(::listen(lfd, 1) == 0);
-    socklen_t alen = sizeof a;
-    ::getsockname(lfd, reinterpret_cast<sockaddr*>(&a), &alen);
-    const std::string uri = "tcp://127.0.0.1:" + std::to_string(ntohs(a.sin_port));
+    int port = 0;
+    const int lfd = listen_loopback(port);
+    const std::string uri = "tcp://127.0.0.1:" + std::to_string(port);
     std::atomic<uint64_t> dropped{0};
     std::thread device([&] {
         const int c = ::accept(lfd, nullptr, nullptr);
