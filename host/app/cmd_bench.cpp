@@ -168,7 +168,8 @@ int run_latency(const BenchOptions& o) {
     for (const auto& [k, v] : j["calibration"].items()) std::printf(" %s %.2f µs", k.c_str(), v["us"].get<double>());
     std::printf("; %d passes per scene, %.1f s wall\n", j["repeats"].get<int>(), j["wall_s"].get<double>());
     if (j["inject_slowdown"].get<double>() > 0 || j["inject_collision_us"].get<double>() > 0)
-        std::printf("fault injection: collision stage + %.0f %% of each frame's host compute + %.1f µs\n",
+        std::printf("fault injection in the collision stage: work of %.0f %% of each frame's host compute, busy wait "
+                    "%.1f µs\n",
                     j["inject_slowdown"].get<double>() * 100.0, j["inject_collision_us"].get<double>());
     std::printf("%-18s %-17s %9s %9s %9s %-9s %9s", "scene", "stage", "µs", "p50 µs", "p99 µs", "kernel", "ratio");
     if (!o.baseline.empty()) std::printf(" %9s %9s %9s  %s", "baseline", "change", "base µs", "gate");
@@ -237,8 +238,8 @@ eyesim::app::Registrar reg{"bench", "Benchmarks: `bench latency` is the frame-bu
                     "fault injection: busy time added to every collision stage (to test the gate)")
         ->check(eyesim::app::finite_in(0.0, 1e6));
     lat->add_option("--inject-slowdown", o->bench.inject_slowdown,
-                    "fault injection: after the clean passes, as many again with busy time in the collision stage "
-                    "equal to this fraction of each frame's clean host compute (0.3: 30 % slower); reports those")
+                    "fault injection: after the clean passes, as many again with real work in the collision stage "
+                    "taking this fraction of each frame's clean host compute (0.3: 30 % slower); reports those")
         ->check(eyesim::app::finite_in(0.0, 10.0));
     lat->add_flag("--no-heap-shuffle", o->no_heap_shuffle,
                   "diagnosis: every pass of a scene at the same addresses (shows how much placement in memory moves "

@@ -192,16 +192,51 @@ PreparedScene prepare_scene(const std::string& path, double seconds) {
 
 using Row = std::array<double, size_t(Stage::kCount)>;
 
+/// Work for --inject-slowdown: dense matrix-vector products, the dense kernel's kind of work (the kernel the
+/// collision stage, where it runs, is compared with), in units of ≈ 0.5 µs.
+class InjectedWork {
+public:
+    InjectedWork() : a_(48, 48), x_(48), y_(48) {
+        std::mt19937 rng(5);
+        std::uniform_real_distribution<double> u(-1.0, 1.0);
+        for (int i = 0; i < a_.size(); ++i) a_.data()[i] = u(rng);
+        for (int i = 0; i < x_.size(); ++i) x_[i] = u(rng);
+    }
+    void run(int units) {
+        for (int k = 0; k < units; ++k) {
+            y_.noalias() = a_ * x_;
+            x_ = y_ * (1.0 / y_.norm());
+        }
+        sink_ += x_[0];
+    }
+    /// Times 16 units; one unit's time, µs.
+    double time_unit_us() {
+        const double t0 = host_now_us();
+        run(16);
+        const double t = (host_now_us() - t0) / 16.0;
+        return std::isfinite(sink_) ? t : t + 1e-9;
+    }
+
+private:
+    Eigen::MatrixXd a_;
+    Eigen::VectorXd x_, y_;
+    double sink_ = 0;
+};
+
 /// One pass over all fields of a scene through a fresh tracker and simulator; per-frame stage times.
-/// `inject_us[i]` (when not empty) is busy time added to frame i's collision stage.
-std::vector<Row> run_pass(const PreparedScene& p, const std::vector<double>& inject_us) {
+/// `inject_us[i]` (when not empty) is busy time and `units[i]` (when not empty) work units added to frame i's
+/// collision stage.
+std::vector<Row> run_pass(const PreparedScene& p, const std::vector<double>& inject_us,
+                          const std::vector<int>& units, InjectedWork& work) {
     Simulator sim(p.scene);
     HostRun run(tracker_config(p.cams, p.bodies, p.instruments), sim);
+    int units_now = 0;
+    if (!units.empty()) sim.inject_collision_work([&] { work.run(units_now); });
     // The next frame the simulator steps is row frames().
     auto set_injection = [&] {
-        if (inject_us.empty()) return;
         const size_t f = sim.timer().frames();
-        sim.inject_collision_delay_us(f < inject_us.size() ? inject_us[f] : inject_us.back());
+        if (!inject_us.empty()) sim.inject_collision_delay_us(f < inject_us.size() ? inject_us[f] : inject_us.back());
+        if (!units.empty()) units_now = f < units.size() ? units[f] : units.back();
     };
     proto::DecodedFrame df;
     const size_t nc = p.cams.size();
@@ -273,8 +308,9 @@ private:
 struct SceneState {
     std::string file;
     PreparedScene p;
-    std::vector<double> inject;   // busy time per frame in the collision stage, µs
-    std::vector<double> slow_us;  // --inject-slowdown: the fraction of each frame's clean host compute, µs
+    std::vector<double> inject;  // busy time per frame in the collision stage, µs
+    std::vector<int> units;      // --inject-slowdown: work units per frame in the collision stage
+    double injected_us = 0;      // --inject-slowdown: their mean time per frame at the clean passes' speed
     FrameMinima minima;
 };
 
@@ -300,58 +336,36 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
     std::array<std::vector<double>, kKernels> cal_us;
     // Round robin: pass r of every scene, calibration runs after each.
     HeapShuffle shuffle;
-    const size_t dense = size_t(CalKernel::kDense);
-    // With --inject-slowdown, the busy time follows the machine's speed as the collision stage's kernel sees it
-    // (a busy wait alone does not slow down with the machine, slower code would): before each pass it is scaled by
-    // the median of the dense kernel's last 8 figures (each the fastest of the runs after a pass) over the
-    // median of those figures in the clean passes.
-    std::vector<double> recent_dense;  // per pass: the fastest dense run after it
-    double clean_dense_us = 0;
-    std::vector<double> scales;
-    auto set_slowdown = [&](SceneState& s) {
-        if (s.slow_us.empty()) return;
-        double scale = 1.0;
-        if (!recent_dense.empty() && clean_dense_us > 0) {
-            const size_t n = std::min<size_t>(8, recent_dense.size());
-            scale = std::clamp(percentile({recent_dense.end() - std::ptrdiff_t(n), recent_dense.end()}, 50) /
-                                   clean_dense_us,
-                               0.5, 4.0);
-        }
-        scales.push_back(scale);
-        s.inject.assign(s.slow_us.size(), opt.inject_collision_us);
-        for (size_t f = 0; f < s.slow_us.size(); ++f) s.inject[f] += scale * s.slow_us[f];
-    };
+    InjectedWork work;
+    double unit_us = std::numeric_limits<double>::infinity();
     auto rounds = [&] {
         for (auto& s : scenes) s.minima = FrameMinima{};
         for (auto& c : cal_us) c.clear();
-        recent_dense.clear();
-        for (auto& s : scenes) {  // warm-up: caches, allocator, lazy tables
-            set_slowdown(s);
-            (void)run_pass(s.p, s.inject);
-        }
+        for (auto& s : scenes) (void)run_pass(s.p, s.inject, s.units, work);  // warm-up: caches, allocator
         for (int r = 0; r < opt.repeats; ++r)
             for (auto& s : scenes) {
                 if (opt.shuffle_heap) shuffle.next();
-                set_slowdown(s);
-                s.minima.add(run_pass(s.p, s.inject));
-                double fastest = std::numeric_limits<double>::infinity();
+                s.minima.add(run_pass(s.p, s.inject, s.units, work));
                 for (int k = 0; k < opt.calibration_pieces; ++k) {
                     const auto t = cal.run_us();
                     for (size_t q = 0; q < kKernels; ++q) cal_us[q].push_back(t[q]);
-                    fastest = std::min(fastest, t[dense]);
+                    // The injected work's unit is timed beside the kernels, its fastest kept like theirs.
+                    if (opt.inject_slowdown > 0) unit_us = std::min(unit_us, work.time_unit_us());
                 }
-                if (opt.calibration_pieces > 0) recent_dense.push_back(fastest);
             }
     };
     rounds();
     if (opt.inject_slowdown > 0) {
-        clean_dense_us = recent_dense.empty() ? 0.0 : percentile(recent_dense, 50);
-        recent_dense.clear();
+        // Real work, not a busy wait: it slows down with the machine as slower code would.
+        if (!std::isfinite(unit_us))
+            for (int k = 0; k < 64; ++k) unit_us = std::min(unit_us, work.time_unit_us());
         for (auto& s : scenes) {
             const std::vector<double> clean = s.minima.column(kCompute);
-            s.slow_us.clear();
-            for (double c : clean) s.slow_us.push_back(opt.inject_slowdown * c);
-            s.slow_us.push_back(s.slow_us.empty() ? 0.0 : s.slow_us.back());  // frames stepped at the end
+            s.units.clear();
+            for (double c : clean) s.units.push_back(int(std::lround(opt.inject_slowdown * c / unit_us)));
+            s.units.push_back(s.units.empty() ? 0 : s.units.back());  // frames stepped at the end
+            s.injected_us = 0;
+            for (size_t f = 0; f < clean.size(); ++f) s.injected_us += s.units[f] * unit_us / double(clean.size());
         }
         rounds();
     }
@@ -393,15 +407,8 @@ nlohmann::json run_latency_bench(const LatencyBenchOptions& opt) {
         o["host_compute"] = summary(kCompute);
         o["host_compute"]["us"] = compute_us;
         o["host_compute"]["ratio"] = compute_us / cal_total;
-        if (!s.inject.empty()) {
-            // The busy time per frame at the clean passes' speed (and its scale with the machine's, p50).
-            double sum = 0;
-            const size_t n = std::min(s.inject.size(), s.minima.min.size());
-            for (size_t f = 0; f < n; ++f)
-                sum += s.slow_us.empty() ? s.inject[f] : opt.inject_collision_us + s.slow_us[f];
-            o["injected_us"] = n ? sum / double(n) : 0.0;
-            if (!scales.empty()) o["injection_scale_p50"] = percentile(scales, 50);
-        }
+        if (!s.inject.empty() || !s.units.empty())
+            o["injected_us"] = opt.inject_collision_us + s.injected_us;  // per frame, at the clean passes' speed
         o["file"] = s.file;
         o["frames"] = s.minima.min.size();
         o["passes"] = s.minima.passes;

@@ -210,6 +210,7 @@ void Simulator::step(const FramePoses& poses) {
     grabbed_nodes_.clear();
     {
         ScopedStage s(timer_, Stage::kCollision);
+        if (inject_collision_work_) inject_collision_work_();
         if (inject_collision_us_ > 0.0) {
             const auto end = StageTimer::Clock::now() + std::chrono::nanoseconds(int64_t(inject_collision_us_ * 1e3));
             while (StageTimer::Clock::now() < end) {

@@ -39,11 +39,11 @@ struct LatencyBenchOptions {
     int calibration_pieces = 4;          ///< calibration pieces after every scene pass
     double inject_collision_us = 0.0;    ///< fault injection: busy time added to every frame's collision stage
     double inject_slowdown = 0.0;        ///< fault injection: after the clean passes, the same number of passes
-                                         ///< again with busy time in the collision stage equal to this fraction
-                                         ///< of each frame's clean host compute (0.3: every frame 30 % slower),
-                                         ///< scaled before each pass by the machine's speed then as the dense
-                                         ///< kernel sees it (its recent times ÷ those in the clean passes), as
-                                         ///< slower code would be; the result is the slowed passes
+                                         ///< again with real work (dense matrix-vector products, timed beside
+                                         ///< the kernels) in the collision stage taking this fraction of each
+                                         ///< frame's clean host compute (0.3: every frame 30 % slower); real work
+                                         ///< slows down with the machine as code does, a busy wait would not;
+                                         ///< the result is the slowed passes
     bool shuffle_heap = true;            ///< hold blocks of pseudo-random sizes during each pass (off: diagnosis)
 };
 

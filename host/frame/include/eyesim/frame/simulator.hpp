@@ -17,6 +17,7 @@
 #include <Eigen/Geometry>
 
 #include <array>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -124,6 +125,9 @@ public:
     const StageTimer& timer() const { return timer_; }
     /// Fault injection for the latency harness's own test: busy-waits this long inside every collision stage.
     void inject_collision_delay_us(double us) { inject_collision_us_ = us; }
+    /// Fault injection for the latency harness: runs `work` (real computation, which slows down with the machine
+    /// as code does) inside every collision stage; empty: none.
+    void inject_collision_work(std::function<void()> work) { inject_collision_work_ = std::move(work); }
     /// Adds rendering time (a picture of frame `frame`'s state) to that frame's row.
     void record_render_us(size_t frame, double us) { timer_.add_to_row(frame, Stage::kRender, us); }
     /// How often each part ran.
@@ -161,6 +165,7 @@ private:
     StageTimer timer_;
     bool placed_ = false;
     double inject_collision_us_ = 0.0;
+    std::function<void()> inject_collision_work_;
     bool have_prev_ = false;
     double prev_time_s_ = 0.0, first_time_s_ = 0.0;
     Eigen::Vector3f prev_tip_mm_ = Eigen::Vector3f::Zero();
