@@ -31,6 +31,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <random>
 #include <stdexcept>
@@ -339,18 +340,31 @@ void plot_volume(const std::string& path, const std::vector<Eigen::Vector3d>& po
 // JSON helpers
 // ------------------------------------------------------------------------------------------------------------
 
+// A figure with no sample behind it is not measured: null, never 0.
 nlohmann::json summary_json(std::vector<double> v) {
     const tr::ErrorSummary s = tr::summarise(v);
+    if (s.count == 0)
+        return {{"count", 0}, {"rms", nullptr}, {"mean", nullptr}, {"p50", nullptr},
+                {"p95", nullptr}, {"p99", nullptr}, {"max", nullptr}};
     return {{"count", s.count}, {"rms", s.rms}, {"mean", s.mean}, {"p50", s.p50},
             {"p95", s.p95},     {"p99", s.p99}, {"max", s.max}};
 }
 
 nlohmann::json latency_json(std::vector<double> v) {
     const tr::ErrorSummary s = tr::summarise(v);
+    if (s.count == 0) return {{"p50", nullptr}, {"p99", nullptr}, {"max", nullptr}};
     return {{"p50", s.p50}, {"p99", s.p99}, {"max", s.max}};
 }
 
-double rms(std::vector<double> v) { return tr::summarise(v).rms; }
+nlohmann::json rms(std::vector<double> v) {
+    if (v.empty()) return nullptr;
+    return tr::summarise(v).rms;
+}
+
+/// A figure formatted by `format` (one `{}` field), or "not measured" for null.
+std::string figure(const nlohmann::json& v, const char* format) {
+    return v.is_null() ? std::string("not measured") : fmt::format(fmt::runtime(format), v.get<double>());
+}
 
 nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
     nlohmann::json j;
@@ -401,7 +415,13 @@ int run_validate(const ValidateOptions& opt) {
             throw Error(e.what());
         }
     }();
-    for (const std::string& w : rec.warnings()) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+    // Warnings: one line each on stderr as they are found, and all of them in the JSON summary.
+    std::vector<std::string> warnings;
+    const auto warn = [&](std::string w) {
+        std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+        warnings.push_back(std::move(w));
+    };
+    for (const std::string& w : rec.warnings()) warn(w);
     const std::string truth_path = rec.truth_path();
     if (truth_path.empty()) throw Error(opt.dir + "/truth.jsonl: missing (validate needs ground truth)");
     std::vector<rig::FieldTruth> truth;
@@ -424,8 +444,24 @@ int run_validate(const ValidateOptions& opt) {
             throw Error(fmt::format("{}:{}: cameras: {} entries for {} cameras", truth_path, i + 1,
                                     truth[i].cameras.size(), ncam));
     }
-    std::int64_t n = std::min<std::int64_t>(rec.common_field_count(), std::int64_t(truth.size()));
-    if (opt.max_fields > 0) n = std::min<std::int64_t>(n, opt.max_fields);
+    // Fields asked for, then cut to the shortest camera and to the truth; each cut of what was asked is a warning.
+    const std::int64_t wanted =
+        opt.max_fields > 0 ? std::int64_t(opt.max_fields) : std::numeric_limits<std::int64_t>::max();
+    const std::int64_t common = rec.common_field_count();
+    std::int64_t longest = 0;
+    std::string lengths;
+    for (int c = 0; c < ncam; ++c) {
+        longest = std::max(longest, rec.field_count(c));
+        lengths += fmt::format("{}{} {} fields", c ? ", " : "", rec.cameras()[std::size_t(c)].name, rec.field_count(c));
+    }
+    if (common < std::min(longest, wanted))
+        warn(fmt::format("{}: cameras of different lengths ({}): only the first {} fields of each camera are used",
+                         opt.dir, lengths, common));
+    const std::int64_t streams = std::min(common, wanted);
+    if (std::int64_t(truth.size()) < streams)
+        warn(fmt::format("{}: truth for {} fields, the streams have {}: the last {} fields are not scored", truth_path,
+                         truth.size(), streams, streams - std::int64_t(truth.size())));
+    const std::int64_t n = std::min<std::int64_t>(streams, std::int64_t(truth.size()));
     if (n < 3) throw Error(opt.dir + ": only " + std::to_string(n) + " fields with truth (need at least 3)");
 
     // Tracker configuration: rig cameras, the scene's instruments (from the truth), FPGA field timing.
@@ -608,6 +644,32 @@ int run_validate(const ValidateOptions& opt) {
     truth_run.finish(end_us);
     if (progress) std::fprintf(stderr, "\n");
     const double wall_s = (us_now() - t_start) * 1e-6;
+    const RunStats& fs = fpga_run.stats();
+    const RunStats& ts = truth_run.stats();
+
+    // ---- Nothing to score is an error, not a perfect score; a body never measured is a warning ----
+    if (fs.marker_err_um.empty() && fs.marker_err_occluded_um.empty()) {
+        long found = 0, at_truth = 0;
+        for (const CentroidStats& cs : cstats) found += cs.blobs, at_truth += cs.matched;
+        if (found == 0)
+            throw Error(fmt::format("{}: no marker found in {} fields: the FPGA model found no blob in any of the {} "
+                                    "cameras", opt.dir, n, ncam));
+        throw Error(fmt::format("{}: no marker matched in {} fields: the FPGA model found {} blobs ({} at a truth "
+                                "centroid), no triangulated marker was within reach of a truth marker",
+                                opt.dir, n, found, at_truth));
+    }
+    const auto unmeasured = [&](const std::string& body, std::size_t fpga_measured, std::size_t truth_measured) {
+        if (fpga_measured == 0)
+            warn(fmt::format("{}: {} not measured in any of the {} scored frames (FPGA chain; from truth centroids "
+                             "in {}): its figures are not measured", opt.dir, body, fs.frame_t_s.size(),
+                             truth_measured));
+    };
+    unmeasured("eye", fs.eye_err_deg.size(), ts.eye_err_deg.size());
+    for (int b = 0; b < cfg.bodies.instrument_count; ++b) {
+        const std::size_t k = std::size_t(b);
+        unmeasured(cfg.bodies.instruments[k].name, fs.frame_t_s.size() - std::size_t(fs.tip_held[k]),
+                   ts.frame_t_s.size() - std::size_t(ts.tip_held[k]));
+    }
 
     // ---- Summaries ----
     nlohmann::json j;
@@ -622,11 +684,11 @@ int run_validate(const ValidateOptions& opt) {
     for (int c = 0; c < ncam; ++c) {
         CentroidStats& cs = cstats[std::size_t(c)];
         all_c.insert(all_c.end(), cs.err_px.begin(), cs.err_px.end());
-        const tr::ErrorSummary s = tr::summarise(cs.err_px);
+        const nlohmann::json s = summary_json(cs.err_px);
         cams.push_back({{"camera", c},
-                        {"centroid_rms_px", s.rms},
-                        {"centroid_p95_px", s.p95},
-                        {"centroid_max_px", s.max},
+                        {"centroid_rms_px", s["rms"]},
+                        {"centroid_p95_px", s["p95"]},
+                        {"centroid_max_px", s["max"]},
                         {"blobs", cs.blobs},
                         {"matched", cs.matched},
                         {"missed_visible_markers", cs.missed},
@@ -641,8 +703,6 @@ int run_validate(const ValidateOptions& opt) {
         j["refused"] = refiner->refusals_json();
         j["refine_us_per_field"] = refine_us / double(n * ncam);
     }
-    const RunStats& fs = fpga_run.stats();
-    const RunStats& ts = truth_run.stats();
     // Headline keys: the full chain from the FPGA model.
     const nlohmann::json fj = run_json(fs, cfg.bodies);
     for (const char* k : {"marker3d_rms_um", "tip_rms_um", "eye_rot_rms_deg", "latency_us"}) j[k] = fj[k];
@@ -650,6 +710,7 @@ int run_validate(const ValidateOptions& opt) {
     j["truth_centroids"] = run_json(ts, cfg.bodies);
     j["truth_centroids"]["noise_px"] = opt.truth_noise_px;
     j["errors"] = parse_errors;
+    j["warnings"] = warnings;
 
     if (!opt.report.empty()) {
         namespace fsys = std::filesystem;
@@ -675,9 +736,9 @@ int run_validate(const ValidateOptions& opt) {
         std::ofstream md(d + "report.md");
         if (!md) throw Error(d + "report.md: cannot write");
         const auto row = [&](const char* what, const nlohmann::json& a, const nlohmann::json& b, const char* unit) {
-            md << fmt::format("| {} ({}) | {:.3f} | {:.3f} | {:.3f} | {:.3f} | {:.3f} | {:.3f} |\n", what, unit,
-                              a["rms"].get<double>(), a["p95"].get<double>(), a["max"].get<double>(),
-                              b["rms"].get<double>(), b["p95"].get<double>(), b["max"].get<double>());
+            md << fmt::format("| {} ({}) | {} | {} | {} | {} | {} | {} |\n", what, unit, figure(a["rms"], "{:.3f}"),
+                              figure(a["p95"], "{:.3f}"), figure(a["max"], "{:.3f}"), figure(b["rms"], "{:.3f}"),
+                              figure(b["p95"], "{:.3f}"), figure(b["max"], "{:.3f}"));
         };
         md << "# Tracking validation: " << opt.dir << "\n\n";
         md << fmt::format("{} fields x {} cameras, sync {}, trocar constraint {}, centroid sigma assumed {} px.\n\n", n,
@@ -685,9 +746,9 @@ int run_validate(const ValidateOptions& opt) {
         md << "## Centroids (FPGA model vs rendered intensity centroid, field pixels)\n\n";
         md << "| camera | RMS | p95 | max | blobs | matched | missed | spurious |\n|---|---|---|---|---|---|---|---|\n";
         for (const auto& c : cams)
-            md << fmt::format("| {} | {:.4f} | {:.4f} | {:.4f} | {} | {} | {} | {} |\n", c["camera"].get<int>(),
-                              c["centroid_rms_px"].get<double>(), c["centroid_p95_px"].get<double>(),
-                              c["centroid_max_px"].get<double>(), c["blobs"].get<long>(), c["matched"].get<long>(),
+            md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} |\n", c["camera"].get<int>(),
+                              figure(c["centroid_rms_px"], "{:.4f}"), figure(c["centroid_p95_px"], "{:.4f}"),
+                              figure(c["centroid_max_px"], "{:.4f}"), c["blobs"].get<long>(), c["matched"].get<long>(),
                               c["missed_visible_markers"].get<long>(), c["spurious_blobs"].get<long>());
         md << "\n![centroid error](centroid_error_hist.png)\n\n";
         md << "## Poses (FPGA chain | truth centroids + " << opt.truth_noise_px << " px noise)\n\n";
@@ -714,8 +775,8 @@ int run_validate(const ValidateOptions& opt) {
                  {"field end -> poses ready", "latency_us"},
                  {"exposure mid -> poses ready", "latency_exposure_to_poses_us"},
                  {"tracking stage compute", "tracking_compute_us"}})
-            md << fmt::format("| {} | {:.1f} | {:.1f} | {:.1f} |\n", name, fj[key]["p50"].get<double>(),
-                              fj[key]["p99"].get<double>(), fj[key]["max"].get<double>());
+            md << fmt::format("| {} | {} | {} | {} |\n", name, figure(fj[key]["p50"], "{:.1f}"),
+                              figure(fj[key]["p99"], "{:.1f}"), figure(fj[key]["max"], "{:.1f}"));
         md << "\n## Drops and rejections (FPGA chain)\n\n```\n" << fj["markers"].dump(1) << "\n"
            << "frames " << fj["frames"] << ", two-view frames " << fj["frames_two_view"]
            << ", eye not measured " << fj["eye_not_measured_frames"] << ", instruments not measured "
@@ -729,16 +790,22 @@ int run_validate(const ValidateOptions& opt) {
     } else {
         std::printf("%s: %lld fields x %d cameras (sync %s)\n", opt.dir.c_str(), static_cast<long long>(n), ncam,
                     opt.sync.c_str());
-        std::printf("  centroids (FPGA%s vs rendered): RMS %.4f px\n", refiner ? " + refinement" : "",
-                    j["centroid_rms_px"].get<double>());
+        std::printf("  centroids (FPGA%s vs rendered): RMS %s\n", refiner ? " + refinement" : "",
+                    figure(j["centroid_rms_px"], "{:.4f} px").c_str());
         for (const auto& [label, r] : std::vector<std::pair<std::string, nlohmann::json>>{
-                 {"FPGA chain", fj}, {fmt::format("truth centroids + {} px", opt.truth_noise_px), j["truth_centroids"]}})
-            std::printf("  %-28s 3D marker RMS %.1f um (p95 %.1f), tip RMS %.1f um, eye RMS %.4f deg, frames %ld\n",
-                        label.c_str(), r["marker3d_rms_um"].get<double>(), r["marker3d_um"]["p95"].get<double>(),
-                        r["tip_rms_um"].get<double>(), r["eye_rot_rms_deg"].get<double>(), r["frames"].get<long>());
-        std::printf("  latency field end -> poses ready: p50 %.0f us, p99 %.0f us, max %.0f us\n",
-                    fj["latency_us"]["p50"].get<double>(), fj["latency_us"]["p99"].get<double>(),
-                    fj["latency_us"]["max"].get<double>());
+                 {"FPGA chain", fj}, {fmt::format("truth centroids + {} px", opt.truth_noise_px), j["truth_centroids"]}}) {
+            const std::string marker = r["marker3d_rms_um"].is_null()
+                                           ? "not measured"
+                                           : fmt::format("{:.1f} um (p95 {:.1f})", r["marker3d_rms_um"].get<double>(),
+                                                         r["marker3d_um"]["p95"].get<double>());
+            std::printf("  %-28s 3D marker RMS %s, tip RMS %s, eye RMS %s, frames %ld\n", label.c_str(),
+                        marker.c_str(), figure(r["tip_rms_um"], "{:.1f} um").c_str(),
+                        figure(r["eye_rot_rms_deg"], "{:.4f} deg").c_str(), r["frames"].get<long>());
+        }
+        std::printf("  latency field end -> poses ready: p50 %s, p99 %s, max %s\n",
+                    figure(fj["latency_us"]["p50"], "{:.0f} us").c_str(),
+                    figure(fj["latency_us"]["p99"], "{:.0f} us").c_str(),
+                    figure(fj["latency_us"]["max"], "{:.0f} us").c_str());
         if (j.contains("report")) std::printf("  report: %s\n", j["report"].get<std::string>().c_str());
     }
     return 0;
