@@ -108,13 +108,10 @@ void HostRun::on_pong(const proto::Reply& r, double rx_host_us) {
     }
     pong1_dev_ = double(r.device_us);
     pong1_host_ = rx_host_us;
-    // Rate over at least half a second: a device not at real-time pace cannot be placed on the host clock.
-    if (pong1_host_ - pong0_host_ > 5e5) {
-        const double rate = (pong1_dev_ - pong0_dev_) / (pong1_host_ - pong0_host_);
-        // The worst rate over any prefix of the run: a device that ran ahead for a while is caught too.
-        if (stats_.device_clock_rate == 0.0 || std::abs(rate - 1.0) > std::abs(stats_.device_clock_rate - 1.0))
-            stats_.device_clock_rate = rate;
-    }
+    // The device clock's rate against the host's, first to latest pong of the segment, over at least a second: a
+    // paced device that lags for a moment under load (milliseconds) stays near 1; one that plays as fast as it
+    // can does not.
+    if (pong1_host_ - pong0_host_ > 1e6) stats_.device_clock_rate = (pong1_dev_ - pong0_dev_) / (pong1_host_ - pong0_host_);
 }
 
 void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {

@@ -503,6 +503,7 @@ TEST_CASE("latency figures are differences of the clocks they name, fed with kno
             rx.push_back(last_end_host + 1500.0);
         }
     }
+    pong(last_end_host + 600000.0);  // a last pong after the stream: the pongs span more than the 1 s a rate needs
     frame::HostRun run = make_run();
     const std::string path = temp_path("eyesim_test_link_latency.capture");
     write_capture(path, frames, rx);

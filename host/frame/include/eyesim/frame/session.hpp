@@ -73,8 +73,8 @@ struct RunStats {
     Samples ready_us;                 ///< per frame: last packet received → poses ready (host clock only)
     Samples compute_us;               ///< per frame: tracking stage wall time
     std::string latency_note;         ///< why latency_us is empty, when it is
-    double device_clock_rate = 0.0;   ///< device µs per host µs between the run's pongs, the furthest from 1 over
-                                      ///< spans of ≥ 0.5 s from the first (0: unknown)
+    double device_clock_rate = 0.0;   ///< device µs per host µs, first to last pong of the segment (≥ 1 s apart;
+                                      ///< 0: unknown)
 };
 
 /// Where a run's receive times come from, which decides what "poses ready" is measured against.
