@@ -24,6 +24,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -636,6 +637,10 @@ TEST_CASE("soak: 30 minutes of live streaming through a lossy loopback link, mem
     rss_peak = std::max(rss_peak, rss_kib());
     const frame::LossCounts& c = run.stats().loss;
     INFO(res.end << "; " << frame::loss_summary(c) << "; RSS " << rss_warm << " → " << rss_peak << " KiB");
+    std::printf("soak: %.0f s, %llu tracking frames, %llu frames dropped by the link, %llu counted lost; RSS %.0f KiB "
+                "after %.0f s, peak %.0f KiB\n",
+                seconds, static_cast<unsigned long long>(run.stats().frames), static_cast<unsigned long long>(dropped.load()),
+                static_cast<unsigned long long>(c.frames_lost), rss_warm, warm_s, rss_peak);
     CHECK(res.end == "device closed the link");
     CHECK(c.frames_lost == dropped.load());
     CHECK(dropped.load() > 0);
