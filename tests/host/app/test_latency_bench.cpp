@@ -60,7 +60,7 @@ TEST_CASE("the latency gate passes an unchanged run and flags a 30 % slowdown", 
     for (const auto& r : same.rows)
         if (r.gated) {
             INFO(r.scene << " " << r.stage << " " << r.change());
-            CHECK(std::abs(r.change()) < 0.1);
+            CHECK(r.change() < tol);  // no growth the gate would flag (a run that happened to be faster is fine)
         }
 
     // Every frame 30 % slower: busy time in the collision stage equal to 30 % of the frame's host compute.
