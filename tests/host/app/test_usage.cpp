@@ -5,6 +5,8 @@
 
 #include "eyesim/transport/transport.hpp"
 
+#include "cli_run.hpp"
+
 #include <catch2/catch.hpp>
 
 #include <sys/wait.h>
@@ -21,48 +23,23 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-    int rc = -1;
-    std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using Result = eyesim::test::CliResult;
 
 /// The test's scratch folder, with a three-field recording in `rec/` made once.
 const fs::path& scratch() {
-    static const fs::path dir = [] {
-        // One folder per process: CTest runs the test cases as separate processes, side by side.
-        const fs::path d = fs::temp_directory_path() / ("eyesim_test_usage_exit_" + std::to_string(::getpid()));
-        fs::remove_all(d);
-        fs::create_directories(d);
+    static const eyesim::test::ScratchDir dir("eyesim_test_usage_exit");
+    static const bool made = [] {
         const std::string cmd = std::string(EYESIM_EXE) + " synth --scenario static --seconds 0.06 --out " +
-                                (d / "rec").string() + " >/dev/null 2>&1";
+                                (dir.path() / "rec").string() + " >/dev/null 2>&1";
         REQUIRE(std::system(cmd.c_str()) == 0);
-        return d;
+        return true;
     }();
-    static const struct Cleanup {
-        ~Cleanup() {
-            std::error_code ec;
-            fs::remove_all(dir, ec);
-        }
-    } cleanup;
-    return dir;
+    (void)made;
+    return dir.path();
 }
 
 /// Runs `exe args` (shell words) with a time limit; stdout and stderr apart.
-Result run(const std::string& exe, const std::string& args) {
-    const fs::path out = scratch() / "stdout.txt", err = scratch() / "stderr.txt";
-    const std::string cmd = "timeout 60 " + exe + " " + args + " >" + out.string() + " 2>" + err.string();
-    const int status = std::system(cmd.c_str());
-    Result r;
-    r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = slurp(out);
-    r.err = slurp(err);
-    return r;
-}
+Result run(const std::string& exe, const std::string& args) { return eyesim::test::run_cli(scratch(), exe, args, 60); }
 
 std::string rec() { return (scratch() / "rec").string(); }
 std::string rig() { return rec() + "/rig.yaml"; }

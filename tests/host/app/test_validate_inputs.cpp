@@ -2,6 +2,8 @@
 // which nothing is found is an error (exit 1), never a perfect score; cameras of different lengths, a truth file
 // shorter than the streams and a body never measured are warnings (stderr and the JSON `warnings`); figures with
 // nothing behind them are null in the JSON and "not measured" in the text, never 0.
+#include "cli_run.hpp"
+
 #include <catch2/catch.hpp>
 
 #include <nlohmann/json.hpp>
@@ -25,15 +27,8 @@ namespace fs = std::filesystem;
 
 constexpr std::uintmax_t kFieldBytes = 720 * 288 * 2;  // one UYVY field (rig/pal.hpp kFieldBytes)
 
-struct Result {
-    int rc = -1;
-    std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using Result = eyesim::test::CliResult;
+using eyesim::test::slurp;
 
 std::vector<std::string> lines(const std::string& s) {
     std::vector<std::string> v;
@@ -42,40 +37,19 @@ std::vector<std::string> lines(const std::string& s) {
     return v;
 }
 
-/// The test's scratch folder, one per process (CTest runs the test cases side by side), removed at exit.
+/// The test's scratch folder, one per process, removed at exit.
 const fs::path& scratch() {
-    static const fs::path dir = [] {
-        const fs::path d = fs::temp_directory_path() / ("eyesim_test_validate_inputs_" + std::to_string(::getpid()));
-        fs::remove_all(d);
-        fs::create_directories(d);
-        return d;
-    }();
-    static const struct Cleanup {
-        ~Cleanup() {
-            std::error_code ec;
-            fs::remove_all(dir, ec);
-        }
-    } cleanup;
-    return dir;
+    static const eyesim::test::ScratchDir dir("eyesim_test_validate_inputs");
+    return dir.path();
 }
 
 /// Runs `eyesim args` (shell words) with a time limit; stdout and stderr apart.
-Result eyesim(const std::string& args) {
-    const fs::path out = scratch() / "stdout.txt", err = scratch() / "stderr.txt";
-    const std::string cmd =
-        "timeout 120 " + std::string(EYESIM_EXE) + " " + args + " >" + out.string() + " 2>" + err.string();
-    const int status = std::system(cmd.c_str());
-    Result r;
-    r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = slurp(out);
-    r.err = slurp(err);
-    return r;
-}
+Result run_eyesim(const std::string& args) { return eyesim::test::run_cli(scratch(), EYESIM_EXE, args, 120); }
 
 /// A 10-field `static` recording named `name` (extra synth options in `extra`).
 fs::path synth(const std::string& name, const std::string& extra = "") {
     const fs::path d = scratch() / name;
-    const Result r = eyesim("synth --scenario static --seconds 0.2 --seed 3 --out " + d.string() + " " + extra);
+    const Result r = run_eyesim("synth --scenario static --seconds 0.2 --seed 3 --out " + d.string() + " " + extra);
     REQUIRE(r.rc == 0);
     REQUIRE(fs::file_size(d / "cam0.uyvy") == 10 * kFieldBytes);
     return d;
@@ -138,7 +112,7 @@ TEST_CASE("validate: a recording in which nothing is found is an error, not a pe
     const fs::path rec = synth("black");
     paint_black(rec);
     for (const char* json : {"", " --json"}) {
-        const Result r = eyesim("validate --recording " + rec.string() + json);
+        const Result r = run_eyesim("validate --recording " + rec.string() + json);
         INFO("rc " << r.rc << ", stderr: " << r.err << "stdout: " << r.out);
         CHECK(r.rc == 1);
         CHECK(r.out.empty());
@@ -154,7 +128,7 @@ TEST_CASE("validate: cameras of different lengths and a short truth are warnings
     cut_camera(rec, 1, 7);
     cut_truth(rec, 5);
 
-    const Result r = eyesim("validate --recording " + rec.string() + " --json");
+    const Result r = run_eyesim("validate --recording " + rec.string() + " --json");
     INFO("rc " << r.rc << ", stderr: " << r.err);
     REQUIRE(r.rc == 0);
     const std::vector<std::string> w = warning_lines(r.err);
@@ -171,14 +145,14 @@ TEST_CASE("validate: cameras of different lengths and a short truth are warnings
     CHECK(j["eye_rot_rms_deg"].get<double>() > 0.0);
 
     // Text: the same warnings on stderr, none on stdout.
-    const Result t = eyesim("validate --recording " + rec.string());
+    const Result t = run_eyesim("validate --recording " + rec.string());
     REQUIRE(t.rc == 0);
     CHECK(warning_lines(t.err) == w);
     CHECK(t.out.find("warning") == std::string::npos);
     CHECK(t.out.find(" 5 fields x 3 cameras") != std::string::npos);
 
     // Fewer fields asked for than every stream and the truth hold: nothing was cut, nothing to warn about.
-    const Result few = eyesim("validate --recording " + rec.string() + " --max-fields 4 --json");
+    const Result few = run_eyesim("validate --recording " + rec.string() + " --max-fields 4 --json");
     REQUIRE(few.rc == 0);
     CHECK(few.err.empty());
     CHECK(nlohmann::json::parse(few.out)["warnings"] == nlohmann::json::array());
@@ -187,7 +161,7 @@ TEST_CASE("validate: cameras of different lengths and a short truth are warnings
 TEST_CASE("validate: a body never measured is a warning and its figures are null, not 0", "[host][validate]") {
     const fs::path rec = synth("hidden_eye", "--bodies " + hidden_eye_bodies().string());
 
-    const Result r = eyesim("validate --recording " + rec.string() + " --json");
+    const Result r = run_eyesim("validate --recording " + rec.string() + " --json");
     INFO("rc " << r.rc << ", stderr: " << r.err);
     REQUIRE(r.rc == 0);
     const std::vector<std::string> w = warning_lines(r.err);
@@ -213,7 +187,7 @@ TEST_CASE("validate: a body never measured is a warning and its figures are null
         CHECK(c["eye_not_measured_frames"] == c["frames"]);
     }
 
-    const Result t = eyesim("validate --recording " + rec.string());
+    const Result t = run_eyesim("validate --recording " + rec.string());
     REQUIRE(t.rc == 0);
     CHECK(warning_lines(t.err) == w);
     const std::vector<std::string> out = lines(t.out);
@@ -228,7 +202,7 @@ TEST_CASE("validate: a body never measured is a warning and its figures are null
 
 TEST_CASE("validate: a complete recording has no warnings and every figure measured", "[host][validate]") {
     const fs::path rec = synth("complete");
-    const Result r = eyesim("validate --recording " + rec.string() + " --json");
+    const Result r = run_eyesim("validate --recording " + rec.string() + " --json");
     REQUIRE(r.rc == 0);
     CHECK(r.err.empty());
     const nlohmann::json j = nlohmann::json::parse(r.out);
