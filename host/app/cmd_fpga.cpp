@@ -1,5 +1,6 @@
 // `eyesim fpga`: run the FPGA pipeline model over a recording; write protocol FieldMarkers packets and/or CSV.
 #include "eyesim/app/command.hpp"
+#include "eyesim/app/fpga_run.hpp"
 #include "eyesim/app/refine.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/sphere_fit.hpp"
@@ -44,54 +45,6 @@ struct FpgaOptions {
     bool json = false;
     bool refine = false;
 };
-
-// Applies "ADDR=VALUE" register writes (C integer syntax: 0x14=3) through the map's validation.
-void apply_register_writes(const std::vector<std::string>& writes, fpga::RegisterMap& map) {
-    for (const std::string& w : writes) {
-        const size_t eq = w.find('=');
-        unsigned long addr = 0, value = 0;
-        bool ok = eq != std::string::npos && eq > 0 && eq + 1 < w.size();
-        if (ok) {
-            try {
-                size_t a = 0, v = 0;
-                addr = std::stoul(w.substr(0, eq), &a, 0);
-                value = std::stoul(w.substr(eq + 1), &v, 0);
-                ok = a == eq && v == w.size() - eq - 1 && addr <= 0xFFFF && value <= 0xFFFFFFFFul;
-            } catch (const std::exception&) {
-                ok = false;
-            }
-        }
-        if (!ok) throw eyesim::app::Error(fmt::format("--reg: '{}': expected ADDRESS=VALUE", w), 2);
-        const fpga::RegWriteResult r = map.write(static_cast<uint16_t>(addr), static_cast<uint32_t>(value));
-        if (r != fpga::RegWriteResult::kOk)
-            throw eyesim::app::Error(fmt::format("--reg: '{}': register write refused: {}", w, fpga::to_string(r)), 2);
-    }
-}
-
-// Parses "0,1,2" into camera indices below `count`.
-std::vector<int> parse_cameras(const std::string& text, int count) {
-    std::vector<int> cams;
-    if (text.empty()) {
-        for (int c = 0; c < count; ++c) cams.push_back(c);
-        return cams;
-    }
-    std::stringstream ss(text);
-    std::string item;
-    while (std::getline(ss, item, ',')) {
-        size_t used = 0;
-        int c = -1;
-        try {
-            c = std::stoi(item, &used);
-        } catch (const std::exception&) {
-            used = 0;
-        }
-        if (used != item.size() || item.empty() || c < 0 || c >= count)
-            throw eyesim::app::Error(fmt::format("--cameras: '{}': not a camera index 0..{}", item, count - 1), 2);
-        if (std::find(cams.begin(), cams.end(), c) == cams.end()) cams.push_back(c);
-    }
-    if (cams.empty()) throw eyesim::app::Error("--cameras: empty list", 2);
-    return cams;
-}
 
 // Percentile of a sorted vector (nearest rank).
 double percentile(const std::vector<double>& sorted, double p) {
@@ -140,7 +93,7 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
 
 int run(const FpgaOptions& opt) {
     rig::Recording rec = rig::Recording::open(opt.recording);
-    const std::vector<int> cams = parse_cameras(opt.cameras, rec.camera_count());
+    const std::vector<int> cams = eyesim::app::parse_cameras(opt.cameras, rec.camera_count());
     for (const std::string& w : rec.warnings()) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
     int64_t n_fields = rec.common_field_count();
     if (opt.max_fields >= 0) n_fields = std::min(n_fields, opt.max_fields);
@@ -165,20 +118,9 @@ int run(const FpgaOptions& opt) {
     }
 
     // One pipeline per camera with the reset register map, as the device powers up, plus any --reg writes.
-    fpga::RegisterMap regs;
-    apply_register_writes(opt.regs, regs);
-    std::vector<std::unique_ptr<fpga::Pipeline>> pipes;
+    eyesim::app::FpgaModelRun model(rec, cams, eyesim::app::register_maps(opt.regs, rec.camera_count()));
     std::vector<CameraStats> stats;
-    for (int c : cams) {
-        fpga::PipelineConfig cfg;
-        cfg.camera = static_cast<uint8_t>(c);
-        pipes.push_back(std::make_unique<fpga::Pipeline>(regs, cfg));
-        stats.push_back(CameraStats{c});
-    }
-    std::vector<fpga::Blob> blobs;
-    blobs.reserve(fpga::kMaxBlobSlots);
-    std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
-    std::vector<proto::FieldMarkers> msgs(fpga::field_markers_messages(fpga::kMaxBlobSlots * 4));
+    for (int c : cams) stats.push_back(CameraStats{c});
     std::array<uint8_t, proto::kMaxFrameBytes> frame{};
     // Receive times. There is no host on this path: the capture uses the device clock as the host clock (offset 0)
     // and stamps each record with the modelled time its frame has left the device (docs/protocol.md section 6):
@@ -212,7 +154,7 @@ int run(const FpgaOptions& opt) {
         }
         records.erase(records.begin(), records.begin() + static_cast<std::ptrdiff_t>(k));
     };
-    double model_s = 0, refine_s = 0;
+    double refine_s = 0;
     // Refinement stage: a model fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
@@ -226,30 +168,14 @@ int run(const FpgaOptions& opt) {
             const uint64_t device_us = static_cast<uint64_t>(std::llround(t_us));
             records.push_back({device_us * 1000u, 0, proto::Message{pedal.message_at(t_us, device_us)}});
         }
-        for (size_t k = 0; k < cams.size(); ++k) {
-            const int cam = cams[k];
-            rec.read_field(cam, i, field.data());
-            const int parity = rec.field_parity(cam, i);
-            const rig::FieldTiming timing = rec.field_timing(cam, i);
-            // Device time of the field's cycle 0: vertical sync (+ half a line for a bottom field, as the rig).
-            const uint64_t start_us =
-                static_cast<uint64_t>(std::llround(std::max(0.0, timing.start_us + (parity ? 32.0 : 0.0))));
-            fpga::Pipeline& p = *pipes[k];
-            blobs.clear();
-            p.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); },
-                       &blobs);
-            const auto t0 = std::chrono::steady_clock::now();
-            const fpga::PipelineStatus s =
-                p.process_field(field.data(), rig::kFieldHeight, static_cast<uint32_t>(i), static_cast<uint8_t>(parity));
-            model_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-            if (s != fpga::PipelineStatus::kOk)
-                throw eyesim::app::Error(fmt::format("{}: camera {} field {}: pipeline status {}", opt.recording, cam,
-                                                     i, static_cast<int>(s)));
-            const fpga::FieldStats& fs = p.field_stats();
-            CameraStats& st = stats[k];
+        size_t k = 0;
+        model.run_field(i, [&](eyesim::app::ModelField& f) {
+            const std::vector<fpga::Blob>& blobs = *f.blobs;
+            const fpga::FieldStats& fs = *f.stats;
+            CameraStats& st = stats[k++];
             if (opt.refine) {
                 const auto r0 = std::chrono::steady_clock::now();
-                st.refined += refiner->refine(field.data(), rig::kFieldHeight, blobs);
+                st.refined += refiner->refine(f.uyvy, rig::kFieldHeight, *f.blobs);
                 refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
             }
             ++st.fields;
@@ -257,28 +183,26 @@ int run(const FpgaOptions& opt) {
             st.overflows += fs.table_overflows;
             for (const fpga::Blob& b : blobs) st.latency_us.push_back(b.latency_us());
             st.field_latency_us.push_back(fpga::cycles_to_us(fs.last_blob_latency_cycles));
-            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], cam, st);
+            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], f.camera, st);
 
             if (csv.is_open()) {
                 for (const fpga::Blob& b : blobs)
-                    csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}\n", cam, i,
-                                       parity, b.index, b.class_id, b.cx_px(), b.cy_px(), b.area_px, b.sum_w, b.x_min,
-                                       b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(start_us, b.last_pixel_cycle),
-                                       fpga::device_time_us(start_us, b.emit_cycle), b.latency_us());
+                    csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}\n", f.camera, i,
+                                       f.parity, b.index, b.class_id, b.cx_px(), b.cy_px(), b.area_px, b.sum_w, b.x_min,
+                                       b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(f.start_us, b.last_pixel_cycle),
+                                       fpga::device_time_us(f.start_us, b.emit_cycle), b.latency_us());
             }
             if (capture_on) {
-                const fpga::FieldInfo info = fpga::field_info(fs, static_cast<uint8_t>(cam), static_cast<uint8_t>(parity), start_us);
-                const size_t n = fpga::to_field_markers(blobs.data(), blobs.size(), info, msgs.data(), msgs.size());
                 // Ready once the last active pixel is in and the last blob has left the pipeline (as the device).
-                const uint32_t end_cycle = std::max(fs.last_emit_cycle, fs.last_active_line_end_cycle);
-                const uint64_t ready_ns = start_us * 1000u + fpga::cycles_to_ns(end_cycle);
-                for (size_t m = 0; m < n; ++m) {
+                const uint64_t ready_ns = eyesim::app::field_ready_ns(f);
+                const std::vector<proto::FieldMarkers> msgs = eyesim::app::field_messages(f);
+                for (size_t m = 0; m < msgs.size(); ++m) {
                     if (!proto::valid_message(proto::Message{msgs[m]}))
-                        throw eyesim::app::Error(fmt::format("camera {} field {}: message {} does not encode", cam, i, m));
+                        throw eyesim::app::Error(fmt::format("camera {} field {}: message {} does not encode", f.camera, i, m));
                     records.push_back({ready_ns, msgs[m].marker_count, proto::Message{msgs[m]}});
                 }
             }
-        }
+        });
         if (capture_on) {
             // Everything of the next field is ready no earlier than its earliest camera's vertical sync.
             uint64_t horizon_ns = ~uint64_t{0};
@@ -322,6 +246,7 @@ int run(const FpgaOptions& opt) {
         }
         per_cam.push_back(j);
     }
+    const double model_s = model.model_seconds();
     const double fps = model_s > 0 ? total_fields / model_s : 0.0;
     if (opt.json) {
         nlohmann::json j{{"recording", opt.recording}, {"fields", total_fields}, {"fields_per_s", fps},
