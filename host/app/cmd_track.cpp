@@ -39,6 +39,7 @@ struct TrackOptions {
     std::string connect;
     bool usb = false;
     std::string capture;
+    std::string capture_out;
     std::string rig;
     std::string out;
     bool json = false;
@@ -76,6 +77,8 @@ std::vector<tr::SceneInstrument> scene_from(const std::string& list, const rig::
 int run_track(const TrackOptions& opt) {
     const int sources = int(!opt.connect.empty()) + int(opt.usb) + int(!opt.capture.empty());
     if (sources != 1) throw Error("track: give exactly one of --connect tcp://HOST:PORT, --usb, --capture FILE", 2);
+    if (!opt.capture_out.empty() && !opt.capture.empty())
+        throw Error("--capture-out records a live device (--connect or --usb), not a replay", 2);
     if (!opt.connect.empty()) {  // a malformed URI is a usage error, found before any file is read
         try {
             eyesim::transport::check_transport_uri(opt.connect);
@@ -141,6 +144,7 @@ int run_track(const TrackOptions& opt) {
             lo.stall_seconds = opt.stall_s;
             lo.max_frames = opt.max_frames;
             lo.progress = eyesim::app::show_progress(opt.json);
+            lo.capture_out = opt.capture_out;
             const eyesim::frame::LiveResult live =
                 eyesim::frame::run_live(opt.usb ? std::string("usb") : opt.connect, *run, lo);
             source = live.source;
@@ -187,6 +191,7 @@ int run_track(const TrackOptions& opt) {
     j["warnings"] = warnings;
     j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
     if (!opt.out.empty()) j["out"] = opt.out;
+    if (!opt.capture_out.empty()) j["capture_out"] = opt.capture_out;
     if (opt.json) {
         std::printf("%s\n", j.dump().c_str());
     } else {
@@ -205,6 +210,8 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
     sub.add_option("--connect", opt->connect, "device address, tcp://HOST:PORT");
     sub.add_flag("--usb", opt->usb, "read the device over USB (libusb)");
     sub.add_option("--capture", opt->capture, "replay a capture file");
+    sub.add_option("--capture-out", opt->capture_out,
+                   "live: also write what the device sends to this capture file (host receive times)");
     sub.add_option("--rig", opt->rig, "rig.yaml with the cameras")->required();
     sub.add_option("--out", opt->out, "write one JSON line per tracking frame (poses.jsonl)");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");

@@ -328,7 +328,11 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
     proto::StreamParser parser;
     uint16_t seq = 0;
     uint32_t id = 1;
-    std::array<uint8_t, 16384> buf{};
+    std::array<uint8_t, proto::kMaxCaptureRecordBytes> buf{};  // one read is one capture record
+    proto::CaptureWriter capture;
+    bool capturing = !opt.capture_out.empty();
+    if (capturing && !capture.create(opt.capture_out.c_str()))
+        throw SourceError(opt.capture_out + ": cannot create capture file");
     const double t0 = host_now_us();
     double rx_us = t0;
     auto deliver = [&](const proto::DecodedFrame& df) { run.on_frame(df, rx_us); };
@@ -374,6 +378,10 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
                 away = false;
                 res.warnings.push_back(fmt::format("{}: device back after {:.2f} s; stream restarted", res.source,
                                                    (rx_us - lost_at) * 1e-6));
+            }
+            if (capturing && !capture.write(uint64_t(rx_us), std::span<const uint8_t>(buf.data(), r.bytes))) {
+                capturing = false;
+                res.warnings.push_back(opt.capture_out + ": write failed; the capture ends there");
             }
             parser.parse(std::span<const uint8_t>(buf.data(), r.bytes), deliver);
         }

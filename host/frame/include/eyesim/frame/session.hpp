@@ -174,6 +174,9 @@ struct LiveOptions {
     double stall_seconds = kDefaultStallSeconds;  ///< end the run after this long without a byte
     int64_t max_frames = 0;                     ///< stop after this many tracking frames (0: no limit)
     bool progress = false;                      ///< a progress line on stderr
+    /// When set, every chunk received is also written to this capture file with its receive time on the host
+    /// clock (docs/protocol.md section 6), as it arrived, damage and all.
+    std::string capture_out;
 };
 
 /// How a live run ended.
@@ -188,7 +191,8 @@ struct LiveResult {
 /// Runs a live session over an open transport: sends stream_start (again after a reconnect), pings for the
 /// clock offset, feeds `run` until the link ends however it ends (FIN, RST, stall, device gone), the time or
 /// frame limit is reached; then every frame still in the parser and the tracker is delivered. Never throws for
-/// a link that fails after it opened: the end is in the result.
+/// a link that fails after it opened: the end is in the result. Throws SourceError when `capture_out` cannot be
+/// created.
 LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions& opt);
 
 /// Opens `uri` (`tcp://HOST:PORT`, `usb`, `usb://VID:PID`) and runs run_live on it. Throws SourceError when the
