@@ -125,6 +125,7 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
     out.camera_count = int(cameras_.size());
     out.cameras_used = 0;
     out.images_in = 0;
+    corrected_views_.fill(0);
     // Undistort every image (Newton to tolerance); refuse non-finite ones.
     for (int c = 0; c < int(cameras_.size()); ++c) {
         CameraObservations& v = views_[std::size_t(c)];
@@ -169,6 +170,28 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
         if (out.assignment.body[std::size_t(k)] < 0) ++out.markers_unassigned;
 }
 
+Tracker::MarkerView Tracker::marker_view(const TrackingFrame& frame, int k, int c) const {
+    MarkerView v;
+    if (k < 0 || k >= frame.markers.count || c < 0 || c >= int(cameras_.size())) return v;
+    const MatchedMarker& m = frame.markers.markers[std::size_t(k)];
+    const int i = m.image_index[std::size_t(c)];
+    const CameraObservations& view = views_[std::size_t(c)];
+    if (i < 0 || i >= view.count) return v;
+    const ImagePoint& p = view.points[std::size_t(i)];
+    v.present = true;
+    v.left_out = (m.occluded_views & (1u << c)) != 0;
+    v.observed_px = p.px;
+    v.used_px = p.px;
+    v.used_xn = p.xn;
+    if (corrected_views_[std::size_t(k)] & (1u << c)) {
+        const CameraGeometry& g = cameras_[std::size_t(c)];
+        v.used_xn = corrected_xn_[std::size_t(k)][std::size_t(c)];
+        const Eigen::Vector2d xd = distort_normalized(g, v.used_xn);
+        v.used_px = {g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy};
+    }
+    return v;
+}
+
 namespace {
 
 /// Centroid shift (normalised image units, along the projected half-shaft) of a uniform disk of radius rho from
@@ -196,6 +219,7 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
     if (!(R > 0.0)) return;
     bool changed = false;
     std::array<Observation, kMaxCameras> obs;
+    std::array<int, kMaxCameras> obs_view{};
     for (int k = 0; k < out.markers.count; ++k) {
         const int body = out.assignment.body[std::size_t(k)];
         if (body < 1) continue;
@@ -226,6 +250,7 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
                 if (u.allFinite()) xn -= shift * u;  // observed = true + shift·u
             }
             const Eigen::Vector2d xd = distort_normalized(g, xn);
+            obs_view[std::size_t(n)] = c;
             obs[std::size_t(n++)] = Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), xn,
                                                 p.sigma_px};
         }
@@ -235,6 +260,11 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         if (tp.usable()) {
             m.point = tp;
             changed = true;
+            for (int v = 0; v < n; ++v) {
+                const int c = obs_view[std::size_t(v)];
+                corrected_views_[std::size_t(k)] |= std::uint8_t(1u << c);
+                corrected_xn_[std::size_t(k)][std::size_t(c)] = obs[std::size_t(v)].xn;
+            }
         }
     }
     if (!changed) return;

@@ -112,6 +112,21 @@ public:
     /// fit. `out` keeps pose history across calls. Used by pop(), tests and benchmarks.
     void track_images(std::span<const CameraField> images, std::span<const bool> present, TrackingFrame& out);
 
+    /// One camera's image of triangulated marker `k` in the frame last built by pop() or track_images(), as
+    /// the tracker used it. Valid until the next frame is built; for truth-free checks (validation), never
+    /// needed by the hot path.
+    struct MarkerView {
+        bool present = false;   ///< the camera gave the marker an image
+        bool left_out = false;  ///< judged partly occluded: not used in the triangulation
+        Eigen::Vector2d observed_px = Eigen::Vector2d::Zero();  ///< centroid as received (distorted frame px)
+        /// The image the last triangulation used (distorted frame px): the observed centroid, moved by the
+        /// shaft-occlusion correction where that applied.
+        Eigen::Vector2d used_px = Eigen::Vector2d::Zero();
+        Eigen::Vector2d used_xn = Eigen::Vector2d::Zero();  ///< `used_px` undistorted, normalised (z = 1)
+    };
+    /// Camera `c`'s image of marker `k` of `frame`, which must be the frame last built (see MarkerView).
+    MarkerView marker_view(const TrackingFrame& frame, int k, int c) const;
+
     /// Cameras in use.
     std::span<const CameraGeometry> cameras() const { return cameras_; }
     /// The configuration.
@@ -135,6 +150,9 @@ private:
     // Per-frame scratch (kept as members: no allocation, no large stack frames).
     std::array<CameraField, kMaxCameras> aligned_{};
     std::array<CameraObservations, kMaxCameras> views_{};
+    // Views the shaft-occlusion correction moved (bit c of marker k) and the normalised images it used.
+    std::array<std::uint8_t, kMaxMarkersPerFrame> corrected_views_{};
+    std::array<std::array<Eigen::Vector2d, kMaxCameras>, kMaxMarkersPerFrame> corrected_xn_{};
     int rejected_non_finite_ = 0;
     int rejected_before_restart_ = 0;
 };
