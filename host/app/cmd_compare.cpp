@@ -208,7 +208,7 @@ int run(const CompareOptions& opt) {
     if (!replay->open(opt.capture.c_str()))
         throw Error(fmt::format("{}: {}", opt.capture, replay->reader().open_error_message()));
     std::map<std::pair<int, uint32_t>, SentField> sent;
-    int64_t field_markers = 0, pedal_states = 0, device_status = 0, replies = 0, commands = 0;
+    int64_t field_markers = 0, pedal_states = 0, device_status = 0, replies = 0, commands = 0, register_writes = 0;
     proto::DecodedFrame frame;
     uint64_t rx_us = 0;
     while (replay->next(frame, rx_us)) {
@@ -224,7 +224,13 @@ int run(const CompareOptions& opt) {
             }
             case proto::MessageType::PedalState: ++pedal_states; break;  // the pedal is not the FPGA's
             case proto::MessageType::DeviceStatus: ++device_status; break;
-            case proto::MessageType::Reply: ++replies; break;
+            case proto::MessageType::Reply: {
+                const auto& r = std::get<proto::Reply>(frame.message);
+                ++replies;
+                register_writes += r.opcode == uint8_t(proto::Opcode::RegisterWrite) &&
+                                   r.status == uint8_t(proto::ReplyStatus::Ack);
+                break;
+            }
             case proto::MessageType::Command: ++commands; break;
         }
     }
@@ -239,6 +245,10 @@ int run(const CompareOptions& opt) {
     if (replay->status() == proto::CaptureStatus::Torn)
         warnings.push_back(fmt::format("{}: torn tail at byte {} ({} bytes) skipped", opt.capture,
                                        replay->reader().bad_offset(), replay->reader().dropped_bytes()));
+    // A capture holds what the host received: a Reply to a register write carries the value, not the address.
+    if (register_writes > 0)
+        warnings.push_back(fmt::format("{}: {} register write(s) acknowledged by the device; a capture holds no register "
+                                       "addresses: give the device's writes with --reg", opt.capture, register_writes));
     if (ps.errors() || ps.skipped_bytes || ps.sequence_gaps)
         warnings.push_back(fmt::format("{}: {} damaged frames, {} bytes skipped, {} sequence gaps: what was lost shows "
                                        "as missing fields", opt.capture, ps.errors(), ps.skipped_bytes, ps.sequence_gaps));
@@ -409,8 +419,9 @@ int run(const CompareOptions& opt) {
         {"compared", {{"fields", fields_compared}, {"messages", messages_compared}, {"markers", markers_compared},
                       {"values", values_compared}}},
         {"device", {{"field_markers", field_markers}, {"pedal_states", pedal_states}, {"device_status", device_status},
-                    {"replies", replies}, {"commands", commands}, {"ignored_messages", ignored},
-                    {"after_fields_limit", beyond_limit}, {"low_latency_fields", low_latency}}},
+                    {"replies", replies}, {"register_writes", register_writes}, {"commands", commands},
+                    {"ignored_messages", ignored}, {"after_fields_limit", beyond_limit},
+                    {"low_latency_fields", low_latency}}},
         {"device_epoch_us", epoch_us},
         {"counts", {{"value_mismatch", values}, {"blob_missing", counts.blob_missing}, {"blob_extra", counts.blob_extra},
                     {"field_missing", counts.field_missing}, {"field_extra", counts.field_extra},

@@ -80,8 +80,10 @@ json compare(const fs::path& capture, int& rc, const std::string& extra = "") {
 }
 
 /// Copies `src` to `dst` frame by frame through the protocol codec: `edit` may change a decoded message (it is
-/// re-encoded with its sequence number, so its CRC is good) or return false to leave the frame out.
-void rewrite(const fs::path& src, const fs::path& dst, const std::function<bool(proto::Message&)>& edit) {
+/// re-encoded with its sequence number, so its CRC is good) or return false to leave the frame out. `before`: a
+/// message written first (sequence number one before the first frame's).
+void rewrite(const fs::path& src, const fs::path& dst, const std::function<bool(proto::Message&)>& edit,
+             const std::optional<proto::Message>& before = std::nullopt) {
     auto replay = std::make_unique<proto::CaptureReplay>();
     REQUIRE(replay->open(src.c_str()));
     proto::CaptureWriter out;
@@ -89,7 +91,14 @@ void rewrite(const fs::path& src, const fs::path& dst, const std::function<bool(
     proto::DecodedFrame f;
     uint64_t rx_us = 0;
     std::array<uint8_t, proto::kMaxFrameBytes> bytes{};
+    bool first = true;
     while (replay->next(f, rx_us)) {
+        if (first && before) {
+            const size_t n = proto::encode_frame(*before, uint16_t(f.header.sequence - 1), bytes);
+            REQUIRE(n > 0);
+            REQUIRE(out.write(rx_us, std::span<const uint8_t>(bytes.data(), n)));
+        }
+        first = false;
         if (!edit(f.message)) continue;
         const size_t n = proto::encode_frame(f.message, f.header.sequence, bytes);
         REQUIRE(n > 0);
@@ -277,6 +286,23 @@ TEST_CASE("compare: a capture made with one register changed differs unless comp
     CHECK(j["first_mismatch"]["camera"] != 1);
     j = compare(cam1, rc, "--reg 0x01C=30 --cameras 1");
     CHECK(rc == 0);
+
+    // A capture in which the device acknowledged a register write: the Reply has the value but not the address,
+    // so compare says it cannot know the map from the capture.
+    proto::Reply ack;
+    ack.command_id = 7;
+    ack.opcode = uint8_t(proto::Opcode::RegisterWrite);
+    ack.value = 30;
+    const fs::path acked = scratch() / "acked.bin";
+    rewrite(cap, acked, [](proto::Message&) { return true; }, proto::Message{ack});
+    const Result r = run_eyesim("compare --recording " + recording().string() + " --capture " + acked.string() +
+                                " --reg 0x01C=30 --json");
+    CHECK(r.rc == 0);
+    CHECK(r.err == "eyesim: warning: " + acked.string() + ": 1 register write(s) acknowledged by the device; a capture "
+                   "holds no register addresses: give the device's writes with --reg\n");
+    j = json::parse(r.out);
+    CHECK(j["device"]["register_writes"] == 1);
+    CHECK(j["warnings"].size() == 1);
 }
 
 TEST_CASE("compare: nothing compared is never a pass, and bad input or usage is an error", "[host][compare]") {
