@@ -1,13 +1,17 @@
 // `eyesim validate`: FPGA model → FieldMarkers packets (the firmware's wire conversion, encoded and parsed) →
-// tracking, over a recording with ground truth; accuracy, latency and drop statistics, optional report.
+// tracking, over a recording (with or without ground truth) or a capture; accuracy against the truth where there is
+// one, the truth-free figures (residuals, marker-pair distances, eye-centre stability, dropouts) always, latency and
+// drop statistics, optional HTML report.
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/refine.hpp"
+#include "eyesim/app/report.hpp"
 
 #include "eyesim/firmware/latency.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/register_map.hpp"
 #include "eyesim/fpga/timing.hpp"
 #include "eyesim/fpga/wire.hpp"
+#include "eyesim/frame/session.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
@@ -18,6 +22,7 @@
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/tracking/rig_adapter.hpp"
 #include "eyesim/tracking/tracker.hpp"
+#include "eyesim/tracking/truth_free.hpp"
 #include "eyesim/tracking/validation.hpp"
 
 #include <fmt/format.h>
@@ -33,7 +38,9 @@
 #include <fstream>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <random>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -47,6 +54,8 @@ using eyesim::app::Error;
 
 struct ValidateOptions {
     std::string dir;
+    std::string capture;
+    std::string rig;
     std::string report;
     bool json = false;
     int max_fields = 0;
@@ -79,11 +88,23 @@ struct RunStats {
     std::vector<long> tip_held;
 };
 
-/// Per-camera centroid comparison (FPGA path only).
+/// Per-camera centroid comparison (FPGA path only). `err_px` by this command's rule; `fpga_rule_err_px` by the
+/// rule of `eyesim fpga` (see kCentroidRules), so that the report can show both.
 struct CentroidStats {
-    std::vector<double> err_px;
-    long blobs = 0, matched = 0, missed = 0, spurious = 0, fields_with_drops = 0;
+    std::vector<double> err_px, fpga_rule_err_px;
+    long blobs = 0, matched = 0, missed = 0, spurious = 0, fields_with_drops = 0, fpga_rule_missed = 0;
 };
+
+/// Why `eyesim fpga` and `eyesim validate` give different centroid figures for the same recording.
+constexpr const char* kCentroidRules =
+    "Both commands match each truth marker to the nearest unused blob of its colour class (rig/match.hpp) and "
+    "measure the distance in field pixels to the rendered intensity centroid. They score different markers with "
+    "different gates: `eyesim fpga` scores every marker with a visible rendered area of at least 2 field px, partly "
+    "hidden ones included, with a 3 px gate, on the pipeline's blobs as they leave the FPGA model; `eyesim validate` "
+    "scores only markers with no part hidden (occluded_fraction 0), with a 1.5 px gate, on the blobs after the wire "
+    "conversion (Q16.16 coordinates, encoded and parsed back), and counts a marker as missed only when its area is at "
+    "least 4 px. Partly hidden markers (markers crossing, the eye's rim, the instruments' shafts) and matches between "
+    "1.5 and 3 px therefore enter `fpga`'s RMS and not `validate`'s.";
 
 double us_now() {
     return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -101,11 +122,13 @@ struct Timed {
     proto::FieldMarkers msg;
 };
 
-/// Feeds messages of one field index into the tracker (in receive order) and scores the frames that come out.
+/// Feeds messages of one field index into the tracker (in receive order) and scores the frames that come out:
+/// against the truth when there is one (`truth` may be empty), and by the truth-free checks always.
 class Runner {
 public:
-    Runner(std::string name, const tr::TrackerConfig& cfg, const std::vector<rig::FieldTruth>& truth)
-        : tracker_(cfg), bodies_(cfg.bodies), truth_(truth) {
+    Runner(std::string name, const tr::TrackerConfig& cfg, const std::vector<rig::FieldTruth>& truth,
+           const tr::InstrumentModel* wand)
+        : tracker_(cfg), bodies_(cfg.bodies), truth_(truth), free_(cfg.bodies, int(cfg.cameras.size()), wand) {
         stats_.name = std::move(name);
         stats_.tip_held.assign(std::size_t(cfg.bodies.instrument_count), 0);
         stats_.frame_tip_um.resize(std::size_t(cfg.bodies.instrument_count));
@@ -126,6 +149,7 @@ public:
     }
 
     RunStats& stats() { return stats_; }
+    const tr::TruthFreeStats& truth_free() const { return free_; }
 
 private:
     void drain(double now_us) {
@@ -134,6 +158,7 @@ private:
 
     void score() {
         RunStats& s = stats_;
+        free_.add(tracker_, frame_);  // before anything else: it reads the tracker's images of this frame
         ++s.frames;
         if (frame_.flags & tr::kFrameTwoView) ++s.two_view_frames;
         if (frame_.flags & tr::kFrameTooFewCameras) ++s.too_few_camera_frames;
@@ -182,8 +207,72 @@ private:
     tr::Tracker tracker_;
     tr::BodySet bodies_;
     const std::vector<rig::FieldTruth>& truth_;
+    tr::TruthFreeStats free_;
     tr::TrackingFrame frame_;
     RunStats stats_;
+};
+
+/// The bodies file's calibration wand as an instrument-like body (origin at marker 0, +z along the rod) for the
+/// truth-free checks; nullopt when the file has none.
+template <class Bodies>
+std::optional<tr::InstrumentModel> wand_model(const Bodies& bodies) {
+    if constexpr (requires { bodies.wand.markers; }) {
+        if (!bodies.wand.present() || bodies.wand.markers.size() > std::size_t(tr::kMaxBodyMarkers)) return std::nullopt;
+        tr::InstrumentModel m;
+        m.name = "wand";
+        for (std::size_t i = 0; i < bodies.wand.markers.size(); ++i) {
+            tr::BodyMarker& b = m.markers[std::size_t(m.marker_count++)];
+            b.colour_class = std::uint8_t(bodies.wand.markers[i].colour_class);
+            b.pos_body_mm = bodies.wand.marker_position_mm(i);
+        }
+        return m;
+    } else {
+        return std::nullopt;
+    }
+}
+
+/// A progress line on stderr with the time left, at most five times a second; only when `on` (stderr a terminal,
+/// no --json: eyesim::app::show_progress).
+class Progress {
+public:
+    Progress(bool on, std::string what, std::string unit) : on_(on), what_(std::move(what)), unit_(std::move(unit)) {}
+    Progress(const Progress&) = delete;
+    Progress& operator=(const Progress&) = delete;
+    ~Progress() { end(); }
+
+    /// `done` of `total` (total ≤ 0: unknown, no time left shown).
+    void update(long done, long total) {
+        if (!on_) return;
+        const double now = us_now();
+        if (done < total && now - last_us_ < 2e5) return;
+        last_us_ = now;
+        const double elapsed_s = (now - t0_us_) * 1e-6;
+        std::string line = total > 0 ? fmt::format("{}: {}/{} {}, {} elapsed", what_, done, total, unit_, duration(elapsed_s))
+                                     : fmt::format("{}: {} {}, {} elapsed", what_, done, unit_, duration(elapsed_s));
+        if (total > 0 && done > 0 && done < total)
+            line += fmt::format(", about {} left", duration(elapsed_s * double(total - done) / double(done)));
+        std::fprintf(stderr, "\r%-*s", int(std::max<std::size_t>(width_, line.size())), line.c_str());
+        width_ = line.size();
+        shown_ = true;
+    }
+
+    /// Ends the line (once).
+    void end() {
+        if (shown_) std::fprintf(stderr, "\n");
+        shown_ = false;
+    }
+
+private:
+    static std::string duration(double s) {
+        if (s < 10) return fmt::format("{:.1f} s", s);
+        if (s < 60) return fmt::format("{:.0f} s", s);
+        return fmt::format("{} min {:02} s", long(s) / 60, long(s) % 60);
+    }
+    bool on_;
+    std::string what_, unit_;
+    double t0_us_ = us_now(), last_us_ = -1e18;
+    std::size_t width_ = 0;
+    bool shown_ = false;
 };
 
 // ------------------------------------------------------------------------------------------------------------
@@ -403,10 +492,583 @@ nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
 }
 
 // ------------------------------------------------------------------------------------------------------------
+// Truth-free figures (eyesim/tracking/truth_free.hpp): JSON, text, plots
+// ------------------------------------------------------------------------------------------------------------
+
+std::vector<double> as_double(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+
+nlohmann::json rms_of(double ss, long n) {
+    if (n <= 0) return nullptr;
+    return std::sqrt(ss / double(n));
+}
+
+nlohmann::json p95_of(std::vector<double> v) { return summary_json(std::move(v))["p95"]; }
+
+/// Distances of the per-frame eye centres from their mean (µm).
+std::vector<double> eye_centre_spread_um(const tr::TruthFreeStats& tf, Eigen::Vector3d& mean) {
+    mean.setZero();
+    for (const Eigen::Vector3d& c : tf.eye_centres_mm()) mean += c;
+    if (!tf.eye_centres_mm().empty()) mean /= double(tf.eye_centres_mm().size());
+    std::vector<double> d;
+    for (const Eigen::Vector3d& c : tf.eye_centres_mm()) d.push_back((c - mean).norm() * 1e3);
+    return d;
+}
+
+/// One pair's figures (null where it was never measured).
+nlohmann::json pair_json(const tr::TruthFreeStats& tf, const tr::PairDistance& p) {
+    const bool any = p.frames > 0;
+    return {{"body", tf.body_name(p.body)},
+            {"markers", {p.a, p.b}},
+            {"model_mm", p.model_mm},
+            {"frames", p.frames},
+            {"mean_error_um", any ? nlohmann::json(p.sum_um / double(p.frames)) : nlohmann::json(nullptr)},
+            {"rms_error_um", rms_of(p.ss_um2, p.frames)},
+            {"max_abs_error_um", any ? nlohmann::json(p.max_abs_um) : nlohmann::json(nullptr)}};
+}
+
+/// The `truth_free` object of the JSON summary (docs/validation.md, "Validation without truth").
+nlohmann::json truth_free_json(const tr::TruthFreeStats& tf) {
+    nlohmann::json j;
+    j["frames"] = tf.frames();
+    std::vector<double> rp, fp, ray;
+    nlohmann::json cams = nlohmann::json::array();
+    for (std::size_t c = 0; c < tf.cameras().size(); ++c) {
+        const tr::CameraResiduals& cr = tf.cameras()[c];
+        const std::vector<double> r = as_double(cr.reprojection_px), f = as_double(cr.fit_reprojection_px),
+                                  u = as_double(cr.ray_um);
+        rp.insert(rp.end(), r.begin(), r.end());
+        fp.insert(fp.end(), f.begin(), f.end());
+        ray.insert(ray.end(), u.begin(), u.end());
+        cams.push_back({{"camera", c},
+                        {"views", r.size()},
+                        {"reprojection_rms_px", rms(r)},
+                        {"reprojection_p95_px", p95_of(r)},
+                        {"fit_reprojection_rms_px", rms(f)},
+                        {"ray_residual_rms_um", rms(u)},
+                        {"ray_residual_p95_um", p95_of(u)},
+                        {"views_left_out_occluded", cr.views_left_out}});
+    }
+    j["reprojection_rms_px"] = rms(rp);
+    j["reprojection_px"] = summary_json(rp);
+    j["fit_reprojection_rms_px"] = rms(fp);
+    j["fit_reprojection_px"] = summary_json(fp);
+    j["ray_residual_rms_um"] = rms(ray);
+    j["ray_residual_um"] = summary_json(ray);
+    j["per_camera"] = cams;
+
+    const std::vector<double> pe = as_double(tf.pair_errors_um());
+    std::vector<double> pabs;
+    double psum = 0;
+    for (double e : pe) pabs.push_back(std::abs(e)), psum += e;
+    j["pair_distance_rms_um"] = rms(pe);
+    j["pair_distance_mean_error_um"] = pe.empty() ? nlohmann::json(nullptr) : nlohmann::json(psum / double(pe.size()));
+    j["pair_distance_abs_error_um"] = summary_json(pabs);
+    nlohmann::json pairs = nlohmann::json::array();
+    for (const tr::PairDistance& p : tf.pairs()) pairs.push_back(pair_json(tf, p));
+    j["pair_distances"] = pairs;
+
+    nlohmann::json bodies = nlohmann::json::array();
+    j["wand_length_error_um"] = nullptr;
+    for (const tr::BodyTrack& b : tf.bodies()) {
+        const long span = b.first_frame < 0 ? 0 : b.last_frame - b.first_frame + 1;
+        nlohmann::json bj{{"body", b.name},
+                          {"measured_frames", b.measured_frames},
+                          {"first_frame", b.first_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(b.first_frame)},
+                          {"last_frame", b.last_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(b.last_frame)},
+                          {"tracked_span_frames", span}};
+        // Its length (outermost markers): the wand's calibration length when the body is a wand.
+        bj["length"] = b.length_pair < 0 ? nlohmann::json(nullptr) : pair_json(tf, tf.pairs()[std::size_t(b.length_pair)]);
+        if (b.name == "wand" && b.measured_frames > 0) j["wand_length_error_um"] = bj["length"];
+        bodies.push_back(bj);
+    }
+    j["bodies"] = bodies;
+
+    nlohmann::json markers = nlohmann::json::array();
+    for (const tr::MarkerResiduals& m : tf.markers()) {
+        const tr::BodyTrack& b = tf.bodies()[std::size_t(m.body)];
+        const long span = b.first_frame < 0 ? 0 : b.last_frame - b.first_frame + 1;
+        markers.push_back({{"body", b.name},
+                           {"marker", m.marker},
+                           {"colour_class", m.colour_class},
+                           {"frames_assigned", m.frames_assigned},
+                           {"frames_flagged_occluded", m.frames_occluded},
+                           {"tracked_span_frames", span},
+                           {"dropout_fraction", span ? nlohmann::json(1.0 - double(m.frames_assigned) / double(span))
+                                                     : nlohmann::json(nullptr)},
+                           {"views", m.views},
+                           {"reprojection_rms_px", rms_of(m.reprojection_ss_px2, m.views)},
+                           {"fit_reprojection_rms_px", rms_of(m.fit_reprojection_ss_px2, m.views)},
+                           {"ray_residual_rms_um", rms_of(m.ray_ss_um2, m.views)}});
+    }
+    j["per_marker"] = markers;
+    const long span = tf.span_marker_frames();
+    j["dropout_fraction"] = span ? nlohmann::json(double(tf.dropped_marker_frames()) / double(span)) : nlohmann::json(nullptr);
+    j["unassigned_markers"] = tf.unassigned_markers();
+
+    Eigen::Vector3d mean;
+    const std::vector<double> spread = eye_centre_spread_um(tf, mean);
+    const Eigen::Vector3d& conf = tf.eye_centre_configured_mm();
+    nlohmann::json ec{{"frames", spread.size()},
+                      {"spread_rms_um", rms(spread)},
+                      {"spread_um", summary_json(spread)},
+                      {"configured_rig_mm", {conf.x(), conf.y(), conf.z()}}};
+    if (spread.empty()) {
+        ec["mean_rig_mm"] = nullptr;
+        ec["mean_offset_um"] = nullptr;
+    } else {
+        ec["mean_rig_mm"] = {mean.x(), mean.y(), mean.z()};
+        ec["mean_offset_um"] = (mean - conf).norm() * 1e3;
+    }
+    j["eye_centre"] = ec;
+    return j;
+}
+
+/// Text lines of the truth-free figures.
+void print_truth_free(const nlohmann::json& t, const std::string& chain) {
+    const std::string dropout = t["dropout_fraction"].is_null()
+                                    ? std::string("not measured")
+                                    : fmt::format("{:.2f} %", 100.0 * t["dropout_fraction"].get<double>());
+    std::printf("  truth-free, %s (%ld frames): reprojection RMS %s (fitted bodies %s), ray residual RMS %s, "
+                "marker-pair distance RMS %s (mean %s), eye centre spread RMS %s (mean %s from the configured "
+                "centre), dropouts %s\n",
+                chain.c_str(), t["frames"].get<long>(), figure(t["reprojection_rms_px"], "{:.4f} px").c_str(),
+                figure(t["fit_reprojection_rms_px"], "{:.4f} px").c_str(),
+                figure(t["ray_residual_rms_um"], "{:.1f} um").c_str(),
+                figure(t["pair_distance_rms_um"], "{:.1f} um").c_str(),
+                figure(t["pair_distance_mean_error_um"], "{:+.1f} um").c_str(),
+                figure(t["eye_centre"]["spread_rms_um"], "{:.1f} um").c_str(),
+                figure(t["eye_centre"]["mean_offset_um"], "{:.1f} um").c_str(), dropout.c_str());
+    std::string cams;
+    for (const auto& c : t["per_camera"])
+        cams += fmt::format("{}cam{} {} / {} ({} views)", cams.empty() ? "" : ", ", c["camera"].get<int>(),
+                            figure(c["reprojection_rms_px"], "{:.4f} px"), figure(c["ray_residual_rms_um"], "{:.1f} um"),
+                            c["views"].get<long>());
+    std::printf("    per camera, reprojection / ray residual RMS: %s\n", cams.c_str());
+    if (!t["wand_length_error_um"].is_null())
+        std::printf("    wand length error: mean %s, RMS %s over %ld frames\n",
+                    figure(t["wand_length_error_um"]["mean_error_um"], "{:+.1f} um").c_str(),
+                    figure(t["wand_length_error_um"]["rms_error_um"], "{:.1f} um").c_str(),
+                    t["wand_length_error_um"]["frames"].get<long>());
+}
+
+/// The truth-free plots; returns (file, caption) of each, in report order.
+std::vector<std::pair<std::string, std::string>> plot_truth_free(const std::string& d, const tr::TruthFreeStats& tf,
+                                                                 Progress& pr, long& step, long steps) {
+    std::vector<std::pair<std::string, std::string>> out;
+    std::vector<std::pair<std::string, std::vector<double>>> rp, fp, ray;
+    for (std::size_t c = 0; c < tf.cameras().size(); ++c) {
+        const std::string name = fmt::format("camera {}", c);
+        rp.push_back({name, as_double(tf.cameras()[c].reprojection_px)});
+        fp.push_back({name, as_double(tf.cameras()[c].fit_reprojection_px)});
+        ray.push_back({name, as_double(tf.cameras()[c].ray_um)});
+    }
+    const auto done = [&](std::string file, std::string caption) {
+        out.push_back({std::move(file), std::move(caption)});
+        pr.update(++step, steps);
+    };
+    plot_histogram(d + "reprojection_hist.png", "Reprojection residual: triangulated point vs image used",
+                   "residual (frame px)", rp);
+    done("reprojection_hist.png", "Reprojection residual per camera (triangulated point against the image used)");
+    plot_histogram(d + "fit_reprojection_hist.png", "Reprojection residual: fitted body point vs image used",
+                   "residual (frame px)", fp);
+    done("fit_reprojection_hist.png", "Reprojection residual per camera (fitted body's model point)");
+    plot_histogram(d + "ray_residual_hist.png", "Ray residual: distance of each camera ray from the point",
+                   "residual (um)", ray);
+    done("ray_residual_hist.png", "Ray-convergence residual per camera");
+    std::vector<double> pabs;
+    for (float e : tf.pair_errors_um()) pabs.push_back(std::abs(double(e)));
+    plot_histogram(d + "pair_distance_hist.png", "Marker-pair distance: |measured - bodies file|", "error (um)",
+                   {{"all bodies", pabs}});
+    done("pair_distance_hist.png", "Marker-pair distance error against the bodies file, every pair of every body");
+    Eigen::Vector3d mean;
+    plot_histogram(d + "eye_centre_hist.png", "Eye centre per frame: distance from the mean centre", "distance (um)",
+                   {{"eye centre", eye_centre_spread_um(tf, mean)}});
+    done("eye_centre_hist.png", "Eye-centre stability: the centre of a free rigid fit of the eye's markers, per frame");
+    plot_series(d + "residual_over_time.png", "Reprojection residual RMS per frame (red ticks: no view scored)",
+                "px", tf.frame_t_s(), {{"reprojection RMS per frame (frame px)", tf.frame_reprojection_px()}});
+    done("residual_over_time.png", "Reprojection residual RMS per frame over time");
+    return out;
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// HTML report (the style of `demo` and `sim`: index.html with tables and PNG plots)
+// ------------------------------------------------------------------------------------------------------------
+
+std::string html_escape(const std::string& s) {
+    std::string o;
+    for (char c : s) {
+        if (c == '<') o += "&lt;";
+        else if (c == '>') o += "&gt;";
+        else if (c == '&') o += "&amp;";
+        else o += c;
+    }
+    return o;
+}
+
+/// A table: header cells (with units), then rows of already formatted cells.
+std::string html_table(const std::vector<std::string>& head, const std::vector<std::vector<std::string>>& rows) {
+    std::string h = "<table><tr>";
+    for (const std::string& c : head) h += "<th>" + html_escape(c) + "</th>";
+    h += "</tr>\n";
+    for (const auto& r : rows) {
+        h += "<tr>";
+        for (const std::string& c : r) h += "<td>" + html_escape(c) + "</td>";
+        h += "</tr>\n";
+    }
+    return h + "</table>\n";
+}
+
+std::string html_figures(const std::vector<std::pair<std::string, std::string>>& plots) {
+    std::string h;
+    for (const auto& [file, caption] : plots)
+        h += fmt::format("<figure><img src='{}' alt='{}'><figcaption>{}</figcaption></figure>\n", file,
+                         html_escape(caption), html_escape(caption));
+    return h;
+}
+
+std::string cell(const nlohmann::json& v, const char* format) { return figure(v, format); }
+
+std::string count_cell(const nlohmann::json& v) { return v.is_null() ? std::string("not measured") : v.dump(); }
+
+/// The truth-free section of the report.
+std::string html_truth_free(const nlohmann::json& t, const std::vector<std::pair<std::string, std::string>>& plots) {
+    std::string h = "<h2>Truth-free checks (what real data allows)</h2>\n<p>From the tracker's own frames, as on a rig "
+                    "without ground truth. Residuals are in frame pixels (720&times;576; a field pixel is two frame "
+                    "rows high) against the image the tracker used (the received centroid, moved by its "
+                    "shaft-occlusion correction on instrument markers). Views the tracker judged partly occluded and "
+                    "markers it flagged occluded are counted, not scored.</p>\n";
+    const auto pct = [](const nlohmann::json& v) {
+        return v.is_null() ? std::string("not measured") : fmt::format("{:.2f}", 100.0 * v.get<double>());
+    };
+    h += html_table(
+        {"quantity", "value", "what it is"},
+        {{"frames", std::to_string(t["frames"].get<long>()), "tracking frames scored"},
+         {"reprojection residual RMS (px)", cell(t["reprojection_rms_px"], "{:.4f}"),
+          "triangulated 3D point projected into each camera vs the image used"},
+         {"reprojection residual p95 (px)", cell(t["reprojection_px"]["p95"], "{:.4f}"), ""},
+         {"fitted-body reprojection RMS (px)", cell(t["fit_reprojection_rms_px"], "{:.4f}"),
+          "the body's model marker under the fitted pose, projected"},
+         {"ray residual RMS (µm)", cell(t["ray_residual_rms_um"], "{:.2f}"),
+          "distance of each camera's ray through its image from the triangulated point"},
+         {"ray residual p95 (µm)", cell(t["ray_residual_um"]["p95"], "{:.2f}"), ""},
+         {"marker-pair distance error RMS (µm)", cell(t["pair_distance_rms_um"], "{:.2f}"),
+          "measured distance − bodies file, every pair of assigned markers of every body"},
+         {"marker-pair distance mean error (µm)", cell(t["pair_distance_mean_error_um"], "{:+.2f}"),
+          "a bias here is a scale error of the rig or a body built differently from its file"},
+         {"eye-centre spread RMS (µm)", cell(t["eye_centre"]["spread_rms_um"], "{:.1f}"),
+          "per-frame centre of a free rigid fit of the eye markers, distance from its mean"},
+         {"eye-centre mean offset (µm)", cell(t["eye_centre"]["mean_offset_um"], "{:.1f}"),
+          "mean per-frame centre vs the configured centre (bodies file)"},
+         {"dropouts (% of marker-frames)", pct(t["dropout_fraction"]),
+          "markers not assigned within their body's tracked span"},
+         {"wand length error mean (µm)",
+          t["wand_length_error_um"].is_null() ? std::string("no wand found") : cell(t["wand_length_error_um"]["mean_error_um"], "{:+.2f}"),
+          "the wand's outermost markers against the bodies file"},
+         {"unassigned triangulated markers", std::to_string(t["unassigned_markers"].get<long>()), "no body claimed them"}});
+    h += "<h3>Per camera</h3>\n";
+    std::vector<std::vector<std::string>> rows;
+    for (const auto& c : t["per_camera"])
+        rows.push_back({std::to_string(c["camera"].get<int>()), std::to_string(c["views"].get<long>()),
+                        cell(c["reprojection_rms_px"], "{:.4f}"), cell(c["reprojection_p95_px"], "{:.4f}"),
+                        cell(c["fit_reprojection_rms_px"], "{:.4f}"), cell(c["ray_residual_rms_um"], "{:.2f}"),
+                        cell(c["ray_residual_p95_um"], "{:.2f}"), std::to_string(c["views_left_out_occluded"].get<long>())});
+    h += html_table({"camera", "views scored", "reprojection RMS (px)", "reprojection p95 (px)",
+                     "fitted-body reprojection RMS (px)", "ray residual RMS (µm)", "ray residual p95 (µm)",
+                     "views left out (partly occluded)"},
+                    rows);
+    h += html_figures(plots);
+    h += "<h3>Per marker: residuals and dropouts</h3>\n<p>Tracked span: the body's first to last measured frame; "
+         "dropout: the fraction of that span in which the marker was not assigned. Bodies never measured are left "
+         "out of this table and the next (see Bodies).</p>\n";
+    rows.clear();
+    for (const auto& m : t["per_marker"]) {
+        if (m["tracked_span_frames"].get<long>() == 0) continue;
+        const nlohmann::json& d = m["dropout_fraction"];
+        rows.push_back({m["body"].get<std::string>(), std::to_string(m["marker"].get<int>()),
+                        std::to_string(m["colour_class"].get<int>()), std::to_string(m["tracked_span_frames"].get<long>()),
+                        std::to_string(m["frames_assigned"].get<long>()), pct(d),
+                        std::to_string(m["frames_flagged_occluded"].get<long>()), std::to_string(m["views"].get<long>()),
+                        cell(m["reprojection_rms_px"], "{:.4f}"), cell(m["fit_reprojection_rms_px"], "{:.4f}"),
+                        cell(m["ray_residual_rms_um"], "{:.2f}")});
+    }
+    h += html_table({"body", "marker", "colour class", "tracked span (frames)", "assigned (frames)", "dropout (%)",
+                     "flagged occluded (frames)", "views scored", "reprojection RMS (px)",
+                     "fitted-body reprojection RMS (px)", "ray residual RMS (µm)"},
+                    rows);
+    h += "<h3>Marker-pair distances against the bodies file</h3>\n";
+    rows.clear();
+    std::set<std::string> measured;
+    for (const auto& b : t["bodies"])
+        if (b["measured_frames"].get<long>() > 0) measured.insert(b["body"].get<std::string>());
+    for (const auto& p : t["pair_distances"])
+        if (measured.count(p["body"].get<std::string>()))
+            rows.push_back({p["body"].get<std::string>(),
+                            fmt::format("{}–{}", p["markers"][0].get<int>(), p["markers"][1].get<int>()),
+                            fmt::format("{:.3f}", p["model_mm"].get<double>()), std::to_string(p["frames"].get<long>()),
+                            cell(p["mean_error_um"], "{:+.2f}"), cell(p["rms_error_um"], "{:.2f}"),
+                            cell(p["max_abs_error_um"], "{:.2f}")});
+    h += html_table({"body", "markers", "distance in file (mm)", "frames", "mean error (µm)", "RMS error (µm)",
+                     "max |error| (µm)"},
+                    rows);
+    h += "<h3>Bodies</h3>\n";
+    rows.clear();
+    for (const auto& b : t["bodies"])
+        rows.push_back({b["body"].get<std::string>(), std::to_string(b["measured_frames"].get<long>()),
+                        count_cell(b["first_frame"]), count_cell(b["last_frame"]),
+                        std::to_string(b["tracked_span_frames"].get<long>()),
+                        b["length"].is_null() ? std::string("–") : cell(b["length"]["mean_error_um"], "{:+.2f}")});
+    h += html_table({"body", "measured (frames)", "first frame", "last frame", "tracked span (frames)",
+                     "length error, outermost markers, mean (µm)"},
+                    rows);
+    const nlohmann::json& ec = t["eye_centre"];
+    h += fmt::format("<p>Eye centre: {} frames with at least three eye markers; spread RMS {} µm, p95 {} µm; mean "
+                     "centre {} from the configured centre.</p>\n",
+                     ec["frames"].get<long>(), cell(ec["spread_rms_um"], "{:.1f}"), cell(ec["spread_um"]["p95"], "{:.1f}"),
+                     cell(ec["mean_offset_um"], "{:.1f} µm"));
+    return h;
+}
+
+/// The truth section of the report (recordings with truth.jsonl).
+std::string html_truth(const nlohmann::json& j, const std::vector<std::pair<std::string, std::string>>& centroid_plots,
+                       const std::vector<std::pair<std::string, std::string>>& pose_plots) {
+    std::string h = "<h2>Centroids against the rendered truth (field px)</h2>\n";
+    std::vector<std::vector<std::string>> rows;
+    for (const auto& c : j["per_camera"])
+        rows.push_back({std::to_string(c["camera"].get<int>()), cell(c["centroid_rms_px"], "{:.4f}"),
+                        cell(c["centroid_p95_px"], "{:.4f}"), cell(c["centroid_max_px"], "{:.4f}"),
+                        std::to_string(c["matched"].get<long>()), std::to_string(c["missed_visible_markers"].get<long>()),
+                        std::to_string(c["spurious_blobs"].get<long>()), std::to_string(c["blobs"].get<long>()),
+                        cell(c["fpga_rule"]["centroid_rms_px"], "{:.4f}"), std::to_string(c["fpga_rule"]["matched"].get<long>()),
+                        std::to_string(c["fpga_rule"]["missed"].get<long>())});
+    h += html_table({"camera", "RMS (px)", "p95 (px)", "max (px)", "matched", "missed", "spurious blobs", "blobs",
+                     "RMS by eyesim fpga's rule (px)", "matched by fpga's rule", "missed by fpga's rule"},
+                    rows);
+    h += "<p><b>Why <code>eyesim fpga</code> gives other centroid figures.</b> " + html_escape(kCentroidRules) +
+         " The last three columns score this run's blobs by <code>fpga</code>'s rule.</p>\n";
+    h += html_figures(centroid_plots);
+    const nlohmann::json& f = j["fpga_chain"];
+    const nlohmann::json& t = j["truth_centroids"];
+    h += fmt::format("<h2>Poses against the truth</h2>\n<p>FPGA chain: the FPGA model's blobs through the wire "
+                     "format to the tracker. Truth centroids: the rendered centroids + {} px Gaussian noise, the same "
+                     "tracker (isolates the tracking error from the centroid error). 3D marker rows leave out markers "
+                     "the tracker flags as partly occluded; those are listed apart.</p>\n",
+                     t["noise_px"].get<double>());
+    rows.clear();
+    const auto row = [&](const char* what, const char* key, const char* unit) {
+        rows.push_back({fmt::format("{} ({})", what, unit), cell(f[key]["rms"], "{:.3f}"), cell(f[key]["p95"], "{:.3f}"),
+                        cell(f[key]["max"], "{:.3f}"), std::to_string(f[key]["count"].get<long>()),
+                        cell(t[key]["rms"], "{:.3f}"), cell(t[key]["p95"], "{:.3f}"), cell(t[key]["max"], "{:.3f}"),
+                        std::to_string(t[key]["count"].get<long>())});
+    };
+    row("3D marker error", "marker3d_um", "µm");
+    row("3D marker error, eye", "marker3d_eye_um", "µm");
+    row("3D marker error, instruments", "marker3d_instrument_um", "µm");
+    row("3D error of markers flagged occluded", "marker3d_flagged_occluded_um", "µm");
+    row("tip error, rig frame", "tip_um", "µm");
+    row("tip error, eye frame", "tip_eye_frame_um", "µm");
+    row("axis error", "axis_deg", "deg");
+    row("insertion depth error", "insertion_um", "µm");
+    row("eye rotation error", "eye_rot_deg", "deg");
+    h += html_table({"quantity (unit)", "FPGA RMS", "FPGA p95", "FPGA max", "FPGA samples", "truth centroids RMS",
+                     "truth centroids p95", "truth centroids max", "truth centroids samples"},
+                    rows);
+    h += html_figures(pose_plots);
+    return h;
+}
+
+/// Latency and drops of the FPGA chain.
+std::string html_chain(const nlohmann::json& f, long fields_with_drops, long parse_errors) {
+    std::string h = "<h2>Latency (modelled device and link, measured tracking)</h2>\n";
+    std::vector<std::vector<std::string>> rows;
+    for (const auto& [name, key] : std::vector<std::pair<std::string, std::string>>{
+             {"field end → packet received (µs)", "latency_field_end_to_received_us"},
+             {"field end → poses ready (µs)", "latency_us"},
+             {"exposure mid → poses ready (µs)", "latency_exposure_to_poses_us"},
+             {"tracking stage compute (µs)", "tracking_compute_us"}})
+        rows.push_back({name, cell(f[key]["p50"], "{:.1f}"), cell(f[key]["p99"], "{:.1f}"), cell(f[key]["max"], "{:.1f}")});
+    h += html_table({"span", "p50", "p99", "max"}, rows);
+    h += "<h2>Drops and rejections (FPGA chain)</h2>\n";
+    rows.clear();
+    for (const auto& [k, v] : f["markers"].items()) rows.push_back({k, v.dump()});
+    rows.push_back({"frames", f["frames"].dump()});
+    rows.push_back({"frames with two views at most", f["frames_two_view"].dump()});
+    rows.push_back({"frames with too few cameras", f["frames_too_few_cameras"].dump()});
+    rows.push_back({"frames the eye was not measured", f["eye_not_measured_frames"].dump()});
+    for (const auto& [k, v] : f["instrument_not_measured_frames"].items())
+        rows.push_back({"frames " + k + " was not measured", v.dump()});
+    rows.push_back({"fields with dropped blobs", std::to_string(fields_with_drops)});
+    rows.push_back({"parse errors", std::to_string(parse_errors)});
+    h += html_table({"count", "value"}, rows);
+    return h;
+}
+
+/// Writes `dir`/index.html around the sections; returns its path.
+std::string write_index(const std::string& dir, const std::string& title, const std::string& intro,
+                        const std::vector<std::string>& warnings, const std::string& body) {
+    const std::string path = dir + "/index.html";
+    std::ofstream h(path);
+    if (!h) throw Error(path + ": cannot write");
+    h << "<!doctype html><html><head><meta charset='utf-8'><title>" << html_escape(title) << "</title>"
+      << "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+         "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:4px 10px;text-align:right}"
+         "th{background:#f0f0f0}td:first-child{text-align:left}img{max-width:100%}"
+         "figcaption{font-size:90%;color:#555}</style></head><body>\n";
+    h << "<h1>" << html_escape(title) << "</h1>\n<p>" << intro << "</p>\n";
+    for (const std::string& w : warnings) h << "<p><b>warning:</b> " << html_escape(w) << "</p>\n";
+    h << body << "</body></html>\n";
+    h.close();
+    if (!h) throw Error(path + ": write failed");
+    return path;
+}
+
+void make_report_dir(const std::string& dir) {
+    std::error_code ec;
+    std::filesystem::create_directories(dir, ec);
+    if (ec) throw Error(dir + ": cannot create directory: " + ec.message());
+}
+
+/// Messages in a capture file (for the progress line's time left).
+long count_capture_messages(const std::string& path) {
+    auto reader = std::make_unique<proto::CaptureReader>();
+    if (!reader->open(path.c_str())) return 0;
+    proto::StreamParser parser;
+    proto::CaptureRecord rec;
+    long n = 0;
+    for (;;) {
+        const proto::CaptureStatus st = reader->next(rec);
+        if (st == proto::CaptureStatus::Corrupt) continue;
+        if (st != proto::CaptureStatus::Ok) break;
+        parser.parse(rec.bytes, [&](const proto::DecodedFrame&) { ++n; });
+    }
+    return n;
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// A capture (`eyesim fpga --out`, `eyesim track` input): truth-free figures only
+// ------------------------------------------------------------------------------------------------------------
+
+int run_validate_capture(const ValidateOptions& opt) {
+    for (const auto& [given, name] : std::vector<std::pair<bool, const char*>>{
+             {!opt.write_capture.empty(), "--write-capture"}, {opt.refine, "--refine"},
+             {opt.max_fields > 0, "--max-fields"}, {opt.truth_projected, "--truth-projected"}})
+        if (given) throw Error(std::string("validate: ") + name + " needs --recording (a capture holds no fields)", 2);
+    if (opt.rig.empty()) throw Error("validate: --capture needs --rig FILE (the cameras the capture was made with)", 2);
+    const bool progress = eyesim::app::show_progress(opt.json);
+    std::vector<rig::CameraModel> cams;
+    rig::Bodies bodies;
+    try {
+        cams = rig::load_rig_yaml(opt.rig);
+        bodies = rig::load_bodies(opt.bodies.empty() ? rig::default_bodies_path() : opt.bodies);
+    } catch (const rig::RigError& e) {
+        throw Error(e.what());
+    }
+    tr::TrackerConfig cfg;
+    try {
+        cfg = eyesim::frame::tracker_config(cams, bodies, tr::all_instruments(bodies));
+    } catch (const eyesim::frame::SourceError& e) {
+        throw Error(opt.rig + ": " + e.what());
+    }
+    cfg.sync.mode = parse_sync(opt.sync);
+    cfg.pose.trocar_constraint = !opt.no_trocar;
+    cfg.centroid_sigma_px = opt.sigma_px;
+    const int ncam = int(cfg.cameras.size());
+    std::unique_ptr<eyesim::frame::HostRun> run;
+    try {
+        run = std::make_unique<eyesim::frame::HostRun>(cfg);
+    } catch (const eyesim::frame::SourceError& e) {
+        throw Error(opt.rig + ": " + e.what());
+    } catch (const std::invalid_argument& e) {
+        throw Error(opt.rig + ": " + e.what());
+    }
+    const std::optional<tr::InstrumentModel> wand = wand_model(bodies);
+    tr::TruthFreeStats tf(cfg.bodies, ncam, wand ? &*wand : nullptr);
+    const long total = progress ? count_capture_messages(opt.capture) : 0;
+    Progress pr(progress, "validate", "messages");
+    eyesim::frame::HostRun& hr = *run;
+    hr.set_hook([&](const tr::TrackingFrame& f, const eyesim::frame::FramePoses&) {
+        tf.add(hr.tracker(), f);
+        pr.update(long(hr.stats().messages), total);
+    });
+    std::vector<std::string> warnings;
+    const double t0 = us_now();
+    try {
+        eyesim::frame::run_capture(opt.capture, hr, warnings);
+    } catch (const eyesim::frame::SourceError& e) {
+        throw Error(e.what());
+    }
+    pr.update(total, total);
+    pr.end();
+    const double wall_s = (us_now() - t0) * 1e-6;
+    const eyesim::frame::RunStats& st = hr.stats();
+    if (st.parser.frames == 0)
+        throw Error(fmt::format("{}: no protocol frames ({} bytes skipped)", opt.capture, st.parser.skipped_bytes));
+    if (const std::string lost = eyesim::frame::loss_summary(st.loss); !lost.empty())
+        warnings.push_back(opt.capture + ": " + lost);
+    long assigned = 0;
+    for (const tr::MarkerResiduals& m : tf.markers()) assigned += m.frames_assigned;
+    if (assigned == 0)
+        throw Error(fmt::format("{}: no marker assigned to a body in {} tracking frames ({} FieldMarkers messages; "
+                                "{} triangulated markers, none fitted a body of {})",
+                                opt.capture, tf.frames(), st.field_markers, tf.unassigned_markers(),
+                                opt.bodies.empty() ? rig::default_bodies_path() : opt.bodies));
+    if (tf.bodies().front().measured_frames == 0)
+        warnings.push_back(fmt::format("{}: eye not measured in any of the {} frames: its figures are not measured",
+                                       opt.capture, tf.frames()));
+    for (const std::string& w : warnings) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+
+    nlohmann::json j;
+    j["capture"] = opt.capture;
+    j["rig"] = opt.rig;
+    j["truth"] = false;
+    j["cameras"] = ncam;
+    j["frames"] = st.frames;
+    j["fields"] = st.fields;
+    j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
+    j["sync"] = opt.sync;
+    j["trocar_constraint"] = !opt.no_trocar;
+    for (const char* k : {"centroid_rms_px", "marker3d_rms_um", "tip_rms_um", "eye_rot_rms_deg"}) j[k] = nullptr;
+    j["truth_free"] = truth_free_json(tf);
+    j.update(eyesim::app::latency_json(st));
+    j["loss"] = eyesim::app::loss_json(st.loss);
+    j["errors"] = st.parser.errors();
+    j["warnings"] = warnings;
+    if (!opt.report.empty()) {
+        make_report_dir(opt.report);
+        const std::string d = opt.report + "/";
+        long step = 0;
+        const long steps = 7;
+        Progress rp(progress, "validate: writing report", "files");
+        const auto plots = plot_truth_free(d, tf, rp, step, steps);
+        const std::string intro = fmt::format(
+            "Capture <b>{}</b> tracked with rig <b>{}</b>: {} tracking frames from {} camera fields, {} cameras, sync "
+            "{}, trocar constraint {}. No ground truth: truth-free figures only. Latency: {}.",
+            html_escape(opt.capture), html_escape(opt.rig), st.frames, st.fields, ncam, opt.sync,
+            opt.no_trocar ? "off" : "on", html_escape(eyesim::app::latency_line(st)));
+        j["report"] = write_index(opt.report, "eyesim validate: " + opt.capture, intro, warnings,
+                                  html_truth_free(j["truth_free"], plots));
+        rp.update(steps, steps);
+    }
+    if (opt.json) {
+        std::printf("%s\n", j.dump().c_str());
+    } else {
+        std::printf("%s: %llu tracking frames from %llu fields x %d cameras (rig %s, sync %s); no truth\n",
+                    opt.capture.c_str(), static_cast<unsigned long long>(st.frames),
+                    static_cast<unsigned long long>(st.fields), ncam, opt.rig.c_str(), opt.sync.c_str());
+        print_truth_free(j["truth_free"], "capture");
+        if (const std::string l = eyesim::app::latency_line(st); !l.empty()) std::printf("  %s\n", l.c_str());
+        if (j.contains("report")) std::printf("  report: %s\n", j["report"].get<std::string>().c_str());
+    }
+    return 0;
+}
+
+// ------------------------------------------------------------------------------------------------------------
 // The command
 // ------------------------------------------------------------------------------------------------------------
 
 int run_validate(const ValidateOptions& opt) {
+    if (opt.dir.empty() == opt.capture.empty())
+        throw Error("validate: give exactly one of --recording DIR, --capture FILE", 2);
+    if (!opt.capture.empty()) return run_validate_capture(opt);
     const bool progress = eyesim::app::show_progress(opt.json);
     rig::Recording rec = [&] {
         try {
@@ -421,22 +1083,28 @@ int run_validate(const ValidateOptions& opt) {
         std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
         warnings.push_back(std::move(w));
     };
-    for (const std::string& w : rec.warnings()) warn(w);
+    for (std::string& w : rec.take_warnings()) warn(std::move(w));
+    // Truth is optional: without it, the truth-free figures alone (a recording from a real rig).
     const std::string truth_path = rec.truth_path();
-    if (truth_path.empty()) throw Error(opt.dir + "/truth.jsonl: missing (validate needs ground truth)");
+    const bool have_truth = !truth_path.empty();
     std::vector<rig::FieldTruth> truth;
     rig::Bodies bodies;
+    std::vector<rig::CameraModel> track_cams = rec.cameras();
+    const std::string rig_path = opt.rig.empty() ? opt.dir + "/rig.yaml" : opt.rig;
     try {
-        truth = rig::read_truth(truth_path);
+        if (have_truth) truth = rig::read_truth(truth_path);
         bodies = rig::load_bodies(opt.bodies.empty() ? rig::default_bodies_path() : opt.bodies);
+        if (!opt.rig.empty()) track_cams = rig::load_rig_yaml(opt.rig);
     } catch (const rig::RigError& e) {
         throw Error(e.what());
     }
-    if (truth.empty()) throw Error(truth_path + ": no lines");
+    if (have_truth && truth.empty()) throw Error(truth_path + ": no lines");
     const int ncam = rec.camera_count();
     if (ncam < 2 || ncam > tr::kMaxCameras)
         throw Error(opt.dir + "/rig.yaml: camera_count: " + std::to_string(ncam) + " (need 2.." +
                     std::to_string(tr::kMaxCameras) + ")");
+    if (int(track_cams.size()) != ncam)
+        throw Error(fmt::format("{}: {} cameras, the recording {} has {}", opt.rig, track_cams.size(), opt.dir, ncam));
     for (std::size_t i = 0; i < truth.size(); ++i) {
         if (truth[i].field != std::int64_t(i))
             throw Error(fmt::format("{}:{}: field: {} (expected {})", truth_path, i + 1, truth[i].field, i));
@@ -458,15 +1126,21 @@ int run_validate(const ValidateOptions& opt) {
         warn(fmt::format("{}: cameras of different lengths ({}): only the first {} fields of each camera are used",
                          opt.dir, lengths, common));
     const std::int64_t streams = std::min(common, wanted);
-    if (std::int64_t(truth.size()) < streams)
+    if (have_truth && std::int64_t(truth.size()) < streams)
         warn(fmt::format("{}: truth for {} fields, the streams have {}: the last {} fields are not scored", truth_path,
                          truth.size(), streams, streams - std::int64_t(truth.size())));
-    const std::int64_t n = std::min<std::int64_t>(streams, std::int64_t(truth.size()));
-    if (n < 3) throw Error(opt.dir + ": only " + std::to_string(n) + " fields with truth (need at least 3)");
+    const std::int64_t n = have_truth ? std::min<std::int64_t>(streams, std::int64_t(truth.size())) : streams;
+    if (n < 3)
+        throw Error(opt.dir + ": only " + std::to_string(n) + (have_truth ? " fields with truth" : " fields") +
+                    " (need at least 3)");
 
-    // Tracker configuration: rig cameras, the scene's instruments (from the truth), FPGA field timing.
+    // Tracker configuration: the cameras (rig.yaml, or --rig), the scene's instruments (from the truth; without
+    // one, every kind of the bodies file, as `eyesim track`), FPGA field timing from the recording's cameras.
     std::vector<tr::SceneInstrument> scene;
-    for (const rig::InstrumentTruth& it : truth[0].instruments) scene.push_back({it.kind, it.trocar});
+    if (have_truth)
+        for (const rig::InstrumentTruth& it : truth[0].instruments) scene.push_back({it.kind, it.trocar});
+    else
+        scene = tr::all_instruments(bodies);
     tr::TrackerConfig cfg;
     try {
         cfg.bodies = tr::body_set(bodies, scene);
@@ -475,8 +1149,9 @@ int run_validate(const ValidateOptions& opt) {
     }
     const double end_after_start_us =
         double(eyesim::fpga::device_time_us(0, eyesim::fpga::active_line_end_cycle(eyesim::fpga::kActiveLinesPerField - 1)));
-    for (const rig::CameraModel& cm : rec.cameras()) {
-        cfg.cameras.push_back(tr::camera_geometry(cm));
+    for (int c = 0; c < ncam; ++c) {
+        const rig::CameraModel& cm = rec.cameras()[std::size_t(c)];
+        cfg.cameras.push_back(tr::camera_geometry(track_cams[std::size_t(c)]));
         // Device field_end = field start (vertical sync = exposure end) + the FPGA's end-of-active-video time; the
         // frame's instant is the exposure mid-time, half a shutter before the start.
         tr::CameraTiming t;
@@ -487,12 +1162,13 @@ int run_validate(const ValidateOptions& opt) {
     cfg.pose.trocar_constraint = !opt.no_trocar;
     cfg.centroid_sigma_px = opt.sigma_px;
     for (const auto& g : cfg.cameras)
-        if (!g.valid()) throw Error(opt.dir + "/rig.yaml: a camera has invalid intrinsics or rotation");
+        if (!g.valid()) throw Error(rig_path + ": a camera has invalid intrinsics or rotation");
 
-    Runner fpga_run("fpga", cfg, truth);
+    const std::optional<tr::InstrumentModel> wand = wand_model(bodies);
+    Runner fpga_run("fpga", cfg, truth, wand ? &*wand : nullptr);
     tr::TrackerConfig cfg_truth = cfg;
     cfg_truth.centroid_sigma_px = std::max(opt.truth_noise_px, 0.005);
-    Runner truth_run("truth_centroids", cfg_truth, truth);
+    Runner truth_run("truth_centroids", cfg_truth, truth, nullptr);
 
     std::vector<std::unique_ptr<eyesim::fpga::RegisterMap>> regs;
     std::vector<std::unique_ptr<eyesim::fpga::Pipeline>> pipes;
@@ -521,6 +1197,7 @@ int run_validate(const ValidateOptions& opt) {
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
     long refined = 0;
+    Progress pr(progress, "validate", "fields");
 
     for (std::int64_t i = 0; i < n; ++i) {
         std::vector<Timed> fpga_msgs, truth_msgs;
@@ -529,7 +1206,8 @@ int run_validate(const ValidateOptions& opt) {
             const int parity = ft.parity;
             const std::uint64_t start_us = std::uint64_t(std::llround(std::max(0.0, ft.start_us)));
             try {
-                rec.read_field(c, i, field.data());
+                if (!rec.read_field(c, i, field.data()))  // a video field lost: warned, read as black
+                    for (std::string& w : rec.take_warnings()) warn(std::move(w));
             } catch (const rig::RigError& e) {
                 throw Error(e.what());
             }
@@ -567,9 +1245,7 @@ int run_validate(const ValidateOptions& opt) {
             parser.parse(stream, [&](const proto::DecodedFrame& df) {
                 if (const auto* fm = std::get_if<proto::FieldMarkers>(&df.message)) fpga_msgs.push_back({received_us, *fm});
             });
-            // --- Centroid error against the rendered intensity centroid of each visible marker. ---
             CentroidStats& cs = cstats[std::size_t(c)];
-            std::vector<bool> used;
             std::vector<rig::DetectedMarker> got;
             for (std::size_t k = 0; k < nm; ++k)
                 for (int m = 0; m < msgs[k].marker_count; ++m) {
@@ -578,6 +1254,9 @@ int run_validate(const ValidateOptions& opt) {
                                                                     double(mk.y_q16) / proto::kCoordScale)});
                 }
             cs.blobs += long(got.size());
+            if (!have_truth) continue;
+            // --- Centroid error against the rendered intensity centroid of each visible marker. ---
+            std::vector<bool> used;
             rig::match_markers(
                 truth[std::size_t(i)], c, got, 1.5,
                 [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
@@ -603,6 +1282,15 @@ int run_validate(const ValidateOptions& opt) {
                 }
                 if (!near_truth) ++cs.spurious;
             }
+            // The same blobs by `eyesim fpga`'s rule (kCentroidRules), for the report's comparison.
+            rig::match_markers(
+                truth[std::size_t(i)], c, got, 3.0,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) ++cs.fpga_rule_missed;
+                    else cs.fpga_rule_err_px.push_back(m.distance_px);
+                },
+                used);
             // --- The same field from truth centroids + Gaussian noise (isolates the tracking error). ---
             proto::FieldMarkers tm;
             tm.camera_id = std::uint8_t(c);
@@ -632,48 +1320,64 @@ int run_validate(const ValidateOptions& opt) {
             truth_msgs.push_back({double(tm.field_end_us), tm});
         }
         fpga_run.push(fpga_msgs);
-        truth_run.push(truth_msgs);
-        if (progress && (i % 10 == 0 || i + 1 == n))
-            std::fprintf(stderr, "\rvalidate: field %lld/%lld", static_cast<long long>(i + 1), static_cast<long long>(n));
+        if (have_truth) truth_run.push(truth_msgs);
+        pr.update(long(i + 1), long(n));
     }
     parser.finish([&](const proto::DecodedFrame&) {});
     if (!opt.write_capture.empty()) capture.close();
     parse_errors = long(parser.stats().errors());
     const double end_us = 1e300;
     fpga_run.finish(end_us);
-    truth_run.finish(end_us);
-    if (progress) std::fprintf(stderr, "\n");
+    if (have_truth) truth_run.finish(end_us);
+    pr.end();
     const double wall_s = (us_now() - t_start) * 1e-6;
     const RunStats& fs = fpga_run.stats();
     const RunStats& ts = truth_run.stats();
+    const tr::TruthFreeStats& tf = fpga_run.truth_free();
 
     // ---- Nothing to score is an error, not a perfect score; a body never measured is a warning ----
-    if (fs.marker_err_um.empty() && fs.marker_err_occluded_um.empty()) {
-        long found = 0, at_truth = 0;
-        for (const CentroidStats& cs : cstats) found += cs.blobs, at_truth += cs.matched;
-        if (found == 0)
-            throw Error(fmt::format("{}: no marker found in {} fields: the FPGA model found no blob in any of the {} "
-                                    "cameras", opt.dir, n, ncam));
+    long found = 0, at_truth = 0, assigned = 0;
+    for (const CentroidStats& cs : cstats) found += cs.blobs, at_truth += cs.matched;
+    for (const tr::MarkerResiduals& m : tf.markers()) assigned += m.frames_assigned;
+    if (found == 0)
+        throw Error(fmt::format("{}: no marker found in {} fields: the FPGA model found no blob in any of the {} "
+                                "cameras", opt.dir, n, ncam));
+    if (have_truth && fs.marker_err_um.empty() && fs.marker_err_occluded_um.empty())
         throw Error(fmt::format("{}: no marker matched in {} fields: the FPGA model found {} blobs ({} at a truth "
                                 "centroid), no triangulated marker was within reach of a truth marker",
                                 opt.dir, n, found, at_truth));
-    }
+    if (!have_truth && assigned == 0)
+        throw Error(fmt::format("{}: no marker assigned to a body in {} fields: the FPGA model found {} blobs, {} "
+                                "triangulated markers, none fitted a body", opt.dir, n, found, tf.unassigned_markers()));
+    // Each chain says when it never measured a body (the other chain's count beside it tells an FPGA fault from a
+    // body out of view). Without truth, the eye alone: the instruments in view are not known.
     const auto unmeasured = [&](const std::string& body, std::size_t fpga_measured, std::size_t truth_measured) {
         if (fpga_measured == 0)
             warn(fmt::format("{}: {} not measured in any of the {} scored frames (FPGA chain; from truth centroids "
                              "in {}): its figures are not measured", opt.dir, body, fs.frame_t_s.size(),
                              truth_measured));
+        else if (truth_measured == 0)
+            warn(fmt::format("{}: {} not measured in any of the {} scored frames (truth-centroid chain; FPGA chain in "
+                             "{}): its truth-centroid figures are not measured", opt.dir, body, ts.frame_t_s.size(),
+                             fpga_measured));
     };
-    unmeasured("eye", fs.eye_err_deg.size(), ts.eye_err_deg.size());
-    for (int b = 0; b < cfg.bodies.instrument_count; ++b) {
-        const std::size_t k = std::size_t(b);
-        unmeasured(cfg.bodies.instruments[k].name, fs.frame_t_s.size() - std::size_t(fs.tip_held[k]),
-                   ts.frame_t_s.size() - std::size_t(ts.tip_held[k]));
+    if (have_truth) {
+        unmeasured("eye", fs.eye_err_deg.size(), ts.eye_err_deg.size());
+        for (int b = 0; b < cfg.bodies.instrument_count; ++b) {
+            const std::size_t k = std::size_t(b);
+            unmeasured(cfg.bodies.instruments[k].name, fs.frame_t_s.size() - std::size_t(fs.tip_held[k]),
+                       ts.frame_t_s.size() - std::size_t(ts.tip_held[k]));
+        }
+    } else if (tf.bodies().front().measured_frames == 0) {
+        warn(fmt::format("{}: eye not measured in any of the {} frames (no truth): its figures are not measured",
+                         opt.dir, tf.frames()));
     }
 
     // ---- Summaries ----
     nlohmann::json j;
     j["recording"] = opt.dir;
+    j["rig"] = rig_path;
+    j["truth"] = have_truth;
     j["fields"] = n;
     j["cameras"] = ncam;
     j["fields_per_s"] = double(n * ncam) / std::max(wall_s, 1e-9);
@@ -685,14 +1389,22 @@ int run_validate(const ValidateOptions& opt) {
         CentroidStats& cs = cstats[std::size_t(c)];
         all_c.insert(all_c.end(), cs.err_px.begin(), cs.err_px.end());
         const nlohmann::json s = summary_json(cs.err_px);
-        cams.push_back({{"camera", c},
-                        {"centroid_rms_px", s["rms"]},
-                        {"centroid_p95_px", s["p95"]},
-                        {"centroid_max_px", s["max"]},
-                        {"blobs", cs.blobs},
-                        {"matched", cs.matched},
-                        {"missed_visible_markers", cs.missed},
-                        {"spurious_blobs", cs.spurious}});
+        nlohmann::json cj{{"camera", c}, {"blobs", cs.blobs}};
+        if (have_truth) {
+            cj.update({{"centroid_rms_px", s["rms"]},
+                       {"centroid_p95_px", s["p95"]},
+                       {"centroid_max_px", s["max"]},
+                       {"matched", cs.matched},
+                       {"missed_visible_markers", cs.missed},
+                       {"spurious_blobs", cs.spurious},
+                       {"fpga_rule",
+                        {{"centroid_rms_px", rms(cs.fpga_rule_err_px)},
+                         {"matched", cs.fpga_rule_err_px.size()},
+                         {"missed", cs.fpga_rule_missed}}}});
+        } else {
+            for (const char* k : {"centroid_rms_px", "centroid_p95_px", "centroid_max_px"}) cj[k] = nullptr;
+        }
+        cams.push_back(cj);
     }
     j["per_camera"] = cams;
     j["centroid_rms_px"] = rms(all_c);
@@ -703,105 +1415,95 @@ int run_validate(const ValidateOptions& opt) {
         j["refused"] = refiner->refusals_json();
         j["refine_us_per_field"] = refine_us / double(n * ncam);
     }
-    // Headline keys: the full chain from the FPGA model.
+    // Headline keys: the full chain from the FPGA model (null without truth).
     const nlohmann::json fj = run_json(fs, cfg.bodies);
     for (const char* k : {"marker3d_rms_um", "tip_rms_um", "eye_rot_rms_deg", "latency_us"}) j[k] = fj[k];
     j["fpga_chain"] = fj;
-    j["truth_centroids"] = run_json(ts, cfg.bodies);
-    j["truth_centroids"]["noise_px"] = opt.truth_noise_px;
+    if (have_truth) {
+        j["truth_centroids"] = run_json(ts, cfg.bodies);
+        j["truth_centroids"]["noise_px"] = opt.truth_noise_px;
+    } else {
+        j["truth_centroids"] = nullptr;
+    }
+    j["truth_free"] = truth_free_json(tf);
     j["errors"] = parse_errors;
     j["warnings"] = warnings;
 
     if (!opt.report.empty()) {
-        namespace fsys = std::filesystem;
-        std::error_code ec;
-        fsys::create_directories(opt.report, ec);
-        if (ec) throw Error(opt.report + ": cannot create directory: " + ec.message());
+        make_report_dir(opt.report);
         const std::string d = opt.report + "/";
-        std::vector<std::pair<std::string, std::vector<double>>> cset;
-        for (int c = 0; c < ncam; ++c) cset.push_back({fmt::format("camera {}", c), cstats[std::size_t(c)].err_px});
-        plot_histogram(d + "centroid_error_hist.png", "FPGA centroid error vs rendered centroid", "error (field px)", cset);
-        plot_histogram(d + "marker3d_error_hist.png", "3D marker error", "error (um)",
-                       {{"FPGA chain", fs.marker_err_um}, {"truth centroids + noise", ts.marker_err_um}});
-        plot_histogram(d + "tip_error_hist.png", "Instrument tip error (rig frame)", "error (um)",
-                       {{"FPGA chain", fs.tip_err_um}, {"truth centroids + noise", ts.tip_err_um}});
-        std::vector<std::pair<std::string, std::vector<double>>> series{{"3D marker RMS per frame (um)", fs.frame_marker_rms_um}};
-        for (int b = 0; b < cfg.bodies.instrument_count; ++b)
-            series.push_back({cfg.bodies.instruments[std::size_t(b)].name + " tip error (um)", fs.frame_tip_um[std::size_t(b)]});
-        plot_series(d + "error_over_time.png", "FPGA chain: error over time (red ticks: not measured)", "um",
-                    fs.frame_t_s, series);
-        plot_series(d + "eye_error_over_time.png", "FPGA chain: eye rotation error over time", "deg", fs.frame_t_s,
-                    {{"eye rotation error (deg)", fs.frame_eye_deg}});
-        plot_volume(d + "marker_error_volume.png", fs.marker_pos_mm, fs.marker_pos_err_um);
-        std::ofstream md(d + "report.md");
-        if (!md) throw Error(d + "report.md: cannot write");
-        const auto row = [&](const char* what, const nlohmann::json& a, const nlohmann::json& b, const char* unit) {
-            md << fmt::format("| {} ({}) | {} | {} | {} | {} | {} | {} |\n", what, unit, figure(a["rms"], "{:.3f}"),
-                              figure(a["p95"], "{:.3f}"), figure(a["max"], "{:.3f}"), figure(b["rms"], "{:.3f}"),
-                              figure(b["p95"], "{:.3f}"), figure(b["max"], "{:.3f}"));
-        };
-        md << "# Tracking validation: " << opt.dir << "\n\n";
-        md << fmt::format("{} fields x {} cameras, sync {}, trocar constraint {}, centroid sigma assumed {} px.\n\n", n,
-                          ncam, opt.sync, opt.no_trocar ? "off" : "on", opt.sigma_px);
-        md << "## Centroids (FPGA model vs rendered intensity centroid, field pixels)\n\n";
-        md << "| camera | RMS | p95 | max | blobs | matched | missed | spurious |\n|---|---|---|---|---|---|---|---|\n";
-        for (const auto& c : cams)
-            md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} |\n", c["camera"].get<int>(),
-                              figure(c["centroid_rms_px"], "{:.4f}"), figure(c["centroid_p95_px"], "{:.4f}"),
-                              figure(c["centroid_max_px"], "{:.4f}"), c["blobs"].get<long>(), c["matched"].get<long>(),
-                              c["missed_visible_markers"].get<long>(), c["spurious_blobs"].get<long>());
-        md << "\n![centroid error](centroid_error_hist.png)\n\n";
-        md << "## Poses (FPGA chain | truth centroids + " << opt.truth_noise_px << " px noise)\n\n";
-        md << "3D marker rows exclude markers the tracker flags as partly occluded (fewer than two unoccluded "
-              "views); those are listed apart.\n\n";
-        md << "| quantity | RMS | p95 | max | RMS | p95 | max |\n|---|---|---|---|---|---|---|\n";
-        const nlohmann::json tj = j["truth_centroids"];
-        row("3D marker error", fj["marker3d_um"], tj["marker3d_um"], "um");
-        row("3D marker error, eye", fj["marker3d_eye_um"], tj["marker3d_eye_um"], "um");
-        row("3D marker error, instruments", fj["marker3d_instrument_um"], tj["marker3d_instrument_um"], "um");
-        row("3D error of markers flagged occluded", fj["marker3d_flagged_occluded_um"],
-            tj["marker3d_flagged_occluded_um"], "um");
-        row("tip error, rig frame", fj["tip_um"], tj["tip_um"], "um");
-        row("tip error, eye frame", fj["tip_eye_frame_um"], tj["tip_eye_frame_um"], "um");
-        row("axis error", fj["axis_deg"], tj["axis_deg"], "deg");
-        row("insertion depth error", fj["insertion_um"], tj["insertion_um"], "um");
-        row("eye rotation error", fj["eye_rot_deg"], tj["eye_rot_deg"], "deg");
-        md << "\n![3D error](marker3d_error_hist.png)\n\n![tip error](tip_error_hist.png)\n\n";
-        md << "![error over time](error_over_time.png)\n\n![eye error over time](eye_error_over_time.png)\n\n";
-        md << "![error across the working volume](marker_error_volume.png)\n\n";
-        md << "## Latency (modelled device and link, measured tracking), us\n\n| span | p50 | p99 | max |\n|---|---|---|---|\n";
-        for (const auto& [name, key] : std::vector<std::pair<std::string, std::string>>{
-                 {"field end -> packet received", "latency_field_end_to_received_us"},
-                 {"field end -> poses ready", "latency_us"},
-                 {"exposure mid -> poses ready", "latency_exposure_to_poses_us"},
-                 {"tracking stage compute", "tracking_compute_us"}})
-            md << fmt::format("| {} | {} | {} | {} |\n", name, figure(fj[key]["p50"], "{:.1f}"),
-                              figure(fj[key]["p99"], "{:.1f}"), figure(fj[key]["max"], "{:.1f}"));
-        md << "\n## Drops and rejections (FPGA chain)\n\n```\n" << fj["markers"].dump(1) << "\n"
-           << "frames " << fj["frames"] << ", two-view frames " << fj["frames_two_view"]
-           << ", eye not measured " << fj["eye_not_measured_frames"] << ", instruments not measured "
-           << fj["instrument_not_measured_frames"].dump() << ", fields with dropped blobs " << fields_with_drops
-           << ", parse errors " << parse_errors << "\n```\n";
-        j["report"] = d + "report.md";
+        long step = 0;
+        const long steps = 6 + (have_truth ? 6 : 0) + 1;
+        Progress rp(progress, "validate: writing report", "files");
+        const auto tf_plots = plot_truth_free(d, tf, rp, step, steps);
+        std::string body = html_truth_free(j["truth_free"], tf_plots);
+        if (have_truth) {
+            std::vector<std::pair<std::string, std::vector<double>>> cset;
+            for (int c = 0; c < ncam; ++c) cset.push_back({fmt::format("camera {}", c), cstats[std::size_t(c)].err_px});
+            plot_histogram(d + "centroid_error_hist.png", "FPGA centroid error vs rendered centroid", "error (field px)",
+                           cset);
+            rp.update(++step, steps);
+            plot_histogram(d + "marker3d_error_hist.png", "3D marker error", "error (um)",
+                           {{"FPGA chain", fs.marker_err_um}, {"truth centroids + noise", ts.marker_err_um}});
+            rp.update(++step, steps);
+            plot_histogram(d + "tip_error_hist.png", "Instrument tip error (rig frame)", "error (um)",
+                           {{"FPGA chain", fs.tip_err_um}, {"truth centroids + noise", ts.tip_err_um}});
+            rp.update(++step, steps);
+            std::vector<std::pair<std::string, std::vector<double>>> series{
+                {"3D marker RMS per frame (um)", fs.frame_marker_rms_um}};
+            for (int b = 0; b < cfg.bodies.instrument_count; ++b)
+                series.push_back({cfg.bodies.instruments[std::size_t(b)].name + " tip error (um)",
+                                  fs.frame_tip_um[std::size_t(b)]});
+            plot_series(d + "error_over_time.png", "FPGA chain: error over time (red ticks: not measured)", "um",
+                        fs.frame_t_s, series);
+            rp.update(++step, steps);
+            plot_series(d + "eye_error_over_time.png", "FPGA chain: eye rotation error over time", "deg", fs.frame_t_s,
+                        {{"eye rotation error (deg)", fs.frame_eye_deg}});
+            rp.update(++step, steps);
+            plot_volume(d + "marker_error_volume.png", fs.marker_pos_mm, fs.marker_pos_err_um);
+            rp.update(++step, steps);
+            body += html_truth(
+                j, {{"centroid_error_hist.png", "FPGA centroid error against the rendered centroid, per camera"}},
+                {{"marker3d_error_hist.png", "3D marker error"},
+                 {"tip_error_hist.png", "Instrument tip error (rig frame)"},
+                 {"error_over_time.png", "FPGA chain: 3D marker RMS and tip error per frame"},
+                 {"eye_error_over_time.png", "FPGA chain: eye rotation error per frame"},
+                 {"marker_error_volume.png", "3D marker error across the working volume"}});
+        }
+        body += html_chain(fj, fields_with_drops, parse_errors);
+        const std::string intro = fmt::format(
+            "Recording <b>{}</b>: {} fields &times; {} cameras, FPGA model &rarr; packets &rarr; tracker. Cameras for "
+            "tracking from <b>{}</b>{}. Sync {}, trocar constraint {}, centroid sigma assumed {} px{}. {}",
+            html_escape(opt.dir), n, ncam, html_escape(rig_path),
+            opt.rig.empty() ? "" : " (instead of the recording's rig.yaml; the FPGA model reads the recording's fields)",
+            opt.sync, opt.no_trocar ? "off" : "on", opt.sigma_px, refiner ? ", refinement stage on" : "",
+            have_truth ? "Ground truth: truth.jsonl." : "No truth.jsonl: truth-free figures only.");
+        j["report"] = write_index(opt.report, "eyesim validate: " + opt.dir, intro, warnings, body);
+        rp.update(steps, steps);
     }
 
     if (opt.json) {
         std::printf("%s\n", j.dump().c_str());
     } else {
-        std::printf("%s: %lld fields x %d cameras (sync %s)\n", opt.dir.c_str(), static_cast<long long>(n), ncam,
-                    opt.sync.c_str());
-        std::printf("  centroids (FPGA%s vs rendered): RMS %s\n", refiner ? " + refinement" : "",
-                    figure(j["centroid_rms_px"], "{:.4f} px").c_str());
-        for (const auto& [label, r] : std::vector<std::pair<std::string, nlohmann::json>>{
-                 {"FPGA chain", fj}, {fmt::format("truth centroids + {} px", opt.truth_noise_px), j["truth_centroids"]}}) {
-            const std::string marker = r["marker3d_rms_um"].is_null()
-                                           ? "not measured"
-                                           : fmt::format("{:.1f} um (p95 {:.1f})", r["marker3d_rms_um"].get<double>(),
-                                                         r["marker3d_um"]["p95"].get<double>());
-            std::printf("  %-28s 3D marker RMS %s, tip RMS %s, eye RMS %s, frames %ld\n", label.c_str(),
-                        marker.c_str(), figure(r["tip_rms_um"], "{:.1f} um").c_str(),
-                        figure(r["eye_rot_rms_deg"], "{:.4f} deg").c_str(), r["frames"].get<long>());
+        std::printf("%s: %lld fields x %d cameras (sync %s%s)%s\n", opt.dir.c_str(), static_cast<long long>(n), ncam,
+                    opt.sync.c_str(), opt.rig.empty() ? "" : (", rig " + opt.rig).c_str(),
+                    have_truth ? "" : "; no truth.jsonl: truth-free figures only");
+        if (have_truth) {
+            std::printf("  centroids (FPGA%s vs rendered): RMS %s\n", refiner ? " + refinement" : "",
+                        figure(j["centroid_rms_px"], "{:.4f} px").c_str());
+            for (const auto& [label, r] : std::vector<std::pair<std::string, nlohmann::json>>{
+                     {"FPGA chain", fj},
+                     {fmt::format("truth centroids + {} px", opt.truth_noise_px), j["truth_centroids"]}}) {
+                const std::string marker = r["marker3d_rms_um"].is_null()
+                                               ? "not measured"
+                                               : fmt::format("{:.1f} um (p95 {:.1f})", r["marker3d_rms_um"].get<double>(),
+                                                             r["marker3d_um"]["p95"].get<double>());
+                std::printf("  %-28s 3D marker RMS %s, tip RMS %s, eye RMS %s, frames %ld\n", label.c_str(),
+                            marker.c_str(), figure(r["tip_rms_um"], "{:.1f} um").c_str(),
+                            figure(r["eye_rot_rms_deg"], "{:.4f} deg").c_str(), r["frames"].get<long>());
+            }
         }
+        print_truth_free(j["truth_free"], "FPGA chain");
         std::printf("  latency field end -> poses ready: p50 %s, p99 %s, max %s\n",
                     figure(fj["latency_us"]["p50"], "{:.0f} us").c_str(),
                     figure(fj["latency_us"]["p99"], "{:.0f} us").c_str(),
@@ -811,11 +1513,18 @@ int run_validate(const ValidateOptions& opt) {
     return 0;
 }
 
-eyesim::app::Registrar reg{"validate", "Validate tracking (FPGA model -> packets -> tracker) against recording truth",
+eyesim::app::Registrar reg{"validate",
+                           "Validate tracking (FPGA model -> packets -> tracker): against the truth of a recording "
+                           "where there is one, and by truth-free checks (residuals, marker distances, eye centre, "
+                           "dropouts) on any recording or capture",
                            [](CLI::App& sub) {
     auto opt = std::make_shared<ValidateOptions>();
-    sub.add_option("--recording", opt->dir, "recording directory with rig.yaml, cam*.uyvy and truth.jsonl")->required();
-    sub.add_option("--report", opt->report, "write report.md and PNG plots into this directory");
+    sub.add_option("--recording", opt->dir, "recording directory with rig.yaml, cam* streams and optionally truth.jsonl");
+    sub.add_option("--capture", opt->capture, "capture file of FieldMarkers packets (eyesim fpga --out, a device): "
+                                              "truth-free figures only; needs --rig");
+    sub.add_option("--rig", opt->rig, "rig.yaml the tracker uses (a recording: instead of its own rig.yaml; the FPGA "
+                                      "model still reads the recording's fields)");
+    sub.add_option("--report", opt->report, "write index.html with tables and PNG plots into this directory");
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     sub.add_option("--max-fields", opt->max_fields, "use at most this many fields (0: all)")
         ->check(eyesim::app::finite_in(0.0, 1e9));
