@@ -199,7 +199,7 @@ int run(const CompareOptions& opt) {
     rig::Recording rec = rig::Recording::open(opt.recording);
     const std::vector<int> cams = eyesim::app::parse_cameras(opt.cameras, rec.camera_count());
     const std::vector<eyesim::fpga::RegisterMap> maps = eyesim::app::register_maps(opt.regs, rec.camera_count());
-    std::vector<std::string> warnings = rec.warnings();
+    std::vector<std::string> warnings;  // the capture's, then the recording's
     const int64_t recorded_fields = rec.common_field_count();
     const int64_t n_fields = opt.max_fields >= 0 ? std::min(recorded_fields, opt.max_fields) : recorded_fields;
 
@@ -281,6 +281,9 @@ int run(const CompareOptions& opt) {
                          static_cast<long long>(n_fields));
     }
     if (progress) std::fprintf(stderr, "\n");
+    // The recording's findings, those of reading its fields included (a video field that could not be decoded is
+    // modelled black, and its mismatches have this reason).
+    warnings.insert(warnings.end(), rec.warnings().begin(), rec.warnings().end());
 
     // The epoch: the most common difference of the field end times (eyesim-device plays the recording's t = 0 on a
     // whole millisecond after its start-up; `eyesim fpga --out` at 0). One wrong end time does not move it.
