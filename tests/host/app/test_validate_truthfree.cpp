@@ -249,10 +249,19 @@ TEST_CASE("validate --report writes index.html with the tables and every plot", 
     CHECK(images >= 11);
     CHECK(h.find("reprojection_hist.png") != std::string::npos);
     CHECK(!fs::exists(dir / "report.md"));
-    // Both rules' figures are in the JSON the table is made from.
-    for (const auto& c : j["per_camera"]) {
-        CHECK(c["fpga_rule"]["matched"].get<long>() >= c["matched"].get<long>());
-        CHECK(c["fpga_rule"]["centroid_rms_px"].is_number());
+    // Both rules' figures are in the JSON the table is made from, and `fpga`'s rule gives what `eyesim fpga` says
+    // (its blobs before the Q16.16 wire format: within a rounding of 1/65536 px).
+    const Result f = run_eyesim("fpga --recording " + rec.string() + " --json");
+    REQUIRE(f.rc == 0);
+    const nlohmann::json fj = nlohmann::json::parse(f.out);
+    REQUIRE(fj["cameras"].size() == j["per_camera"].size());
+    for (std::size_t c = 0; c < fj["cameras"].size(); ++c) {
+        const nlohmann::json &v = j["per_camera"][c], &d = fj["cameras"][c];
+        INFO("camera " << c);
+        CHECK(v["fpga_rule"]["matched"] == d["matched"]);
+        CHECK(v["fpga_rule"]["missed"] == d["missed"]);
+        CHECK(v["fpga_rule"]["centroid_rms_px"].get<double>() == Approx(d["centroid_rms_px"].get<double>()).margin(1e-4));
+        CHECK(v["fpga_rule"]["matched"].get<long>() > v["matched"].get<long>());
     }
 
     // A capture's report: the truth-free part alone.
