@@ -40,8 +40,11 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
     sub.add_option("--seed", opt->seed, "seed of the motion and the sensor noise (0 to 2^64 - 1)")
         ->check(eyesim::app::unsigned_integer());
     sub.add_option("--out", opt->out, "output recording directory (created)")->required();
-    sub.add_option("--format", opt->format, "uyvy (raw fields) or video (lossless FFV1 .mkv, else MJPG .avi)")
-        ->check(CLI::IsMember({"uyvy", "video"}));
+    sub.add_option("--format", opt->format,
+                   "uyvy (raw fields), or interlaced PAL video as cameras record it (720x576, 25 frames/s, the "
+                   "rig's first field first): ffv1 (lossless 4:2:2 .mkv; also: video), dv (DV 4:2:0 .avi), dv411 "
+                   "(DVCPRO25 4:1:1 .avi), mpeg2 (15 Mbit/s 4:2:0 .mpg), h264 (libx264 CRF 16 4:2:0 .mp4)")
+        ->check(CLI::IsMember({"uyvy", "video", "ffv1", "dv", "dv411", "mpeg2", "h264"}));
     sub.add_option("--noise", opt->noise, "read-noise sigma in 8-bit levels, 0 to 32 (0: no noise at all)")
         ->check(eyesim::app::finite_in(0.0, kMaxNoiseSigma));
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");

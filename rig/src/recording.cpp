@@ -1,11 +1,10 @@
 #include "eyesim/rig/recording.hpp"
 
 #include "eyesim/rig/error.hpp"
+#include "eyesim/rig/video.hpp"
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
-#include <opencv2/core/utils/logger.hpp>
-#include <opencv2/videoio.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -67,53 +66,96 @@ struct Recording::Impl {
     std::string dir;
     std::vector<CameraModel> cams;
     std::vector<std::string> warnings;
+    size_t warnings_taken = 0;
     struct Stream {
         std::string path;
         StreamFormat format = StreamFormat::kRawUyvy;
         int64_t fields = 0;
         std::ifstream raw;
-        cv::VideoCapture cap;
-        bool progressive = false;
-        int64_t frames = 0;
-        int64_t next_frame = 0;     // index of the frame the capture delivers next
-        int64_t cached_frame = -1;  // frame held in `frame`
-        cv::Mat frame;
+        std::unique_ptr<VideoReader> video;
+        bool progressive = false;        // about 50 frames/s: one field per frame
+        bool chroma_interlaced = true;   // 4:2:0 chroma rows alternate between the fields
+        std::vector<bool> lost_mask;     // fields read_field could not deliver
+        int64_t lost = 0;                // how many
+        int loss_lines = 0;              // lost-field warnings written for this camera
+        bool end_reported = false;       // the early end of the stream has been reported
     };
     std::vector<Stream> streams;
 
     [[noreturn]] void fail(const std::string& file, const std::string& key, const std::string& why) const {
         throw RigError(fmt::format("{}: {}: {}", (fs::path(dir) / file).string(), key, why));
     }
-    void open_video(Stream& s);
-    void video_frame(Stream& s, int64_t n);
+    void open_video(size_t cam, Stream& s, FieldOrder override_order);
+    void lost(int cam, int64_t index, int64_t frame, FrameStatus status, const std::string& why);
 };
 
-void Recording::Impl::open_video(Stream& s) {
-    s.cap.release();
-    bool ok = false;
-    try {
-        ok = s.cap.open(s.path);
-    } catch (const cv::Exception&) {
-        ok = false;
+/// Video streams: which file extensions are looked for, in order after `.uyvy`.
+constexpr const char* kVideoExtensions[] = {".avi", ".mkv", ".mp4", ".mov", ".mpg", ".mpeg", ".vob",
+                                            ".ts",  ".m2ts", ".mts", ".dv"};
+/// Lost-field lines per camera before the rest are only counted.
+constexpr int kMaxLossLines = 10;
+
+void Recording::Impl::open_video(size_t cam, Stream& s, FieldOrder override_order) {
+    s.video = std::make_unique<VideoReader>(s.path);  // RigError names the file
+    const VideoInfo& vi = s.video->info();
+    const double fps = vi.frame_rate_hz;
+    CameraModel& cm = cams[cam];
+    const FieldOrder order = override_order != FieldOrder::kUnknown ? override_order : vi.order;
+    s.progressive = std::abs(fps - 50.0) < 2.0;
+    s.chroma_interlaced = order == FieldOrder::kTopFirst || order == FieldOrder::kBottomFirst;
+    if (s.progressive)
+        warnings.push_back(
+            fmt::format("{}: {:.3g} frames/s: taken as progressive, one field per frame", s.path, fps));
+    else if (std::abs(fps - 25.0) > 1.0)
+        warnings.push_back(fmt::format("{}: {:.3g} frames/s (PAL is 25): taken as interlaced, two fields per frame",
+                                       s.path, fps > 0 ? fps : 0.0));
+    if (order == FieldOrder::kTopFirst || order == FieldOrder::kBottomFirst) {
+        // The stream (or the manifest) says which field comes first: the camera's parities follow it.
+        const int first = order == FieldOrder::kTopFirst ? 0 : 1;
+        if (first != cm.first_field_parity)
+            warnings.push_back(fmt::format(
+                "{}: {} field first ({}): rig.yaml's first_field_parity {} for {} is taken as {}", s.path,
+                first ? "bottom" : "top",
+                override_order != FieldOrder::kUnknown ? "manifest.json field_order" : "the stream says so",
+                cm.first_field_parity, cm.name, first));
+        cm.first_field_parity = first;
+    } else if (!s.progressive && order == FieldOrder::kProgressive && override_order == FieldOrder::kUnknown) {
+        warnings.push_back(fmt::format(
+            "{}: the stream says its frames are progressive: each frame gives two fields of one instant, 4:2:0 "
+            "chroma sited as progressive (manifest.json field_order \"tff\" or \"bff\" if the camera was "
+            "interlaced)",
+            s.path));
+    } else if (!s.progressive && order == FieldOrder::kUnknown) {
+        warnings.push_back(fmt::format(
+            "{}: the stream does not say its field order: taken as interlaced, {} field first (rig.yaml "
+            "first_field_parity {}; manifest.json field_order overrides)",
+            s.path, cm.first_field_parity ? "bottom" : "top", cm.first_field_parity));
     }
-    if (!ok) fail(fs::path(s.path).filename().string(), "file", "cannot be opened as video");
-    s.next_frame = 0;
+    s.fields = s.progressive ? vi.frames : 2 * vi.frames;
 }
 
-void Recording::Impl::video_frame(Stream& s, int64_t n) {
-    if (s.cached_frame == n) return;
-    if (n < s.next_frame) open_video(s);
-    while (s.next_frame < n) {
-        if (!s.cap.grab()) fail(fs::path(s.path).filename().string(), "frame", fmt::format("cannot seek to frame {}", n));
-        ++s.next_frame;
+void Recording::Impl::lost(int cam, int64_t index, int64_t frame, FrameStatus status, const std::string& why) {
+    Stream& s = streams[static_cast<size_t>(cam)];
+    if (s.lost_mask.empty()) s.lost_mask.assign(static_cast<size_t>(s.fields), false);
+    if (!s.lost_mask[static_cast<size_t>(index)]) {
+        s.lost_mask[static_cast<size_t>(index)] = true;
+        ++s.lost;
     }
-    if (!s.cap.read(s.frame) || s.frame.empty())
-        fail(fs::path(s.path).filename().string(), "frame", fmt::format("cannot decode frame {}", n));
-    ++s.next_frame;
-    if (s.frame.cols != kFrameWidth || s.frame.rows != kFrameHeight || s.frame.type() != CV_8UC3)
-        fail(fs::path(s.path).filename().string(), "frame size",
-             fmt::format("frame {} is {}x{}, expected 720x576 BGR", n, s.frame.cols, s.frame.rows));
-    s.cached_frame = n;
+    if (status == FrameStatus::kPastEnd) {
+        if (s.end_reported) return;
+        s.end_reported = true;
+        warnings.push_back(fmt::format("{}: camera {} ({}) field {} (frame {}) lost: {}: fields {}..{} are lost",
+                                       s.path, cam, cams[static_cast<size_t>(cam)].name, index, frame, why, index,
+                                       s.fields - 1));
+        return;
+    }
+    if (s.loss_lines > kMaxLossLines) return;
+    if (++s.loss_lines > kMaxLossLines) {
+        warnings.push_back(fmt::format("{}: camera {}: more lost fields: counted, not listed", s.path, cam));
+        return;
+    }
+    warnings.push_back(fmt::format("{}: camera {} ({}) field {} (frame {}) lost: {}", s.path, cam,
+                                   cams[static_cast<size_t>(cam)].name, index, frame, why));
 }
 
 Recording::Recording(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -126,24 +168,57 @@ Recording Recording::open(const std::string& dir) {
     d->dir = dir;
     if (!fs::is_directory(dir)) throw RigError(fmt::format("{}: directory: missing", dir));
     d->cams = load_rig_yaml((fs::path(dir) / "rig.yaml").string());
-    cv::utils::logging::setLogLevel(cv::utils::logging::LOG_LEVEL_ERROR);
+    // Optional manifest: read first (its field_order overrides what video streams say), checked against the
+    // files after they are opened.
+    const fs::path mpath = fs::path(dir) / "manifest.json";
+    const bool have_manifest = fs::exists(mpath);
+    nlohmann::json j;
+    if (have_manifest) {
+        std::ifstream in(mpath);
+        try {
+            j = nlohmann::json::parse(in);
+        } catch (const nlohmann::json::parse_error& e) {
+            d->fail("manifest.json", "file", fmt::format("malformed JSON at byte {}", e.byte));
+        }
+        if (!j.is_object()) d->fail("manifest.json", "file", "not a JSON object");
+    }
+    auto field_order_at = [&](const nlohmann::json& o, const std::string& key) {
+        FieldOrder f = FieldOrder::kUnknown;
+        if (!o.is_object() || !o.contains("field_order")) return f;
+        if (!o["field_order"].is_string() || !parse_field_order(o["field_order"].get<std::string>(), f))
+            d->fail("manifest.json", key,
+                    fmt::format("is {}, expected \"tff\", \"bff\" or \"progressive\"", o["field_order"].dump()));
+        return f;
+    };
+    const FieldOrder order_all = field_order_at(j, "field_order");
     d->streams.resize(d->cams.size());
     for (size_t c = 0; c < d->cams.size(); ++c) {
         Impl::Stream& s = d->streams[c];
         const std::string stem = d->cams[c].name;
-        const char* exts[] = {".uyvy", ".avi", ".mkv", ".mp4"};
-        for (const char* e : exts) {
+        std::string tried = stem + ".uyvy";
+        if (fs::exists(fs::path(dir) / tried)) s.path = (fs::path(dir) / tried).string();
+        for (const char* e : kVideoExtensions) {
+            if (!s.path.empty()) break;
             const fs::path p = fs::path(dir) / (stem + e);
             if (fs::exists(p)) {
                 s.path = p.string();
-                s.format = std::string(e) == ".uyvy" ? StreamFormat::kRawUyvy : StreamFormat::kVideo;
-                break;
+                s.format = StreamFormat::kVideo;
             }
         }
         if (s.path.empty())
-            d->fail(stem + ".uyvy", "file", fmt::format("missing (nor {0}.avi, {0}.mkv, {0}.mp4)", stem));
+            d->fail(stem + ".uyvy", "file", fmt::format("missing (nor a video {}.avi, .mkv, .mp4, .mpg, ...)", stem));
         const std::string fname = fs::path(s.path).filename().string();
+        FieldOrder order = order_all;
+        const std::string cam_key = fmt::format("cameras[{}].field_order", c);
+        if (have_manifest && j.contains("cameras") && j["cameras"].is_array() && c < j["cameras"].size())
+            if (const FieldOrder f = field_order_at(j["cameras"][c], cam_key); f != FieldOrder::kUnknown) order = f;
         if (s.format == StreamFormat::kRawUyvy) {
+            if (order == FieldOrder::kProgressive ||
+                (order != FieldOrder::kUnknown && (order == FieldOrder::kBottomFirst) != (d->cams[c].first_field_parity == 1)))
+                d->fail("manifest.json", "field_order",
+                        fmt::format("says {}, but the raw fields of {} take their parity from rig.yaml "
+                                    "(first_field_parity {})",
+                                    to_string(order), fname, d->cams[c].first_field_parity));
             std::error_code ec;
             const auto size = fs::file_size(s.path, ec);
             if (ec) d->fail(fname, "file", "size unreadable");
@@ -157,39 +232,10 @@ Recording Recording::open(const std::string& dir) {
             s.raw.open(s.path, std::ios::binary);
             if (!s.raw) d->fail(fname, "file", "cannot be opened");
         } else {
-            d->open_video(s);
-            const double fps = s.cap.get(cv::CAP_PROP_FPS);
-            int64_t n = 0;
-            cv::Mat f;
-            while (s.cap.read(f)) {
-                if (f.cols != kFrameWidth || f.rows != kFrameHeight)
-                    d->fail(fname, "frame size", fmt::format("{}x{}, expected 720x576", f.cols, f.rows));
-                ++n;
-            }
-            if (n == 0) d->fail(fname, "frames", "no decodable frames");
-            s.frames = n;
-            s.progressive = std::abs(fps - 50.0) < 2.0;
-            if (s.progressive)
-                d->warnings.push_back(fmt::format("{}: {:.3g} frames/s: taken as progressive, one field per frame",
-                                                  s.path, fps));
-            else if (std::abs(fps - 25.0) > 1.0)
-                d->warnings.push_back(
-                    fmt::format("{}: {:.3g} frames/s (PAL is 25): taken as interlaced, two fields per frame", s.path, fps));
-            s.fields = s.progressive ? n : 2 * n;
-            d->open_video(s);
+            d->open_video(c, s, order);
         }
     }
-    // Optional manifest: checked against the files when present.
-    const fs::path mpath = fs::path(dir) / "manifest.json";
-    if (fs::exists(mpath)) {
-        std::ifstream in(mpath);
-        nlohmann::json j;
-        try {
-            j = nlohmann::json::parse(in);
-        } catch (const nlohmann::json::parse_error& e) {
-            d->fail("manifest.json", "file", fmt::format("malformed JSON at byte {}", e.byte));
-        }
-        if (!j.is_object()) d->fail("manifest.json", "file", "not a JSON object");
+    if (have_manifest) {
         auto num = [&](const char* key, double expect) {
             if (!j.contains(key)) return;
             if (!j[key].is_number()) d->fail("manifest.json", key, "not a number");
@@ -285,7 +331,7 @@ std::string Recording::truth_path() const {
     return fs::exists(p) ? p.string() : std::string();
 }
 
-void Recording::read_field(int cam, int64_t index, uint8_t* uyvy_out) {
+bool Recording::read_field(int cam, int64_t index, uint8_t* uyvy_out) {
     check_cam_index(impl_->dir, impl_->cams.size(), cam);
     Impl::Stream& s = impl_->streams[cam];
     const std::string fname = fs::path(s.path).filename().string();
@@ -296,13 +342,54 @@ void Recording::read_field(int cam, int64_t index, uint8_t* uyvy_out) {
         s.raw.seekg(static_cast<std::streamoff>(index) * kFieldBytes);
         s.raw.read(reinterpret_cast<char*>(uyvy_out), kFieldBytes);
         if (s.raw.gcount() != kFieldBytes) impl_->fail(fname, "field", fmt::format("field {} could not be read", index));
-        return;
+        return true;
     }
     const int parity = impl_->cams[cam].field_parity(index);
     const int64_t frame = s.progressive ? index : index / 2;
-    impl_->video_frame(s, frame);
-    for (int y = 0; y < kFieldHeight; ++y)
-        bgr_to_uyvy(s.frame.ptr(2 * y + parity), 0, kFieldWidth, 1, uyvy_out + static_cast<size_t>(y) * kFieldWidth * 2, 0);
+    std::string why;
+    const FrameStatus st = s.video->load_frame(frame, why);
+    if (st != FrameStatus::kOk) {
+        // Black (Y 16, Cb = Cr = 128): nothing in it is taken for a marker.
+        for (size_t k = 0; k < static_cast<size_t>(kFieldBytes); k += 2) {
+            uyvy_out[k] = 128;
+            uyvy_out[k + 1] = 16;
+        }
+        impl_->lost(cam, index, frame, st, why);
+        return false;
+    }
+    s.video->extract_field(parity, s.chroma_interlaced, uyvy_out);
+    return true;
+}
+
+std::vector<std::string> Recording::take_warnings() {
+    std::vector<std::string> out(impl_->warnings.begin() + static_cast<std::ptrdiff_t>(impl_->warnings_taken),
+                                 impl_->warnings.end());
+    impl_->warnings_taken = impl_->warnings.size();
+    return out;
+}
+
+int64_t Recording::lost_fields(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    return impl_->streams[cam].lost;
+}
+
+int64_t Recording::decoded_frames(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    const Impl::Stream& s = impl_->streams[cam];
+    return s.video ? s.video->decoded_frames() : 0;
+}
+
+std::string Recording::stream_description(int cam) const {
+    check_cam_index(impl_->dir, impl_->cams.size(), cam);
+    const Impl::Stream& s = impl_->streams[cam];
+    if (!s.video) return "raw UYVY 4:2:2 fields";
+    const VideoInfo& v = s.video->info();
+    return fmt::format("{} {} ({}, chroma {}), {:.4g} frames/s, {} frames, field order {} ({}), {}", v.codec,
+                       v.pixel_format, v.chroma, v.chroma_location, v.frame_rate_hz, v.frames, to_string(v.order),
+                       v.order_source,
+                       s.progressive ? "one field per frame"
+                       : s.chroma_interlaced ? "two fields per frame, chroma per field"
+                                             : "two fields per frame, progressive chroma");
 }
 
 void write_manifest(const std::string& dir, const Manifest& m) {
@@ -312,7 +399,9 @@ void write_manifest(const std::string& dir, const Manifest& m) {
     j["field_height"] = m.field_height;
     j["field_rate_hz"] = m.field_rate_hz;
     j["field_bytes"] = kFieldBytes;
-    j["pixel_format"] = "UYVY (Cb Y0 Cr Y1), BT.601 studio swing, first field top";
+    if (!m.codec.empty()) j["codec"] = m.codec;
+    j["pixel_format"] = m.format == "uyvy" ? "UYVY (Cb Y0 Cr Y1), BT.601 studio swing, first field top"
+                                           : "woven 720x576 frames, 25 frames/s, interlaced, BT.601 studio swing";
     nlohmann::json cams = nlohmann::json::array();
     for (size_t c = 0; c < m.files.size(); ++c)
         cams.push_back({{"name", fmt::format("cam{}", c)}, {"file", m.files[c]},

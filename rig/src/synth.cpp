@@ -2,10 +2,9 @@
 
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/video.hpp"
 
 #include <fmt/format.h>
-#include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 #include <chrono>
 #include <cmath>
@@ -65,25 +64,18 @@ void RigSynth::render(int64_t index, const std::vector<uint8_t*>& uyvy, FieldTru
     }
 }
 
-namespace {
-
-/// Weaves two UYVY fields (top, bottom) into a BGR frame.
-void weave_to_bgr(const uint8_t* top, const uint8_t* bottom, cv::Mat& bgr) {
-    bgr.create(kFrameHeight, kFrameWidth, CV_8UC3);
-    for (int y = 0; y < kFieldHeight; ++y) {
-        uyvy_to_bgr(top + static_cast<size_t>(y) * kFieldWidth * 2, 0, kFieldWidth, 1, bgr.ptr(2 * y), 0);
-        uyvy_to_bgr(bottom + static_cast<size_t>(y) * kFieldWidth * 2, 0, kFieldWidth, 1, bgr.ptr(2 * y + 1), 0);
-    }
-}
-
-}  // namespace
-
 SynthSummary write_recording(const SynthRequest& req, const std::function<void(int64_t, int64_t)>& progress) {
     namespace fs = std::filesystem;
     if (!(req.seconds > 0) || !std::isfinite(req.seconds) || req.seconds > 3600)
         throw RigError(fmt::format("synth: seconds: must be in (0, 3600], got {}", req.seconds));
-    if (req.format != "uyvy" && req.format != "video")
-        throw RigError(fmt::format("synth: format: must be uyvy or video, got '{}'", req.format));
+    VideoCodec codec = VideoCodec::kFfv1;
+    const bool video = req.format != "uyvy";
+    if (video && !parse_video_codec(req.format, codec))
+        throw RigError(fmt::format("synth: format: must be uyvy, ffv1 (or video), dv, dv411, mpeg2 or h264, got '{}'",
+                                   req.format));
+    if (video && !encoder_available(codec))
+        throw RigError(fmt::format("synth: format {}: this FFmpeg has no {} encoder", req.format,
+                                   codec == VideoCodec::kH264 ? "libx264 (H.264)" : to_string(codec)));
     if (!(req.render.noise_sigma >= 0) || !std::isfinite(req.render.noise_sigma))
         throw RigError(fmt::format("synth: noise: must be >= 0, got {}", req.render.noise_sigma));
     std::error_code ec;
@@ -93,7 +85,6 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
 
     const Bodies bodies = load_bodies(req.bodies_path);
     int64_t fields = std::max<int64_t>(1, std::llround(req.seconds * kFieldRateHz));
-    const bool video = req.format == "video";
     if (video && (fields & 1)) ++fields;
     const double duration_us = static_cast<double>(fields) * kFieldPeriodUs;
     RenderOptions ro = req.render;
@@ -109,7 +100,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
 
     // Outputs.
     std::vector<std::ofstream> raw(nc);
-    std::vector<cv::VideoWriter> vids(nc);
+    std::vector<VideoWriter> vids;
     std::vector<std::string> names(nc);
     for (size_t c = 0; c < nc; ++c) {
         if (!video) {
@@ -117,23 +108,10 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
             raw[c].open(fs::path(req.out_dir) / names[c], std::ios::binary | std::ios::trunc);
             if (!raw[c]) throw RigError(fmt::format("{}/{}: file: cannot be created", req.out_dir, names[c]));
         } else {
-            names[c] = fmt::format("cam{}.mkv", c);
-            const std::string path = (fs::path(req.out_dir) / names[c]).string();
-            bool ok = false;
-            try {
-                ok = vids[c].open(path, cv::CAP_FFMPEG, cv::VideoWriter::fourcc('F', 'F', 'V', '1'), 25.0,
-                                  cv::Size(kFrameWidth, kFrameHeight), true);
-            } catch (const cv::Exception&) {
-                ok = false;
-            }
-            if (!ok) {
-                fs::remove(path, ec);
-                names[c] = fmt::format("cam{}.avi", c);
-                ok = vids[c].open((fs::path(req.out_dir) / names[c]).string(), cv::VideoWriter::fourcc('M', 'J', 'P', 'G'),
-                                  25.0, cv::Size(kFrameWidth, kFrameHeight), true);
-                if (ok) vids[c].set(cv::VIDEOWRITER_PROP_QUALITY, 100);
-            }
-            if (!ok) throw RigError(fmt::format("{}/{}: file: no video encoder available", req.out_dir, names[c]));
+            // As a PAL camera records: woven frames, the camera's first field first.
+            names[c] = fmt::format("cam{}{}", c, extension(codec));
+            vids.emplace_back((fs::path(req.out_dir) / names[c]).string(), codec,
+                              req.cameras[c].first_field_parity == 0 ? FieldOrder::kTopFirst : FieldOrder::kBottomFirst);
         }
         sum.files.push_back(names[c]);
     }
@@ -145,7 +123,6 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     std::vector<uint8_t*> ptrs(nc);
     for (size_t c = 0; c < nc; ++c) ptrs[c] = buf[c].data();
     FieldTruth truth;
-    cv::Mat bgr;
     double render_s = 0;
     for (int64_t i = 0; i < fields; ++i) {
         const auto t0 = std::chrono::steady_clock::now();
@@ -159,10 +136,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
                 raw[c].write(reinterpret_cast<const char*>(buf[c].data()), kFieldBytes);
                 if (!raw[c]) throw RigError(fmt::format("{}/{}: file: write failed", req.out_dir, names[c]));
             } else if (i & 1) {
-                // Fields i-1 and i make frame (i-1)/2; the one of parity 0 goes to the even rows.
-                const bool prev_top = req.cameras[c].field_parity(i - 1) == 0;
-                weave_to_bgr(prev_top ? prev[c].data() : buf[c].data(), prev_top ? buf[c].data() : prev[c].data(), bgr);
-                vids[c].write(bgr);
+                vids[c].write(prev[c].data(), buf[c].data());  // fields i-1 and i make frame (i-1)/2
             } else {
                 prev[c].swap(buf[c]);
                 ptrs[c] = buf[c].data();
@@ -173,12 +147,13 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     tw.close();
     for (auto& r : raw)
         if (r.is_open()) r.close();
-    for (auto& v : vids) v.release();
+    for (auto& v : vids) v.close();
     sum.render_s = render_s;
     sum.fields_per_s = render_s > 0 ? static_cast<double>(fields * static_cast<int64_t>(nc)) / render_s : 0.0;
 
     Manifest man;
-    man.format = req.format;
+    man.format = video ? "video" : "uyvy";
+    if (video) man.codec = to_string(codec);
     man.files = names;
     man.fields.assign(nc, fields);
     man.scenario = req.scenario;

@@ -1,7 +1,7 @@
 #pragma once
 /// \file
 /// The synthesiser: renders all cameras of the rig for a scenario and writes a recording directory
-/// (rig.yaml, cam<k>.uyvy or cam<k>.mkv/.avi, truth.jsonl, manifest.json).
+/// (rig.yaml, cam<k>.uyvy or a video cam<k>.mkv/.avi/.mpg/.mp4, truth.jsonl, manifest.json).
 
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/camera.hpp"
@@ -48,7 +48,7 @@ struct SynthRequest {
     std::string scenario = "static"; ///< scenario_names()
     double seconds = 1.0;            ///< fields = round(seconds * 50) (video: rounded up to even)
     uint64_t seed = 1;               ///< scenario and noise seed
-    std::string format = "uyvy";     ///< "uyvy" or "video" (lossless FFV1 .mkv when OpenCV has it, else MJPG .avi)
+    std::string format = "uyvy";     ///< "uyvy" or a video codec (video.hpp): ffv1 (video), dv, dv411, mpeg2, h264
     RenderOptions render;            ///< noise etc. (render.seed is set from seed)
     std::vector<CameraModel> cameras = default_rig();  ///< the rig
     std::string bodies_path = default_bodies_path();   ///< marker bodies
