@@ -80,11 +80,13 @@ public:
             throw std::runtime_error(dir + "/rig.yaml: camera_count " + std::to_string(rec_.camera_count()) +
                                      " but the device has 3 cameras");
         if (rec_.common_field_count() <= 0) throw std::runtime_error(dir + ": the recording has no complete field");
-        for (const std::string& w : rec_.warnings()) std::fprintf(stderr, "eyesim-device: warning: %s\n", w.c_str());
+        print_warnings();
     }
     std::int64_t fields() const override { return rec_.common_field_count(); }
     const std::vector<eyesim::rig::CameraModel>& cameras() const override { return rec_.cameras(); }
-    void read(int cam, std::int64_t index, std::uint8_t* uyvy) override { rec_.read_field(cam, index, uyvy); }
+    void read(int cam, std::int64_t index, std::uint8_t* uyvy) override {
+        if (!rec_.read_field(cam, index, uyvy)) print_warnings();  // a video field lost: sent black
+    }
     std::vector<eyesim::firmware::pc::PedalSample> pedal_track() const override {
         // The pedal of a recording is in its truth.jsonl (one sample per field time); a recording without it
         // (a real rig's video) plays with the pedal at rest.
@@ -98,6 +100,9 @@ public:
     }
 
 private:
+    void print_warnings() {
+        for (const std::string& w : rec_.take_warnings()) std::fprintf(stderr, "eyesim-device: warning: %s\n", w.c_str());
+    }
     eyesim::rig::Recording rec_;
 };
 

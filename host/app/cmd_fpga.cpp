@@ -66,12 +66,16 @@ struct CameraStats {
     int64_t refined = 0;
     double se = 0;
     int64_t matched = 0, missed = 0, extra = 0;
+    // Signed centroid error (blob − rendered centroid) per field parity: a video whose chroma is sited wrongly
+    // shows a bias that alternates with the parity.
+    std::array<double, 2> sum_dx{}, sum_dy{};
+    std::array<int64_t, 2> n_parity{};
     std::vector<double> latency_us;        // blob: emission after its last pixel
     std::vector<double> field_latency_us;  // field: last blob after the last active line
 };
 
 // Matches blobs to the visible truth markers of one camera by class and nearest centroid (≤ 3 px).
-void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, CameraStats& st) {
+void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, int parity, CameraStats& st) {
     std::vector<rig::DetectedMarker> det;
     det.reserve(blobs.size());
     for (const fpga::Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
@@ -86,15 +90,37 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
             }
             st.se += m.distance_px * m.distance_px;
             ++st.matched;
+            const Eigen::Vector2d d = det[static_cast<size_t>(m.detection)].centroid_px - m.view->centroid_px;
+            st.sum_dx[parity & 1] += d.x();
+            st.sum_dy[parity & 1] += d.y();
+            ++st.n_parity[parity & 1];
         },
         used);
     for (bool u : used) st.extra += !u;
 }
 
+// Mean signed centroid error, x and y, and y by field parity (top, bottom); null where nothing was matched.
+nlohmann::json bias_json(const CameraStats& st) {
+    const auto mean = [](double sum, int64_t n) {
+        return n ? nlohmann::json(sum / static_cast<double>(n)) : nlohmann::json();
+    };
+    const int64_t n = st.n_parity[0] + st.n_parity[1];
+    return {{"x", mean(st.sum_dx[0] + st.sum_dx[1], n)}, {"y", mean(st.sum_dy[0] + st.sum_dy[1], n)},
+            {"y_top", mean(st.sum_dy[0], st.n_parity[0])}, {"y_bottom", mean(st.sum_dy[1], st.n_parity[1])}};
+}
+
 int run(const FpgaOptions& opt) {
     rig::Recording rec = rig::Recording::open(opt.recording);
     const std::vector<int> cams = eyesim::app::parse_cameras(opt.cameras, rec.camera_count());
-    for (const std::string& w : rec.warnings()) std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+    // Warnings as they are found: the recording's at open, then the fields a video could not give.
+    std::vector<std::string> warnings;
+    const auto print_warnings = [&] {
+        for (std::string& w : rec.take_warnings()) {
+            std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+            warnings.push_back(std::move(w));
+        }
+    };
+    print_warnings();
     int64_t n_fields = rec.common_field_count();
     if (opt.max_fields >= 0) n_fields = std::min(n_fields, opt.max_fields);
 
@@ -183,7 +209,7 @@ int run(const FpgaOptions& opt) {
             st.overflows += fs.table_overflows;
             for (const fpga::Blob& b : blobs) st.latency_us.push_back(b.latency_us());
             st.field_latency_us.push_back(fpga::cycles_to_us(fs.last_blob_latency_cycles));
-            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], f.camera, st);
+            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], f.camera, f.parity, st);
 
             if (csv.is_open()) {
                 for (const fpga::Blob& b : blobs)
@@ -212,6 +238,7 @@ int run(const FpgaOptions& opt) {
                                                           0.0, rec.field_timing(cam, i + 1).start_us))) * 1000u);
             send_ready(horizon_ns);
         }
+        print_warnings();
         if (progress && (i % 25 == 0 || i + 1 == n_fields))
             std::fprintf(stderr, "\rfpga: field %lld/%lld", static_cast<long long>(i + 1), static_cast<long long>(n_fields));
     }
@@ -223,8 +250,10 @@ int run(const FpgaOptions& opt) {
         if (!csv) throw eyesim::app::Error(fmt::format("{}: write failed", opt.csv));
     }
 
-    int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0;
+    int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0, lost = 0;
     double se = 0;
+    CameraStats all;  // bias sums over the cameras
+    for (int c : cams) lost += rec.lost_fields(c);
     std::vector<double> all_latency;
     nlohmann::json per_cam = nlohmann::json::array();
     for (const CameraStats& st : stats) {
@@ -243,7 +272,14 @@ int run(const FpgaOptions& opt) {
             j["matched"] = st.matched;
             j["missed"] = st.missed;
             j["extra"] = st.extra;
+            j["centroid_bias_px"] = bias_json(st);
+            for (int p = 0; p < 2; ++p) {
+                all.sum_dx[p] += st.sum_dx[p];
+                all.sum_dy[p] += st.sum_dy[p];
+                all.n_parity[p] += st.n_parity[p];
+            }
         }
+        j["lost_fields"] = rec.lost_fields(st.camera);
         per_cam.push_back(j);
     }
     const double model_s = model.model_seconds();
@@ -251,8 +287,11 @@ int run(const FpgaOptions& opt) {
     if (opt.json) {
         nlohmann::json j{{"recording", opt.recording}, {"fields", total_fields}, {"fields_per_s", fps},
                          {"blobs", total_blobs}, {"latency_us", latency_json(all_latency)}, {"cameras", per_cam},
-                         {"truth", !truth.empty()}, {"errors", 0}};
-        if (!truth.empty()) j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
+                         {"truth", !truth.empty()}, {"lost_fields", lost}, {"warnings", warnings}, {"errors", 0}};
+        if (!truth.empty()) {
+            j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
+            j["centroid_bias_px"] = bias_json(all);
+        }
         if (opt.refine) {
             j["refined"] = refined;
             j["refine_fields_per_s"] = refine_s > 0 ? total_fields / refine_s : 0.0;

@@ -153,7 +153,7 @@ int run_scene(const SceneRunRequest& req) {
         try {
             if (!req.source.recording.empty()) {
                 rec = std::make_unique<rig::Recording>(rig::Recording::open(req.source.recording));
-                for (const std::string& w : rec->warnings()) report.warnings.push_back(w);
+                for (std::string& w : rec->take_warnings()) report.warnings.push_back(std::move(w));
                 cams = rec->cameras();
                 if (truth_path.empty()) truth_path = rec->truth_path();
             }
@@ -181,6 +181,7 @@ int run_scene(const SceneRunRequest& req) {
         if (rec) {
             report.source = "recording " + req.source.recording + " (FPGA model in-process)";
             run_recording(*rec, run, req.seconds > 0 ? int64_t(std::lround(req.seconds * 50)) : 0);
+            for (std::string& w : rec->take_warnings()) report.warnings.push_back(std::move(w));  // fields lost
         } else if (!req.source.capture.empty()) {
             report.source = "capture " + req.source.capture;
             run_capture(req.source.capture, run, report.warnings);
