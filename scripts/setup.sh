@@ -8,6 +8,7 @@ packages=(
   libegl-dev libgles-dev libegl-mesa0 libgl1-mesa-dri libgbm1
   catch2 libfcl-dev libbullet-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev
+  libavformat-dev libavcodec-dev libavutil-dev
   clang libclang-rt-14-dev
 )
 
