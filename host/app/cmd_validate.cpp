@@ -843,7 +843,11 @@ std::string html_truth(const nlohmann::json& j, const std::vector<std::pair<std:
     h += html_table({"camera", "RMS (px)", "p95 (px)", "max (px)", "matched", "missed", "spurious blobs", "blobs",
                      "RMS by eyesim fpga's rule (px)", "matched by fpga's rule", "missed by fpga's rule"},
                     rows);
-    h += "<p><b>Why <code>eyesim fpga</code> gives other centroid figures.</b> " + html_escape(kCentroidRules) +
+    // The rules' `code` spans as <code>.
+    std::string rules = html_escape(kCentroidRules);
+    for (bool open = true; rules.find('`') != std::string::npos; open = !open)
+        rules.replace(rules.find('`'), 1, open ? "<code>" : "</code>");
+    h += "<p><b>Why <code>eyesim fpga</code> gives other centroid figures.</b> " + rules +
          " The last three columns score this run's blobs by <code>fpga</code>'s rule.</p>\n";
     h += html_figures(centroid_plots);
     const nlohmann::json& f = j["fpga_chain"];
