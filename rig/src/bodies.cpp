@@ -162,6 +162,26 @@ Bodies load_bodies(const std::string& path) {
             rd.fail(p + "/markers", fmt::format("needs at least 2 markers, has {}", ib.markers.size()));
         b.instruments.push_back(ib);
     }
+    if (doc.contains("wand")) {
+        const json& w = doc.at("wand");
+        const json& wm = rd.array(w, "/wand", "markers");
+        for (size_t j = 0; j < wm.size(); ++j) {
+            const std::string pm = fmt::format("/wand/markers/{}", j);
+            WandMarker m;
+            m.id = static_cast<int>(j);
+            m.colour_class = rd.colour(wm[j], pm);
+            m.distance_mm = rd.num(wm[j], pm, "distance_mm");
+            m.radius_mm = rd.positive(wm[j], pm, "radius_mm");
+            // Marker 0 defines the wand frame's origin; the order along the rod is what tells the ends apart.
+            if (j == 0 && m.distance_mm != 0.0) rd.fail(pm + "/distance_mm", fmt::format("must be 0 for marker 0, got {}", m.distance_mm));
+            if (j > 0 && !(m.distance_mm > b.wand.markers.back().distance_mm))
+                rd.fail(pm + "/distance_mm", fmt::format("must exceed the previous marker's {}, got {}",
+                                                         b.wand.markers.back().distance_mm, m.distance_mm));
+            b.wand.markers.push_back(m);
+        }
+        if (b.wand.markers.size() < 2)
+            rd.fail("/wand/markers", fmt::format("needs at least 2 markers, has {}", b.wand.markers.size()));
+    }
     return b;
 }
 

@@ -76,17 +76,41 @@ struct InstrumentBody {
     Eigen::Vector3d marker_position_mm(size_t i) const { return {0.0, 0.0, markers.at(i).distance_from_tip_mm}; }
 };
 
+/// One marker of the calibration wand (a sphere on the wand's rod).
+struct WandMarker {
+    int id = 0;                        ///< index along the rod (0 = the end marker, distance 0)
+    int colour_class = 2;              ///< 1..4
+    double distance_mm = 0;            ///< along the rod from marker 0
+    double radius_mm = 0.6;            ///< marker sphere radius
+};
+
+/// The calibration wand: a thin rod carrying collinear markers at known, unequal spacings (so the two ends are
+/// told apart in every view). Wand frame (mm): origin at marker 0's centre, +z along the rod towards the last
+/// marker. The rod itself is thin and dark: it is not drawn (it would only occlude marker edges).
+struct WandBody {
+    std::vector<WandMarker> markers;   ///< ordered along the rod; empty when bodies.json has no wand
+
+    /// Whether bodies.json describes a wand.
+    bool present() const noexcept { return !markers.empty(); }
+    /// Marker centre in the wand frame.
+    Eigen::Vector3d marker_position_mm(size_t i) const { return {0.0, 0.0, markers.at(i).distance_mm}; }
+    /// Distance from the first to the last marker centre.
+    double length_mm() const noexcept { return markers.empty() ? 0.0 : markers.back().distance_mm; }
+};
+
 /// Everything in bodies.json.
 struct Bodies {
     EyeBody eye;                             ///< the mechanical eye
     std::vector<InstrumentBody> instruments; ///< one entry per kind
+    WandBody wand;                           ///< the calibration wand (optional in the file)
 
     /// The body of `kind`; throws std::out_of_range if the file lacks it.
     const InstrumentBody& instrument(InstrumentKind kind) const;
 };
 
 /// Reads bodies.json. Throws RigError "<path>: <json pointer>: <why>" on missing keys, wrong types, NaN,
-/// colour classes outside 1..4, or an unknown instrument kind.
+/// colour classes outside 1..4, or an unknown instrument kind. The "wand" entry is optional; when present it
+/// needs at least 2 markers, the first at distance 0 and distances strictly increasing.
 Bodies load_bodies(const std::string& path);
 
 /// Path of the project's scenes/bodies.json (compiled-in source path), for tools and tests.
