@@ -6,7 +6,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git ccache
   libopencv-dev libeigen3-dev libusb-1.0-0-dev
   libegl-dev libgles-dev libegl-mesa0 libgl1-mesa-dri libgbm1
-  catch2 libfcl-dev libbullet-dev
+  catch2 libfcl-dev libbullet-dev libceres-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev
   libavformat-dev libavcodec-dev libavutil-dev
   clang libclang-rt-14-dev
