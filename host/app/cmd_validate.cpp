@@ -214,21 +214,16 @@ private:
 
 /// The bodies file's calibration wand as an instrument-like body (origin at marker 0, +z along the rod) for the
 /// truth-free checks; nullopt when the file has none.
-template <class Bodies>
-std::optional<tr::InstrumentModel> wand_model(const Bodies& bodies) {
-    if constexpr (requires { bodies.wand.markers; }) {
-        if (!bodies.wand.present() || bodies.wand.markers.size() > std::size_t(tr::kMaxBodyMarkers)) return std::nullopt;
-        tr::InstrumentModel m;
-        m.name = "wand";
-        for (std::size_t i = 0; i < bodies.wand.markers.size(); ++i) {
-            tr::BodyMarker& b = m.markers[std::size_t(m.marker_count++)];
-            b.colour_class = std::uint8_t(bodies.wand.markers[i].colour_class);
-            b.pos_body_mm = bodies.wand.marker_position_mm(i);
-        }
-        return m;
-    } else {
-        return std::nullopt;
+std::optional<tr::InstrumentModel> wand_model(const rig::Bodies& bodies) {
+    if (!bodies.wand.present() || bodies.wand.markers.size() > std::size_t(tr::kMaxBodyMarkers)) return std::nullopt;
+    tr::InstrumentModel m;
+    m.name = "wand";
+    for (std::size_t i = 0; i < bodies.wand.markers.size(); ++i) {
+        tr::BodyMarker& b = m.markers[std::size_t(m.marker_count++)];
+        b.colour_class = std::uint8_t(bodies.wand.markers[i].colour_class);
+        b.pos_body_mm = bodies.wand.marker_position_mm(i);
     }
+    return m;
 }
 
 /// A progress line on stderr with the time left, at most five times a second; only when `on` (stderr a terminal,
@@ -1393,7 +1388,7 @@ int run_validate(const ValidateOptions& opt) {
         CentroidStats& cs = cstats[std::size_t(c)];
         all_c.insert(all_c.end(), cs.err_px.begin(), cs.err_px.end());
         const nlohmann::json s = summary_json(cs.err_px);
-        nlohmann::json cj{{"camera", c}, {"blobs", cs.blobs}};
+        nlohmann::json cj{{"camera", c}, {"blobs", cs.blobs}, {"lost_fields", rec.lost_fields(c)}};
         if (have_truth) {
             cj.update({{"centroid_rms_px", s["rms"]},
                        {"centroid_p95_px", s["p95"]},
