@@ -22,6 +22,7 @@ struct SynthOptions {
     uint64_t seed = 1;
     std::string out;
     std::string format = "uyvy";
+    std::string encoder_options;
     double noise = 1.0;
     std::string bodies;
     std::string rig;
@@ -43,8 +44,10 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
     sub.add_option("--format", opt->format,
                    "uyvy (raw fields), or interlaced PAL video as cameras record it (720x576, 25 frames/s, the "
                    "rig's first field first): ffv1 (lossless 4:2:2 .mkv; also: video), dv (DV 4:2:0 .avi), dv411 "
-                   "(DVCPRO25 4:1:1 .avi), mpeg2 (15 Mbit/s 4:2:0 .mpg), h264 (libx264 CRF 16 4:2:0 .mp4)")
+                   "(DVCPRO25 4:1:1 .avi), mpeg2 (4:2:0 .mpg, quantiser 2, <= 15 Mbit/s), h264 (libx264 CRF 8 4:2:0 .mp4)")
         ->check(CLI::IsMember({"uyvy", "video", "ffv1", "dv", "dv411", "mpeg2", "h264"}));
+    sub.add_option("--encoder-options", opt->encoder_options,
+                   "video: FFmpeg encoder options over the format's, key=value pairs separated by ':' (e.g. crf=6)");
     sub.add_option("--noise", opt->noise, "read-noise sigma in 8-bit levels, 0 to 32 (0: no noise at all)")
         ->check(eyesim::app::finite_in(0.0, kMaxNoiseSigma));
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
@@ -61,6 +64,7 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
             req.seconds = opt->seconds;
             req.seed = opt->seed;
             req.format = opt->format;
+            req.encoder_options = opt->encoder_options;
             req.render.noise_sigma = opt->noise;
             if (!opt->bodies.empty()) req.bodies_path = opt->bodies;
             if (!opt->rig.empty()) req.cameras = rig::load_rig_yaml(opt->rig);

@@ -76,6 +76,8 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     if (video && !encoder_available(codec))
         throw RigError(fmt::format("synth: format {}: this FFmpeg has no {} encoder", req.format,
                                    codec == VideoCodec::kH264 ? "libx264 (H.264)" : to_string(codec)));
+    if (!video && !req.encoder_options.empty())
+        throw RigError("synth: encoder options: only for a video format, not uyvy");
     if (!(req.render.noise_sigma >= 0) || !std::isfinite(req.render.noise_sigma))
         throw RigError(fmt::format("synth: noise: must be >= 0, got {}", req.render.noise_sigma));
     std::error_code ec;
@@ -111,7 +113,8 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
             // As a PAL camera records: woven frames, the camera's first field first.
             names[c] = fmt::format("cam{}{}", c, extension(codec));
             vids.emplace_back((fs::path(req.out_dir) / names[c]).string(), codec,
-                              req.cameras[c].first_field_parity == 0 ? FieldOrder::kTopFirst : FieldOrder::kBottomFirst);
+                              req.cameras[c].first_field_parity == 0 ? FieldOrder::kTopFirst : FieldOrder::kBottomFirst,
+                              VideoChroma::kCodec, req.encoder_options);
         }
         sum.files.push_back(names[c]);
     }

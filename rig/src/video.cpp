@@ -865,7 +865,8 @@ struct VideoWriter::Impl {
     }
 };
 
-VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder order, VideoChroma chroma)
+VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder order, VideoChroma chroma,
+                         const std::string& options)
     : impl_(std::make_unique<Impl>()) {
     init_ffmpeg();
     Impl& w = *impl_;
@@ -919,9 +920,13 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
         case VideoCodec::kDv411: break;  // DV's rate is fixed (25 Mbit/s)
         case VideoCodec::kMpeg2:
             e->flags |= AV_CODEC_FLAG_INTERLACED_DCT | AV_CODEC_FLAG_INTERLACED_ME;
+            // A 15 Mbit/s recorder never reaches its rate on the rig's mostly dark pictures: its quantiser sits at
+            // the floor on every picture, which is what a fixed quantiser scale of 2 writes.
             e->bit_rate = 15'000'000;  // MP@ML's ceiling
             e->rc_max_rate = 15'000'000;
             e->rc_buffer_size = 1'835'008;  // MP@ML VBV
+            e->qmin = e->qmax = 2;
+            e->intra_dc_precision = 2;  // 10-bit intra DC, as broadcast encoders write
             e->gop_size = 12;
             e->max_b_frames = 2;
             av_dict_set(&opts, "intra_vlc", "1", 0);
@@ -929,15 +934,22 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
         case VideoCodec::kH264:
             e->flags |= AV_CODEC_FLAG_INTERLACED_DCT;  // x264 --interlaced (field order per frame)
             e->gop_size = 25;
-            av_dict_set(&opts, "crf", "16", 0);
+            av_dict_set(&opts, "crf", "8", 0);  // about DV's 25 Mbit/s on the rig's pictures
             av_dict_set(&opts, "preset", "medium", 0);
             av_dict_set(&opts, "profile", "high", 0);
             break;
     }
+    if (!options.empty() && av_dict_parse_string(&opts, options.c_str(), "=", ":", 0) < 0) {
+        av_dict_free(&opts);
+        throw RigError(fmt::format("{}: video: encoder options '{}': not key=value pairs separated by ':'", path, options));
+    }
     if (w.oc->oformat->flags & AVFMT_GLOBALHEADER) e->flags |= AV_CODEC_FLAG_GLOBAL_HEADER;
     r = avcodec_open2(e, c, &opts);
+    const AVDictionaryEntry* unused = av_dict_get(opts, "", nullptr, AV_DICT_IGNORE_SUFFIX);
+    const std::string unknown = unused ? unused->key : "";
     av_dict_free(&opts);
     if (r < 0) w.error(fmt::format("{} encoder cannot be opened", c->name), r);
+    if (!unknown.empty()) throw RigError(fmt::format("{}: video: encoder option '{}': {} has no such option", path, unknown, c->name));
     w.st = avformat_new_stream(w.oc, nullptr);
     if (!w.st) throw RigError(path + ": out of memory");
     avcodec_parameters_from_context(w.st->codecpar, e);

@@ -105,8 +105,8 @@ enum class VideoCodec {
     kFfv1,   ///< FFV1 level 3, 4:2:2 8-bit, lossless, Matroska (.mkv)
     kDv,     ///< DV 25 Mbit/s PAL (IEC 61834), 4:2:0 line-alternate chroma, AVI (.avi)
     kDv411,  ///< DVCPRO25 PAL, 4:1:1, AVI (.avi)
-    kMpeg2,  ///< MPEG-2 MP@ML 4:2:0 interlaced, 15 Mbit/s, GOP 12 (IBBP), MPEG program stream (.mpg)
-    kH264,   ///< H.264 High 4:2:0 interlaced (libx264, CRF 16), MP4 (.mp4)
+    kMpeg2,  ///< MPEG-2 MP@ML 4:2:0 interlaced, ≤ 15 Mbit/s at quantiser scale 2, GOP 12 (IBBP), program stream (.mpg)
+    kH264,   ///< H.264 High 4:2:0 interlaced (libx264 MBAFF, CRF 8, GOP 25), MP4 (.mp4)
 };
 
 /// The codec named "ffv1", "dv", "dv411", "mpeg2" or "h264" ("video": ffv1). Returns false for anything else.
@@ -125,10 +125,12 @@ enum class VideoChroma { kCodec, k420, k411 };
 /// Writes woven interlaced PAL frames (720×576, 25 frames/s) from field pairs.
 class VideoWriter {
 public:
-    /// Creates `path` for `codec`; `order` kTopFirst or kBottomFirst; `chroma` other than kCodec only with kFfv1.
-    /// Throws RigError when the encoder is missing (naming it) or the file cannot be written.
+    /// Creates `path` for `codec`; `order` kTopFirst or kBottomFirst; `chroma` other than kCodec only with kFfv1;
+    /// `options`: FFmpeg encoder options over the codec's settings, "key=value" pairs separated by ':' (e.g.
+    /// "crf=6" for H.264). Throws RigError when the encoder is missing (naming it), an option is unknown to it,
+    /// or the file cannot be written.
     VideoWriter(const std::string& path, VideoCodec codec, FieldOrder order = FieldOrder::kTopFirst,
-                VideoChroma chroma = VideoChroma::kCodec);
+                VideoChroma chroma = VideoChroma::kCodec, const std::string& options = {});
     ~VideoWriter();
     VideoWriter(VideoWriter&&) noexcept;
     VideoWriter& operator=(VideoWriter&&) noexcept;
