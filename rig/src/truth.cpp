@@ -94,6 +94,17 @@ std::string truth_to_json_line(const FieldTruth& t) {
                       {"center_rig_mm", v3(m.center_rig_mm)}, {"cams", cams_m}});
     }
     j["markers"] = mk;
+    if (t.board) {
+        const BoardTruth& b = *t.board;
+        auto quat = [](const Eigen::Quaterniond& r) { return json::array({r.w(), r.x(), r.y(), r.z()}); };
+        json bc = json::array();
+        for (const auto& c : b.cams)
+            bc.push_back({{"q_board_to_rig", quat(c.q_board_to_rig)}, {"origin_rig_mm", v3(c.origin_rig_mm)},
+                          {"facing", c.facing}, {"corners_in_image", c.corners_in_image}, {"motion_px", c.motion_px}});
+        j["board"] = {{"squares", json::array({b.squares_x, b.squares_y})}, {"square_mm", b.square_mm},
+                      {"q_board_to_rig", quat(b.q_board_to_rig)}, {"origin_rig_mm", v3(b.origin_rig_mm)},
+                      {"cams", bc}};
+    }
     return j.dump();
 }
 
@@ -175,6 +186,34 @@ FieldTruth truth_from_json_line(const std::string& line, const std::string& wher
             m.cams.push_back(mc);
         }
         t.markers.push_back(std::move(m));
+    }
+    if (j.contains("board")) {
+        const json& bj = j.at("board");
+        BoardTruth b;
+        const Eigen::Vector2d sq = p.vec<2>(bj, "board.", "squares");
+        b.squares_x = static_cast<int>(sq[0]);
+        b.squares_y = static_cast<int>(sq[1]);
+        b.square_mm = p.num(bj, "board.", "square_mm");
+        auto quat = [&](const json& o, const std::string& kp) {
+            const Eigen::Vector4d r = p.vec<4>(o, kp, "q_board_to_rig");
+            return Eigen::Quaterniond(r[0], r[1], r[2], r[3]);
+        };
+        b.q_board_to_rig = quat(bj, "board.");
+        b.origin_rig_mm = p.vec<3>(bj, "board.", "origin_rig_mm");
+        const json& bc = p.arr(bj, "board.", "cams");
+        for (size_t c = 0; c < bc.size(); ++c) {
+            const std::string kc = fmt::format("board.cams[{}].", c);
+            BoardCameraTruth ct;
+            ct.q_board_to_rig = quat(bc[c], kc);
+            ct.origin_rig_mm = p.vec<3>(bc[c], kc, "origin_rig_mm");
+            const json& f = p.at(bc[c], kc, "facing");
+            if (!f.is_boolean()) p.fail(kc + "facing", "not a boolean");
+            ct.facing = f.get<bool>();
+            ct.corners_in_image = static_cast<int>(p.num(bc[c], kc, "corners_in_image"));
+            ct.motion_px = p.num(bc[c], kc, "motion_px");
+            b.cams.push_back(ct);
+        }
+        t.board = std::move(b);
     }
     return t;
 }

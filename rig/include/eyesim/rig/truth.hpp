@@ -14,8 +14,12 @@
 ///  "pedal": {"axes": [a0, a1, a2], "buttons": b},
 ///  "markers": [{"body": "eye"|"<kind>", "id": k, "class": 1..4, "radius_mm": r, "center_rig_mm": [..],
 ///               "cams": [{"visible": true|false, "center_rig_mm": [..], "projected_px": [x,y],
-///                         "centroid_px": [x,y], "radius_px": r, "area_px": a, "occluded_fraction": f}, ...]}]}
+///                         "centroid_px": [x,y], "radius_px": r, "area_px": a, "occluded_fraction": f}, ...]}],
+///  "board": {"squares": [nx, ny], "square_mm": s, "q_board_to_rig": [w,x,y,z], "origin_rig_mm": [..],
+///            "cams": [{"q_board_to_rig": [..], "origin_rig_mm": [..], "facing": true|false,
+///                      "corners_in_image": n, "motion_px": m}, ...]}}
 /// ```
+/// `board` is present only when the scene has a calibration board (the `checkerboard` scenario; board.hpp).
 /// Eye, instruments, pedal and the marker-level `center_rig_mm` are at `t_us`. Per camera, `center_rig_mm` is
 /// the marker centre at that camera's exposure mid-time, `projected_px` its projection (camera model), and
 /// `centroid_px` the centroid of the marker's rendered intensity (luma contribution, integrated over each
@@ -32,6 +36,7 @@
 #include <cstdint>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -86,6 +91,25 @@ struct PedalTruth {
     uint32_t buttons = 0;          ///< bit mask
 };
 
+/// The calibration board as one camera sees it (board.hpp frames).
+struct BoardCameraTruth {
+    Eigen::Quaterniond q_board_to_rig = Eigen::Quaterniond::Identity();  ///< at this camera's exposure mid-time
+    Eigen::Vector3d origin_rig_mm = Eigen::Vector3d::Zero();             ///< first inner corner, same time
+    bool facing = false;        ///< the printed face is towards the camera
+    int corners_in_image = 0;   ///< inner corners projecting inside the frame [-0.5, 719.5] × [-0.5, 575.5]
+    double motion_px = 0.0;     ///< largest inner-corner image displacement over the exposure, frame px
+};
+
+/// The calibration board at one field index.
+struct BoardTruth {
+    int squares_x = 0;          ///< squares along the board x axis
+    int squares_y = 0;          ///< squares along the board y axis
+    double square_mm = 0.0;     ///< side of one square
+    Eigen::Quaterniond q_board_to_rig = Eigen::Quaterniond::Identity();  ///< at t_us
+    Eigen::Vector3d origin_rig_mm = Eigen::Vector3d::Zero();             ///< at t_us
+    std::vector<BoardCameraTruth> cams;                                  ///< one per camera
+};
+
 /// One line of truth.jsonl.
 struct FieldTruth {
     int64_t field = 0;                          ///< field index i
@@ -96,6 +120,7 @@ struct FieldTruth {
     std::vector<InstrumentTruth> instruments;   ///< usually two: tissue instrument and light pipe
     PedalTruth pedal;
     std::vector<MarkerTruth> markers;           ///< every marker of every body in the scene
+    std::optional<BoardTruth> board;            ///< the calibration board, when the scene has one
 };
 
 /// Serialises one line (no trailing newline).
