@@ -27,6 +27,7 @@ void scene_geometry(const SceneState& s, const Bodies& bodies, const std::vector
                     SceneGeometry& out) {
     out.eye_center_rig_mm = s.eye_center_rig_mm;
     out.eye_radius_mm = bodies.eye.radius_mm;
+    out.board = s.board;
     out.markers.resize(markers.size());
     for (size_t i = 0; i < markers.size(); ++i) {
         out.markers[i].center_rig_mm = marker_center_rig(markers[i], s);

@@ -1,5 +1,7 @@
 #include "eyesim/rig/renderer.hpp"
 
+#include "eyesim/rig/board.hpp"
+
 #include <Eigen/LU>
 
 #include <algorithm>
@@ -101,17 +103,78 @@ double segment_distance2(const Eigen::Vector3d& p0, const Eigen::Vector3d& p1, c
     return (p0 + s * d1 - (q0 + t * d2)).squaredNorm();
 }
 
+/// The calibration board in the camera frame: origin, axes (ex, ey in the sheet, n = ex × ey) and outline.
+struct CamBoard {
+    Eigen::Vector3d o, ex, ey, n;
+    double x0, x1, y0, y1;  // outline in board coordinates, mm
+    bool facing;            // printed face towards the camera
+
+    CamBoard(const BoardPose& pose, const CameraModel& cam) {
+        const Eigen::Matrix3d R = cam.R_cam_rig * pose.q_board_to_rig.toRotationMatrix();
+        o = cam.to_camera(pose.origin_rig_mm);
+        ex = R.col(0);
+        ey = R.col(1);
+        n = R.col(2);
+        const auto c = kCheckerboard.outline_board_mm();
+        x0 = c[0].x(), y0 = c[0].y(), x1 = c[2].x(), y1 = c[2].y();
+        facing = n.dot(o) > 0;
+    }
+    /// Distance along `dir` (any length) to the sheet, or +inf when the ray misses it.
+    double hit(const Eigen::Vector3d& dir) const {
+        const double nd = n.dot(dir);
+        if (std::abs(nd) < 1e-15) return kInf;
+        const double t = n.dot(o) / nd;
+        if (!(t > 0)) return kInf;
+        const Eigen::Vector3d rel = t * dir - o;
+        const double s = ex.dot(rel), u = ey.dot(rel);
+        return s >= x0 && s <= x1 && u >= y0 && u <= y1 ? t : kInf;
+    }
+};
+
+/// Area of the convex polygon `poly` (n ≤ 4 vertices) inside the rectangle [x0, x1] × [y0, y1] (Sutherland–Hodgman).
+double clipped_area(const Eigen::Vector2d* poly, int n, double x0, double x1, double y0, double y1) {
+    Eigen::Vector2d a[12], b[12];
+    for (int i = 0; i < n; ++i) a[i] = poly[i];
+    // Keeps the part with sign * (p[axis] - v) >= 0.
+    auto clip = [&](int axis, double v, double sign) {
+        int m = 0;
+        for (int i = 0; i < n; ++i) {
+            const Eigen::Vector2d& p = a[i];
+            const Eigen::Vector2d& q = a[(i + 1) % n];
+            const double dp = sign * (p[axis] - v), dq = sign * (q[axis] - v);
+            if (dp >= 0) b[m++] = p;
+            if ((dp >= 0) != (dq >= 0)) b[m++] = p + (q - p) * (dp / (dp - dq));
+        }
+        n = m;
+        for (int i = 0; i < n; ++i) a[i] = b[i];
+    };
+    clip(0, x0, 1.0);
+    if (n) clip(0, x1, -1.0);
+    if (n) clip(1, y0, 1.0);
+    if (n) clip(1, y1, -1.0);
+    double area2 = 0;
+    for (int i = 0; i < n; ++i) {
+        const Eigen::Vector2d& p = a[i];
+        const Eigen::Vector2d& q = a[(i + 1) % n];
+        area2 += p.x() * q.y() - q.x() * p.y();
+    }
+    return 0.5 * std::abs(area2);
+}
+
 /// Camera-frame occluders of one marker at one time sample.
 struct Occluders {
     struct Sph { Eigen::Vector3d c; double r2; };
     struct Cyl { Eigen::Vector3d a, w; double len, r; };
     std::vector<Sph> spheres;
     std::vector<Cyl> cylinders;
+    std::vector<CamBoard> boards;
     bool hit_before(const Eigen::Vector3d& dir, double t_max) const {
         for (const Sph& s : spheres)
             if (ray_sphere(dir, s.c, s.r2) < t_max) return true;
         for (const Cyl& c : cylinders)
             if (ray_cylinder(dir, c.a, c.w, c.len, c.r) < t_max) return true;
+        for (const CamBoard& b : boards)
+            if (b.hit(dir) < t_max) return true;
         return false;
     }
 };
@@ -152,6 +215,7 @@ struct CameraRenderer::Impl {
 
     void precompute();
     void draw_shafts(int parity, const SceneGeometry& g);
+    void draw_board(int parity, int T);
     void draw_markers(int parity, const std::vector<double>& sample_times_us, std::vector<MarkerCameraTruth>& truth);
     void composite(int parity);
     void to_uyvy(int parity, int64_t index, uint8_t* out) const;
@@ -330,6 +394,171 @@ void CameraRenderer::Impl::draw_shafts(int parity, const SceneGeometry& g) {
     }
 }
 
+void CameraRenderer::Impl::draw_board(int parity, int T) {
+    for (int k = 0; k < T; ++k)
+        if (!geo_t[k].board) return;
+    const BoardSpec& spec = kCheckerboard;
+    const double sq = spec.square_mm;
+    // Sub-cells per edge pixel side: exact polygon areas on each sub-cell's affine footprint, so the only
+    // error left is the map's curvature inside a sub-cell. Blurred fields average T samples: 2 are ample there.
+    const int ns = std::max(1, T == 1 ? opt.board_subcells : std::min(2, opt.board_subcells));
+    const double h = 1.0 / ns;
+    // Pixels the sheet may touch at any time sample (outline projected densely; the whole image if it does
+    // not project).
+    Rect box{W, H, -1, -1};
+    std::vector<CamBoard> boards;
+    for (int k = 0; k < T; ++k) {
+        boards.emplace_back(*geo_t[k].board, cam);
+        const auto c = spec.outline_board_mm();
+        bool all = true;
+        double u0 = 1e30, u1 = -1e30, v0 = 1e30, v1 = -1e30;
+        for (int e = 0; e < 4 && all; ++e)
+            for (int j = 0; j < 32; ++j) {
+                const auto px = cam.project_frame(geo_t[k].board->to_rig(c[e] + (c[(e + 1) % 4] - c[e]) * (j / 32.0)));
+                if (!px) {
+                    all = false;
+                    break;
+                }
+                u0 = std::min(u0, px->x()), u1 = std::max(u1, px->x());
+                v0 = std::min(v0, px->y()), v1 = std::max(v1, px->y());
+            }
+        if (!all) {
+            box = {0, 0, W - 1, H - 1};
+            continue;
+        }
+        box.x0 = std::min(box.x0, std::max(0, static_cast<int>(std::floor(u0 - 2))));
+        box.x1 = std::max(box.x1, std::min(W - 1, static_cast<int>(std::ceil(u1 + 2))));
+        box.y0 = std::min(box.y0, std::max(0, static_cast<int>(std::floor((v0 - 2 - parity) / 2))));
+        box.y1 = std::max(box.y1, std::min(H - 1, static_cast<int>(std::ceil((v1 + 2 - parity) / 2))));
+    }
+    if (box.x0 > box.x1 || box.y0 > box.y1) return;
+    const int bw = box.x1 - box.x0 + 1, bh = box.y1 - box.y0 + 1;
+    tile_ca.assign(static_cast<size_t>(bw) * bh, 0.0);         // coverage
+    tile_I.assign(static_cast<size_t>(bw) * bh * 3, 0.0);      // RGB contribution
+    const double wt = 1.0 / T;
+
+    for (int k = 0; k < T; ++k) {
+        const CamBoard& b = boards[static_cast<size_t>(k)];
+        const double no = b.n.dot(b.o);
+        // Board coordinates (mm) of the sheet point on the ray through normalised point q; z-depth in `tz`.
+        auto board_at = [&](const Eigen::Vector2d& q, double& tz) {
+            const Eigen::Vector3d dvec(q.x(), q.y(), 1.0);
+            const double nd = b.n.dot(dvec);
+            tz = std::abs(nd) > 1e-15 ? no / nd : -1.0;
+            const Eigen::Vector3d rel = tz * dvec - b.o;
+            return Eigen::Vector2d(b.ex.dot(rel), b.ey.dot(rel));
+        };
+        auto colour = [&](int cls) -> const std::array<float, 3>& {
+            return !b.facing ? kBoardBackRgb : cls == 1 ? kBoardWhiteRgb : kBoardBlackRgb;
+        };
+        Eigen::Matrix2d J, A;
+        int j_x = -1000, j_y = -1;
+        for (int y = box.y0; y <= box.y1; ++y) {
+            for (int x = box.x0; x <= box.x1; ++x) {
+                const size_t i = static_cast<size_t>(y) * W + x;
+                const float qx = ray[parity][i * 2], qy = ray[parity][i * 2 + 1];
+                if (std::isnan(qx)) continue;
+                const Eigen::Vector2d q(qx, qy);
+                double tz;
+                const Eigen::Vector2d st = board_at(q, tz);
+                if (!(tz > 0)) continue;
+                const Eigen::Vector3d dvec(q.x(), q.y(), 1.0);
+                const double dn = dvec.norm();
+                // Hidden behind the eye or a shaft at the pixel centre (the board is held in front of both).
+                const double depth = tz * dn;
+                if (depth >= eye_depth[parity][i] || (stamp[i] == stamp_no && depth >= shaft_depth[i])) continue;
+                // Jacobian of board coordinates per frame pixel: plane map d(s,t)/dq, then dq/dpx = A. It varies
+                // slowly (~1 % over 8 px), so the footprint test uses the one of up to 7 pixels back with a 25 %
+                // margin; edge pixels get their own.
+                auto jacobian = [&](Eigen::Matrix2d& A_out) {
+                    const double nd = b.n.dot(dvec);
+                    Eigen::Matrix2d B;
+                    for (int j = 0; j < 2; ++j) {
+                        Eigen::Vector3d dX = -(j == 0 ? b.n.x() : b.n.y()) / nd * dvec;
+                        dX[j] += 1.0;
+                        dX *= tz;
+                        B(0, j) = b.ex.dot(dX);
+                        B(1, j) = b.ey.dot(dX);
+                    }
+                    A_out = cam.distort_jacobian(q).inverse();
+                    return Eigen::Matrix2d(B * A_out);
+                };
+                if (x - j_x >= 8 || j_y != y) {
+                    J = jacobian(A);
+                    j_x = x;
+                    j_y = y;
+                }
+                const double es = 0.5 * (std::abs(J(0, 0)) + std::abs(J(0, 1))) * (j_x == x ? 1.001 : 1.25);
+                const double et = 0.5 * (std::abs(J(1, 0)) + std::abs(J(1, 1))) * (j_x == x ? 1.001 : 1.25);
+                const int a0 = static_cast<int>(std::floor((st.x() - es) / sq)), a1 = static_cast<int>(std::floor((st.x() + es) / sq));
+                const int b0 = static_cast<int>(std::floor((st.y() - et) / sq)), b1 = static_cast<int>(std::floor((st.y() + et) / sq));
+                const double shade = kShadeAmbient + kShadeDiffuse * std::abs(b.n.dot(dvec)) / dn;
+                double covered = 0, rgb[3] = {0, 0, 0};
+                if (a0 == a1 && b0 == b1) {
+                    // Inside one square (or wholly off the sheet).
+                    const int cls = spec.cell_class(a0, b0);
+                    if (cls < 0) continue;
+                    const auto& c = colour(cls);
+                    covered = 1.0;
+                    for (int ch = 0; ch < 3; ++ch) rgb[ch] = c[ch];
+                } else {
+                    // Outline pixel: ns × ns sub-cells, each an affine footprint (parallelogram) on the sheet,
+                    // clipped exactly against every square it overlaps.
+                    if (j_x != x) {
+                        J = jacobian(A);
+                        j_x = x;
+                    }
+                    const double cell_area = std::abs(J.determinant()) * h * h;
+                    if (!(cell_area > 0)) continue;
+                    const Eigen::Vector2d hx = J.col(0) * (0.5 * h), hy = J.col(1) * (0.5 * h);
+                    for (int sy = 0; sy < ns; ++sy)
+                        for (int sx = 0; sx < ns; ++sx) {
+                            const Eigen::Vector2d dp((sx + 0.5) * h - 0.5, (sy + 0.5) * h - 0.5);
+                            // Locally inverted distortion (its curvature over a quarter pixel: ~1e-4 px).
+                            const Eigen::Vector2d qs = q + A * dp;
+                            double tzs;
+                            const Eigen::Vector2d c = board_at(qs, tzs);
+                            if (!(tzs > 0)) continue;
+                            const Eigen::Vector2d poly[4] = {c - hx - hy, c + hx - hy, c + hx + hy, c - hx + hy};
+                            double s0 = 1e30, s1 = -1e30, t0 = 1e30, t1 = -1e30;
+                            for (const auto& pt : poly) {
+                                s0 = std::min(s0, pt.x()), s1 = std::max(s1, pt.x());
+                                t0 = std::min(t0, pt.y()), t1 = std::max(t1, pt.y());
+                            }
+                            const int ca0 = static_cast<int>(std::floor(s0 / sq)), ca1 = static_cast<int>(std::floor(s1 / sq));
+                            const int cb0 = static_cast<int>(std::floor(t0 / sq)), cb1 = static_cast<int>(std::floor(t1 / sq));
+                            for (int cb = cb0; cb <= cb1; ++cb)
+                                for (int ca = ca0; ca <= ca1; ++ca) {
+                                    const int cls = spec.cell_class(ca, cb);
+                                    if (cls < 0) continue;
+                                    const double area = ca0 == ca1 && cb0 == cb1
+                                                            ? cell_area
+                                                            : clipped_area(poly, 4, ca * sq, (ca + 1) * sq, cb * sq, (cb + 1) * sq);
+                                    const double f = area / cell_area * h * h;
+                                    const auto& col = colour(cls);
+                                    covered += f;
+                                    for (int ch = 0; ch < 3; ++ch) rgb[ch] += f * col[ch];
+                                }
+                        }
+                }
+                const size_t ti = static_cast<size_t>(y - box.y0) * bw + (x - box.x0);
+                tile_ca[ti] += wt * covered;
+                for (int ch = 0; ch < 3; ++ch) tile_I[ti * 3 + ch] += wt * shade * rgb[ch];
+            }
+        }
+    }
+    // Over whatever is behind the sheet (eye, background, shafts) in proportion to the uncovered area.
+    dirty[parity].push_back(box);
+    for (int y = box.y0; y <= box.y1; ++y)
+        for (int x = box.x0; x <= box.x1; ++x) {
+            const size_t ti = static_cast<size_t>(y - box.y0) * bw + (x - box.x0);
+            const double c = std::min(1.0, tile_ca[ti]);
+            if (c <= 0) continue;
+            float* px = &img[parity][(static_cast<size_t>(y) * W + x) * 3];
+            for (int ch = 0; ch < 3; ++ch) px[ch] = static_cast<float>(px[ch] * (1.0 - c) + tile_I[ti * 3 + ch]);
+        }
+}
+
 void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& sample_times_us,
                                         std::vector<MarkerCameraTruth>& truth) {
     const int T = static_cast<int>(sample_times_us.size());
@@ -415,6 +644,8 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& s
             // Occluders near this marker's line of sight.
             occ.spheres.clear();
             occ.cylinders.clear();
+            occ.boards.clear();
+            if (g.board) occ.boards.emplace_back(*g.board, cam);
             const double alpha = std::asin(rho / L);
             if (g.eye_radius_mm > 0) {
                 const Eigen::Vector3d E = to_cam(g.eye_center_rig_mm);
@@ -440,7 +671,7 @@ void CameraRenderer::Impl::draw_markers(int parity, const std::vector<double>& s
                 const double lim = sh.radius_mm + 2.0 * rho + 0.5;
                 if (d2 < lim * lim) occ.cylinders.push_back({a, (b - a) / len, len, sh.radius_mm});
             }
-            const bool any_occ = !occ.spheres.empty() || !occ.cylinders.empty();
+            const bool any_occ = !occ.spheres.empty() || !occ.cylinders.empty() || !occ.boards.empty();
 
             // Evaluates the silhouette function at normalised point q: g = cos(alpha) - cos(beta), its frame-px
             // gradient, the marker depth and shading along that ray.
@@ -666,6 +897,12 @@ void CameraRenderer::render_field(const GeometryAt& geometry, int64_t index, uin
         auto b = d.cam.project_frame(d.geo_end.markers[m].center_rig_mm);
         if (a && b) motion_px = std::max(motion_px, (*a - *b).norm());
     }
+    if (d.geo_start.board && d.geo_end.board)
+        for (const Eigen::Vector3d& c : kCheckerboard.outline_board_mm()) {
+            auto a = d.cam.project_frame(d.geo_start.board->to_rig(c));
+            auto b = d.cam.project_frame(d.geo_end.board->to_rig(c));
+            if (a && b) motion_px = std::max(motion_px, (*a - *b).norm());
+        }
     const int T = std::clamp(static_cast<int>(std::ceil(motion_px / d.opt.blur_step_px)), 1,
                              std::min(64, d.opt.max_time_samples));
     d.times.resize(static_cast<size_t>(T));
@@ -676,6 +913,7 @@ void CameraRenderer::render_field(const GeometryAt& geometry, int64_t index, uin
     }
     truth.resize(d.geo_mid.markers.size());
     if (uyvy_out) d.draw_shafts(p, d.geo_mid);
+    if (uyvy_out) d.draw_board(p, T);
     d.draw_markers(p, d.times, truth);
     d.composite(p);
     if (uyvy_out) d.to_uyvy(p, index, uyvy_out);

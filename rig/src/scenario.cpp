@@ -44,7 +44,8 @@ double smoothstep(double a, double b, double x) {
 }  // namespace
 
 std::vector<std::string> scenario_names() {
-    return {"static", "sweep", "surgery", "fast", "occlusion", "injection", "peel", "peel-hard", "vitrectomy"};
+    return {"static", "sweep", "surgery", "fast", "occlusion", "injection", "peel", "peel-hard", "vitrectomy",
+            "checkerboard"};
 }
 
 namespace {
@@ -77,11 +78,20 @@ double Scenario::eval(const std::vector<Wave>& waves, double t_s) {
     return v;
 }
 
-Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies) {
+Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies,
+                        const std::vector<CameraModel>& cameras) {
     const auto names = scenario_names();
     if (std::find(names.begin(), names.end(), name) == names.end())
         throw RigError(fmt::format(
             "scenario: name: unknown scenario '{}' ({})", name, fmt::join(names, ", ")));
+    if (name == "checkerboard") {
+        // The still scene, and a person holding the calibration board in front of each camera in turn.
+        Scenario s = make("static", seed, duration_us, bodies);
+        s.name_ = name;
+        s.board_ = std::make_shared<const BoardMotion>(
+            BoardMotion::plan(kCheckerboard, cameras.empty() ? default_rig() : cameras, seed, duration_us));
+        return s;
+    }
     Scenario s;
     s.name_ = name;
     s.bodies_ = bodies;
@@ -285,6 +295,7 @@ SceneState Scenario::state_at(double t_us) const {
     st.t_us = t_us;
     const double t = t_us * 1e-6;
     st.eye_center_rig_mm = bodies_.eye.center_rig_mm;
+    if (board_) st.board = board_->pose_at(t_us);
 
     // Eye rotation vector: cubic Hermite between RK4 samples.
     const double x = (t - eye_t0_s_) / eye_dt_s_;

@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,7 @@ struct SceneGeometry {
     double eye_radius_mm = 12.0;                                  ///< 0 = no eye
     std::vector<Sphere> markers;                                  ///< same order as scene_markers()
     std::vector<Cylinder> shafts;                                 ///< one per instrument
+    std::optional<BoardPose> board;                               ///< calibration checkerboard (board.hpp)
 };
 
 /// Marker centre in the rig frame for a scene state.

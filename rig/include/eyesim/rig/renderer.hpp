@@ -11,6 +11,11 @@
 ///   it (signed distance and normal from the sphere's silhouette cone, through the locally inverted distortion);
 ///   occluders (eye, other markers, shafts) are point-sampled per sub-cell. Motion blur: the exposure is split
 ///   into T time samples so a marker moves at most `blur_step_px` between samples;
+/// - calibration checkerboard (board.hpp, `checkerboard` scenario): each pixel gets the exact area of every square
+///   inside its aperture: pixels near an edge are split into n×n sub-cells (`board_subcells`), each mapped onto the
+///   sheet as an affine footprint (parallelogram) and clipped exactly against the squares it overlaps; shading at
+///   the pixel centre; drawn over the eye, background and shafts where it is nearer at the pixel centre; markers
+///   behind it are hidden (per sub-cell); blurred by the same time samples as markers;
 /// - eye and background: precomputed (the eye is a uniformly white sphere rotating about its centre, so its
 ///   image is static), 4×4 samples near its outline; shafts: one sample per pixel at mid-exposure;
 /// - noise (when noise_sigma > 0): Gaussian, σ_Y² = noise_sigma² + shot_gain·(Y − 16) on luma, σ = noise_sigma
@@ -50,6 +55,7 @@ struct RenderOptions {
     double shot_gain = 0.02;      ///< shot-noise variance per DN of luma above black
     uint64_t seed = 1;            ///< noise seed
     int edge_subcells = 8;        ///< n: n×n sub-cells per marker outline pixel
+    int board_subcells = 2;       ///< n: n×n sub-cells per checkerboard edge pixel (blurred fields: at most 2)
     double blur_step_px = 0.5;    ///< max marker motion between time samples, frame px
     int max_time_samples = 32;    ///< cap on time samples per field
 };

@@ -7,7 +7,9 @@
 /// working volume), "surgery" (membrane-peel-like strokes near the retina, forceps closing/opening with the
 /// pedal, light pipe following), "fast" (quick moves: motion blur of several pixels), "occlusion" (instruments
 /// crossing, retracting out of view, large eye rotations hiding markers behind the eye), "injection" (retina
-/// relocation: the injection needle penetrates the posterior retina, the pedal injects, a quick flick at 3 s).
+/// relocation: the injection needle penetrates the posterior retina, the pedal injects, a quick flick at 3 s),
+/// "checkerboard" (intrinsic calibration: the "static" scene with a calibration checkerboard held in front of
+/// each camera in turn at many poses; board.hpp).
 ///
 /// Synthetic surgeons (rig/surgeon.hpp says where their tissue lies), deterministic from the seed with human-like
 /// variation (grasp point, pull direction, timing, 8–12 Hz tremor): "peel" (forceps to the epiretinal membrane's
@@ -16,13 +18,17 @@
 /// over a vitreous membrane with the pedal pressed: suction and cutting). Their tips move through the trocar and
 /// stay inside the eye, clear of the retina.
 
+#include "eyesim/rig/board.hpp"
 #include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/camera.hpp"
 #include "eyesim/rig/truth.hpp"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
 #include <cstdint>
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,6 +51,7 @@ struct SceneState {
     Eigen::Vector3d eye_center_rig_mm = Eigen::Vector3d::Zero();       ///< fixed rotation centre
     std::vector<InstrumentPose> instruments;                    ///< tissue instrument first, then light pipe
     PedalTruth pedal;                                           ///< foot pedal
+    std::optional<BoardPose> board;                             ///< calibration board, when the scene has one
 
     /// Eye-frame point → rig frame.
     Eigen::Vector3d eye_to_rig(const Eigen::Vector3d& p_eye_mm) const { return eye_center_rig_mm + q_eye_to_rig * p_eye_mm; }
@@ -57,7 +64,10 @@ std::vector<std::string> scenario_names();
 class Scenario {
 public:
     /// Builds scenario `name` for `seed`, valid on [-1 s, duration_us + 1 s]. Throws RigError on an unknown name.
-    static Scenario make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies);
+    /// `cameras`: the rig the recording is made with (the checkerboard is held in front of these; empty =
+    /// default_rig()).
+    static Scenario make(const std::string& name, uint64_t seed, double duration_us, const Bodies& bodies,
+                         const std::vector<CameraModel>& cameras = {});
 
     /// Scene state at time t_us.
     SceneState state_at(double t_us) const;
@@ -65,6 +75,8 @@ public:
     const std::string& name() const noexcept { return name_; }
     /// Instrument kinds in the scene (tissue instrument, light pipe).
     const std::vector<InstrumentKind>& kinds() const noexcept { return kinds_; }
+    /// The calibration board's motion ("checkerboard"), or null when the scene has no board.
+    const BoardMotion* board() const noexcept { return board_.get(); }
 
     /// Eye spring model: natural frequency (Hz) and damping ratio of each rotation axis.
     static constexpr double kEyeSpringHz = 2.0;
@@ -98,6 +110,7 @@ private:
     // Eye rotation vector (rad) sampled on a fixed grid by integrating the spring model (RK4).
     double eye_t0_s_ = -1.0, eye_dt_s_ = 0.002;  // RK4 step and table spacing (2 Hz spring: ω·dt = 0.025)
     std::vector<Eigen::Vector3d> eye_rot_, eye_rate_;
+    std::shared_ptr<const BoardMotion> board_;  ///< "checkerboard": the board's path
 };
 
 }  // namespace eyesim::rig
