@@ -6,7 +6,7 @@
 # Each figure is the worst over the seeds (largest error, largest |bias|, slowest). Prints the Markdown table on
 # stdout.
 #
-#   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 dv dv411 mpeg2 h264"]
+#   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"]
 #                          [--build DIR] [--work DIR]
 set -euo pipefail
 
@@ -14,7 +14,7 @@ here=$(cd "$(dirname "$0")/.." && pwd)
 build="$here/build/release"
 seeds="1 2"
 seconds=10
-formats="uyvy ffv1 dv dv411 mpeg2 h264"
+formats="uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"
 work=""
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -61,7 +61,9 @@ done
 python3 - "$work" "$seeds" "$formats" "$seconds" <<'EOF'
 import json, math, os, sys
 work, seeds, formats, seconds = sys.argv[1], sys.argv[2].split(), sys.argv[3].split(), float(sys.argv[4])
-names = {"uyvy": "raw UYVY fields", "ffv1": "FFV1 4:2:2 .mkv (lossless)", "dv": "DV 4:2:0 .avi (25 Mbit/s)",
+names = {"uyvy": "raw UYVY fields", "ffv1": "FFV1 4:2:2 .mkv (lossless)",
+         "ffv1-420": "FFV1 of 4:2:0 planes (lossless; subsampling alone)",
+         "ffv1-411": "FFV1 of 4:1:1 planes (lossless; subsampling alone)", "dv": "DV 4:2:0 .avi (25 Mbit/s)",
          "dv411": "DVCPRO25 4:1:1 .avi (25 Mbit/s)", "mpeg2": "MPEG-2 4:2:0 .mpg (q 2, ≤ 15 Mbit/s)",
          "h264": "H.264 4:2:0 .mp4 (CRF 8)"}
 def load(p):

@@ -35,8 +35,6 @@ void RigSynth::render(int64_t index, const std::vector<uint8_t*>& uyvy, FieldTru
     truth.eye_center_rig_mm = st.eye_center_rig_mm;
     truth.q_eye_to_rig = st.q_eye_to_rig;
     truth.pedal = st.pedal;
-    truth.board.reset();
-    if (const BoardMotion* board = scenario_.board()) truth.board = board_truth(*board, cams_, index, truth.t_us);
     truth.instruments.clear();
     for (const InstrumentPose& p : st.instruments) {
         InstrumentTruth it;
@@ -71,10 +69,12 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     if (!(req.seconds > 0) || !std::isfinite(req.seconds) || req.seconds > 3600)
         throw RigError(fmt::format("synth: seconds: must be in (0, 3600], got {}", req.seconds));
     VideoCodec codec = VideoCodec::kFfv1;
+    VideoChroma chroma = VideoChroma::kCodec;
     const bool video = req.format != "uyvy";
-    if (video && !parse_video_codec(req.format, codec))
-        throw RigError(fmt::format("synth: format: must be uyvy, ffv1 (or video), dv, dv411, mpeg2 or h264, got '{}'",
-                                   req.format));
+    if (video && !parse_video_format(req.format, codec, chroma))
+        throw RigError(fmt::format(
+            "synth: format: must be uyvy, ffv1 (or video), dv, dv411, mpeg2, h264, ffv1-420 or ffv1-411, got '{}'",
+            req.format));
     if (video && !encoder_available(codec))
         throw RigError(fmt::format("synth: format {}: this FFmpeg has no {} encoder", req.format,
                                    codec == VideoCodec::kH264 ? "libx264 (H.264)" : to_string(codec)));
@@ -93,7 +93,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     const double duration_us = static_cast<double>(fields) * kFieldPeriodUs;
     RenderOptions ro = req.render;
     ro.seed = req.seed;
-    RigSynth synth(req.cameras, bodies, Scenario::make(req.scenario, req.seed, duration_us, bodies, req.cameras), ro);
+    RigSynth synth(req.cameras, bodies, Scenario::make(req.scenario, req.seed, duration_us, bodies), ro);
     const size_t nc = req.cameras.size();
 
     SynthSummary sum;
@@ -116,7 +116,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
             names[c] = fmt::format("cam{}{}", c, extension(codec));
             vids.emplace_back((fs::path(req.out_dir) / names[c]).string(), codec,
                               req.cameras[c].first_field_parity == 0 ? FieldOrder::kTopFirst : FieldOrder::kBottomFirst,
-                              VideoChroma::kCodec, req.encoder_options);
+                              chroma, req.encoder_options);
         }
         sum.files.push_back(names[c]);
     }
@@ -158,7 +158,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
 
     Manifest man;
     man.format = video ? "video" : "uyvy";
-    if (video) man.codec = to_string(codec);
+    if (video) man.codec = req.format == "video" ? to_string(codec) : req.format;
     man.files = names;
     man.fields.assign(nc, fields);
     man.scenario = req.scenario;

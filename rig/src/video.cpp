@@ -714,6 +714,16 @@ bool parse_video_codec(const std::string& name, VideoCodec& out) {
     return true;
 }
 
+bool parse_video_format(const std::string& name, VideoCodec& codec, VideoChroma& chroma) {
+    chroma = VideoChroma::kCodec;
+    if (name == "ffv1-420" || name == "ffv1-411") {
+        codec = VideoCodec::kFfv1;
+        chroma = name == "ffv1-420" ? VideoChroma::k420 : VideoChroma::k411;
+        return true;
+    }
+    return parse_video_codec(name, codec);
+}
+
 const char* to_string(VideoCodec codec) {
     switch (codec) {
         case VideoCodec::kFfv1: return "ffv1";

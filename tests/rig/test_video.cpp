@@ -430,9 +430,10 @@ TEST_CASE("MPEG-2 with B-frames: any reading order gives the fields of a sequent
 TEST_CASE("synth writes each format as cameras record it: interlaced, top field first, 25 frames/s",
           "[rig][recording][video]") {
     const std::string d = temp_dir("formats");
-    for (const std::string format : {"ffv1", "dv", "dv411", "mpeg2", "h264"}) {
+    for (const std::string format : {"ffv1", "dv", "dv411", "mpeg2", "h264", "ffv1-420", "ffv1-411"}) {
         VideoCodec codec;
-        REQUIRE(parse_video_codec(format, codec));
+        VideoChroma chroma;
+        REQUIRE(parse_video_format(format, codec, chroma));
         if (!encoder_available(codec)) {
             SynthRequest req;
             req.out_dir = d;
@@ -442,7 +443,7 @@ TEST_CASE("synth writes each format as cameras record it: interlaced, top field 
         }
         const std::string path = d + "/v" + extension(codec);
         {
-            VideoWriter w(path, codec);
+            VideoWriter w(path, codec, FieldOrder::kTopFirst, chroma);
             const std::vector<uint8_t> black = [] {
                 std::vector<uint8_t> b(kFieldBytes);
                 for (size_t k = 0; k < b.size(); k += 2) b[k] = 128, b[k + 1] = 16;
@@ -458,7 +459,9 @@ TEST_CASE("synth writes each format as cameras record it: interlaced, top field 
         CHECK(r.info().frames == 3);
         CHECK(r.info().width == 720);
         CHECK(r.info().height == 576);
-        CHECK(r.info().chroma == (format == "ffv1" ? "4:2:2" : format == "dv411" ? "4:1:1" : "4:2:0"));
+        CHECK(r.info().chroma == (format == "ffv1"                                ? "4:2:2"
+                                  : format == "dv411" || format == "ffv1-411" ? "4:1:1"
+                                                                              : "4:2:0"));
     }
     fs::remove_all(d);
 }

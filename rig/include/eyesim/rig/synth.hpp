@@ -48,7 +48,7 @@ struct SynthRequest {
     std::string scenario = "static"; ///< scenario_names()
     double seconds = 1.0;            ///< fields = round(seconds * 50) (video: rounded up to even)
     uint64_t seed = 1;               ///< scenario and noise seed
-    std::string format = "uyvy";     ///< "uyvy" or a video codec (video.hpp): ffv1 (video), dv, dv411, mpeg2, h264
+    std::string format = "uyvy";     ///< "uyvy" or a video format (video.hpp parse_video_format)
     std::string encoder_options;     ///< video: FFmpeg encoder options over the codec's ("crf=6"; VideoWriter)
     RenderOptions render;            ///< noise etc. (render.seed is set from seed)
     std::vector<CameraModel> cameras = default_rig();  ///< the rig

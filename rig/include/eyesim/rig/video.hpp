@@ -122,6 +122,10 @@ bool encoder_available(VideoCodec codec);
 /// camera, sited as MPEG-2 / DV25 site it (an exact record of such a stream's planes).
 enum class VideoChroma { kCodec, k420, k411 };
 
+/// A `synth --format` video name: a codec (parse_video_codec), or "ffv1-420" / "ffv1-411" (FFV1 holding the
+/// chroma planes of a 4:2:0 / 4:1:1 camera: what subsampling alone costs, without a lossy codec). False otherwise.
+bool parse_video_format(const std::string& name, VideoCodec& codec, VideoChroma& chroma);
+
 /// Writes woven interlaced PAL frames (720×576, 25 frames/s) from field pairs.
 class VideoWriter {
 public:
