@@ -35,6 +35,8 @@ void RigSynth::render(int64_t index, const std::vector<uint8_t*>& uyvy, FieldTru
     truth.eye_center_rig_mm = st.eye_center_rig_mm;
     truth.q_eye_to_rig = st.q_eye_to_rig;
     truth.pedal = st.pedal;
+    truth.board.reset();
+    if (const BoardMotion* board = scenario_.board()) truth.board = board_truth(*board, cams_, index, truth.t_us);
     truth.instruments.clear();
     for (const InstrumentPose& p : st.instruments) {
         InstrumentTruth it;
@@ -93,7 +95,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     const double duration_us = static_cast<double>(fields) * kFieldPeriodUs;
     RenderOptions ro = req.render;
     ro.seed = req.seed;
-    RigSynth synth(req.cameras, bodies, Scenario::make(req.scenario, req.seed, duration_us, bodies), ro);
+    RigSynth synth(req.cameras, bodies, Scenario::make(req.scenario, req.seed, duration_us, bodies, req.cameras), ro);
     const size_t nc = req.cameras.size();
 
     SynthSummary sum;
