@@ -2,7 +2,7 @@
 
 namespace eyesim::rig {
 
-std::vector<SceneMarker> scene_markers(const Bodies& bodies, const std::vector<InstrumentKind>& kinds) {
+std::vector<SceneMarker> scene_markers(const Bodies& bodies, const std::vector<InstrumentKind>& kinds, bool wand) {
     std::vector<SceneMarker> out;
     for (const EyeMarker& m : bodies.eye.markers)
         out.push_back({"eye", -1, m.id, m.colour_class, m.radius_mm, m.position_eye_mm});
@@ -12,10 +12,16 @@ std::vector<SceneMarker> scene_markers(const Bodies& bodies, const std::vector<I
             out.push_back({b.name, static_cast<int>(k), b.markers[i].id, b.markers[i].colour_class,
                            b.markers[i].radius_mm, b.marker_position_mm(i)});
     }
+    if (wand)
+        for (size_t i = 0; i < bodies.wand.markers.size(); ++i) {
+            const WandMarker& m = bodies.wand.markers[i];
+            out.push_back({"wand", kWandMarkerBody, m.id, m.colour_class, m.radius_mm, bodies.wand.marker_position_mm(i)});
+        }
     return out;
 }
 
 Eigen::Vector3d marker_center_rig(const SceneMarker& m, const SceneState& s) {
+    if (m.instrument == kWandMarkerBody) return s.wand_origin_rig_mm + m.local_mm.z() * s.wand_axis_rig;
     if (m.instrument < 0) return s.eye_to_rig(m.local_mm);
     const InstrumentPose& p = s.instruments.at(static_cast<size_t>(m.instrument));
     const Eigen::Vector3d tip = s.eye_to_rig(p.tip_eye_mm);

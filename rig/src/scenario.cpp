@@ -45,7 +45,7 @@ double smoothstep(double a, double b, double x) {
 
 std::vector<std::string> scenario_names() {
     return {"static", "sweep", "surgery", "fast", "occlusion", "injection", "peel", "peel-hard", "vitrectomy",
-            "checkerboard"};
+            "checkerboard", "wand"};
 }
 
 namespace {
@@ -252,6 +252,36 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     auto accel = [&](double t, const Eigen::Vector3d& th, const Eigen::Vector3d& om) -> Eigen::Vector3d {
         return w0 * w0 * (target(t) - th) - 2 * zeta * w0 * om;
     };
+    if (name == "wand") {
+        // A hand circling the eye with the wand: the marker centroid at distance rho from the eye centre (never
+        // closer than the wand's half-length plus the eye and a marker, so no marker touches the eye), azimuth
+        // turning steadily round the eye and elevation from 60° below to 40° above its equator; the rod turns
+        // through all directions (azimuth turning, elevation a seeded tilt plus ±60° of waving). Markers move at
+        // about 25 mm/s (up to ~55), as a hand moves a wand through a volume this small.
+        if (!bodies.wand.present()) throw RigError("scenario: wand: bodies.json has no \"wand\"");
+        s.wand_ = true;
+        double sum = 0, reach = 0, marker_r = 0;
+        for (const WandMarker& m : bodies.wand.markers) {
+            sum += m.distance_mm;
+            marker_r = std::max(marker_r, m.radius_mm);
+        }
+        s.wand_centroid_mm_ = sum / static_cast<double>(bodies.wand.markers.size());
+        for (const WandMarker& m : bodies.wand.markers) reach = std::max(reach, std::fabs(m.distance_mm - s.wand_centroid_mm_));
+        s.wand_clear_mm_ = bodies.eye.radius_mm + marker_r + reach + 1.0;
+        const double sign = rng.uniform(0, 1) < 0.5 ? -1.0 : 1.0;
+        s.wand_azimuth0_ = rng.uniform(0, 2 * kPi);  // of the position round the eye
+        s.wand_azimuth_rate_ = sign * 2 * kPi / rng.uniform(10.0, 16.0);
+        // wand_centre_: [0] distance (mm, above the least), [1] position azimuth waves (rad), [2] elevation (rad).
+        for (int w = 0; w < 2; ++w) {
+            s.wand_centre_[0].push_back({3.5, rng.uniform(0.15, 0.35), rng.uniform(0, 2 * kPi)});
+            s.wand_centre_[1].push_back({0.35, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
+            s.wand_centre_[2].push_back({25 * kDeg, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
+            s.wand_azimuth_.push_back({0.6, rng.uniform(0.15, 0.4), rng.uniform(0, 2 * kPi)});
+            s.wand_elevation_.push_back({30 * kDeg, rng.uniform(0.1, 0.35), rng.uniform(0, 2 * kPi)});
+        }
+        s.wand_centre0_mm_ = Eigen::Vector3d(rng.uniform(0, 2 * kPi), -10 * kDeg, rng.uniform(-1.0, 1.0) * kPi / 4);
+    }
+
     s.eye_t0_s_ = -1.0;
     const int n = static_cast<int>(std::ceil((dur_s + 2.0) / s.eye_dt_s_)) + 2;
     s.eye_rot_.resize(n);
@@ -290,11 +320,41 @@ Eigen::Vector3d Scenario::path_at(double t_s, double& pedal) const {
     return path_.back().p_eye_mm;
 }
 
+void Scenario::wand_state(double t_s, SceneState& st) const {
+    // wand_centre0_mm_ holds (rod azimuth phase, position elevation base, rod elevation base), in rad.
+    const double rho = wand_clear_mm_ + 7.0 + eval(wand_centre_[0], t_s);
+    const double az = wand_azimuth0_ + wand_azimuth_rate_ * t_s + eval(wand_centre_[1], t_s);
+    const double el = wand_centre0_mm_.y() + eval(wand_centre_[2], t_s);
+    const Eigen::Vector3d centre =
+        st.eye_center_rig_mm + rho * Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+    const double rod_az = wand_centre0_mm_.x() + 0.7 * wand_azimuth_rate_ * t_s + eval(wand_azimuth_, t_s);
+    const double rod_el = wand_centre0_mm_.z() + eval(wand_elevation_, t_s);
+    const Eigen::Vector3d axis(std::cos(rod_el) * std::cos(rod_az), std::cos(rod_el) * std::sin(rod_az), std::sin(rod_el));
+    st.wand_present = true;
+    st.wand_axis_rig = axis;
+    st.wand_origin_rig_mm = centre - wand_centroid_mm_ * axis;
+}
+
 SceneState Scenario::state_at(double t_us) const {
     SceneState st;
     st.t_us = t_us;
     const double t = t_us * 1e-6;
     st.eye_center_rig_mm = bodies_.eye.center_rig_mm;
+    if (wand_) {
+        // The eye at rest (eye frame = rig frame), the pedal released, both instruments lifted 300 mm out of
+        // their trocars with vertical shafts: 45° off every default camera's axis, well outside their views.
+        wand_state(t, st);
+        for (size_t k = 0; k < kinds_.size(); ++k) {
+            InstrumentPose p;
+            p.kind = kinds_[k];
+            p.trocar = static_cast<int>(k);
+            p.axis_eye = Eigen::Vector3d::UnitZ();
+            p.insertion_mm = -300.0;
+            p.tip_eye_mm = bodies_.eye.trocars.at(k).position_eye_mm - p.insertion_mm * p.axis_eye;
+            st.instruments.push_back(p);
+        }
+        return st;
+    }
     if (board_) st.board = board_->pose_at(t_us);
 
     // Eye rotation vector: cubic Hermite between RK4 samples.

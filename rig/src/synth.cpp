@@ -15,7 +15,7 @@ namespace eyesim::rig {
 
 RigSynth::RigSynth(std::vector<CameraModel> cams, Bodies bodies, Scenario scenario, const RenderOptions& opt)
     : cams_(std::move(cams)), bodies_(std::move(bodies)), scenario_(std::move(scenario)) {
-    markers_ = scene_markers(bodies_, scenario_.kinds());
+    markers_ = scene_markers(bodies_, scenario_.kinds(), scenario_.has_wand());
     for (size_t c = 0; c < cams_.size(); ++c)
         renderers_.emplace_back(cams_[c], static_cast<int>(c), bodies_.eye.center_rig_mm, bodies_.eye.radius_mm, opt);
 }

@@ -14,19 +14,22 @@
 
 namespace eyesim::rig {
 
+/// SceneMarker::instrument of the calibration wand's markers.
+inline constexpr int kWandMarkerBody = -2;
+
 /// One marker of the scene (which body, which marker), in a fixed order: eye markers, then the markers of
-/// each instrument in `Scenario::kinds()` order.
+/// each instrument in `Scenario::kinds()` order, then the wand's (scenes with the wand).
 struct SceneMarker {
-    std::string body;          ///< "eye" or the instrument kind name
-    int instrument = -1;       ///< -1 for the eye, else index into SceneState::instruments
+    std::string body;          ///< "eye", the instrument kind name or "wand"
+    int instrument = -1;       ///< -1 for the eye, kWandMarkerBody for the wand, else index into SceneState::instruments
     int id = 0;                ///< marker index within its body
     int colour_class = 1;      ///< 1..4
     double radius_mm = 0.6;    ///< sphere radius
-    Eigen::Vector3d local_mm = Eigen::Vector3d::Zero();  ///< eye frame (eye) or instrument frame (instrument)
+    Eigen::Vector3d local_mm = Eigen::Vector3d::Zero();  ///< eye, instrument or wand frame
 };
 
-/// The scene's markers in their fixed order.
-std::vector<SceneMarker> scene_markers(const Bodies& bodies, const std::vector<InstrumentKind>& kinds);
+/// The scene's markers in their fixed order; `wand`: with the wand's markers (Scenario::has_wand()).
+std::vector<SceneMarker> scene_markers(const Bodies& bodies, const std::vector<InstrumentKind>& kinds, bool wand = false);
 
 /// Renderable geometry at one instant (rig frame, mm).
 struct SceneGeometry {

@@ -8,6 +8,8 @@
 /// pedal, light pipe following), "fast" (quick moves: motion blur of several pixels), "occlusion" (instruments
 /// crossing, retracting out of view, large eye rotations hiding markers behind the eye), "injection" (retina
 /// relocation: the injection needle penetrates the posterior retina, the pedal injects, a quick flick at 3 s),
+/// "wand" (extrinsic calibration: the calibration wand of bodies.json waved by hand through the working volume
+/// around the eye, the eye at rest, both instruments lifted out of the eye and clear of every camera's view),
 /// "checkerboard" (intrinsic calibration: the "static" scene with a calibration checkerboard held in front of
 /// each camera in turn at many poses; board.hpp).
 ///
@@ -52,6 +54,9 @@ struct SceneState {
     std::vector<InstrumentPose> instruments;                    ///< tissue instrument first, then light pipe
     PedalTruth pedal;                                           ///< foot pedal
     std::optional<BoardPose> board;                             ///< calibration board, when the scene has one
+    bool wand_present = false;                                  ///< the calibration wand is in the scene
+    Eigen::Vector3d wand_origin_rig_mm = Eigen::Vector3d::Zero();  ///< wand frame origin (marker 0's centre)
+    Eigen::Vector3d wand_axis_rig = Eigen::Vector3d::UnitZ();      ///< unit, marker 0 → last marker
 
     /// Eye-frame point → rig frame.
     Eigen::Vector3d eye_to_rig(const Eigen::Vector3d& p_eye_mm) const { return eye_center_rig_mm + q_eye_to_rig * p_eye_mm; }
@@ -77,6 +82,8 @@ public:
     const std::vector<InstrumentKind>& kinds() const noexcept { return kinds_; }
     /// The calibration board's motion ("checkerboard"), or null when the scene has no board.
     const BoardMotion* board() const noexcept { return board_.get(); }
+    /// Whether the calibration wand is in the scene ("wand").
+    bool has_wand() const noexcept { return wand_; }
 
     /// Eye spring model: natural frequency (Hz) and damping ratio of each rotation axis.
     static constexpr double kEyeSpringHz = 2.0;
@@ -107,6 +114,16 @@ private:
     std::vector<Wave> pedal0_, pedal1_, pedal2_;
     double pedal0_base_ = 0.0;
     bool injection_ = false;  ///< "injection": the needle reaches the retina, pedal = injection pressure
+    // "wand": marker centroid (rig frame, mm) and rod direction (azimuth with a steady turn, elevation) as sums
+    // of sines; the eye stays at rest.
+    bool wand_ = false;
+    Eigen::Vector3d wand_centre0_mm_ = Eigen::Vector3d::Zero();
+    std::vector<Wave> wand_centre_[3], wand_elevation_;
+    double wand_azimuth0_ = 0.0, wand_azimuth_rate_ = 0.0;
+    double wand_centroid_mm_ = 0.0;     // marker centroid along the rod from marker 0
+    double wand_clear_mm_ = 0.0;        // least distance of the marker centroid from the eye centre
+    std::vector<Wave> wand_azimuth_;
+    void wand_state(double t_s, SceneState& st) const;
     // Eye rotation vector (rad) sampled on a fixed grid by integrating the spring model (RK4).
     double eye_t0_s_ = -1.0, eye_dt_s_ = 0.002;  // RK4 step and table spacing (2 Hz spring: ω·dt = 0.025)
     std::vector<Eigen::Vector3d> eye_rot_, eye_rate_;
