@@ -206,6 +206,8 @@ struct CameraRenderer::Impl {
     // Per-field scratch (reused: no allocation once warm).
     SceneGeometry geo_mid, geo_start, geo_end;
     std::vector<SceneGeometry> geo_t;
+    std::vector<SceneGeometry> geo_b;  // the checkerboard's time samples
+    std::vector<double> times_b;
     std::vector<double> times;
     std::vector<double> tile_I, tile_cv, tile_ca;
     Occluders occ;
@@ -396,7 +398,7 @@ void CameraRenderer::Impl::draw_shafts(int parity, const SceneGeometry& g) {
 
 void CameraRenderer::Impl::draw_board(int parity, int T) {
     for (int k = 0; k < T; ++k)
-        if (!geo_t[k].board) return;
+        if (!geo_b[k].board) return;
     const BoardSpec& spec = kCheckerboard;
     const double sq = spec.square_mm;
     // Sub-cells per edge pixel side: exact polygon areas on each sub-cell's affine footprint, so the only
@@ -408,13 +410,13 @@ void CameraRenderer::Impl::draw_board(int parity, int T) {
     Rect box{W, H, -1, -1};
     std::vector<CamBoard> boards;
     for (int k = 0; k < T; ++k) {
-        boards.emplace_back(*geo_t[k].board, cam);
+        boards.emplace_back(*geo_b[k].board, cam);
         const auto c = spec.outline_board_mm();
         bool all = true;
         double u0 = 1e30, u1 = -1e30, v0 = 1e30, v1 = -1e30;
         for (int e = 0; e < 4 && all; ++e)
             for (int j = 0; j < 32; ++j) {
-                const auto px = cam.project_frame(geo_t[k].board->to_rig(c[e] + (c[(e + 1) % 4] - c[e]) * (j / 32.0)));
+                const auto px = cam.project_frame(geo_b[k].board->to_rig(c[e] + (c[(e + 1) % 4] - c[e]) * (j / 32.0)));
                 if (!px) {
                     all = false;
                     break;
@@ -437,8 +439,7 @@ void CameraRenderer::Impl::draw_board(int parity, int T) {
     tile_I.assign(static_cast<size_t>(bw) * bh * 3, 0.0);      // RGB contribution
     const double wt = 1.0 / T;
 
-    for (int k = 0; k < T; ++k) {
-        const CamBoard& b = boards[static_cast<size_t>(k)];
+    for (const CamBoard& b : boards) {
         const double no = b.n.dot(b.o);
         // Board coordinates (mm) of the sheet point on the ray through normalised point q; z-depth in `tz`.
         auto board_at = [&](const Eigen::Vector2d& q, double& tz) {
@@ -490,8 +491,10 @@ void CameraRenderer::Impl::draw_board(int parity, int T) {
                 }
                 const double es = 0.5 * (std::abs(J(0, 0)) + std::abs(J(0, 1))) * (j_x == x ? 1.001 : 1.25);
                 const double et = 0.5 * (std::abs(J(1, 0)) + std::abs(J(1, 1))) * (j_x == x ? 1.001 : 1.25);
-                const int a0 = static_cast<int>(std::floor((st.x() - es) / sq)), a1 = static_cast<int>(std::floor((st.x() + es) / sq));
-                const int b0 = static_cast<int>(std::floor((st.y() - et) / sq)), b1 = static_cast<int>(std::floor((st.y() + et) / sq));
+                const int a0 = static_cast<int>(std::floor(std::clamp((st.x() - es) / sq, -1e6, 1e6)));
+                const int a1 = static_cast<int>(std::floor(std::clamp((st.x() + es) / sq, -1e6, 1e6)));
+                const int b0 = static_cast<int>(std::floor(std::clamp((st.y() - et) / sq, -1e6, 1e6)));
+                const int b1 = static_cast<int>(std::floor(std::clamp((st.y() + et) / sq, -1e6, 1e6)));
                 const double shade = kShadeAmbient + kShadeDiffuse * std::abs(b.n.dot(dvec)) / dn;
                 double covered = 0, rgb[3] = {0, 0, 0};
                 if (a0 == a1 && b0 == b1) {
@@ -525,8 +528,12 @@ void CameraRenderer::Impl::draw_board(int parity, int T) {
                                 s0 = std::min(s0, pt.x()), s1 = std::max(s1, pt.x());
                                 t0 = std::min(t0, pt.y()), t1 = std::max(t1, pt.y());
                             }
-                            const int ca0 = static_cast<int>(std::floor(s0 / sq)), ca1 = static_cast<int>(std::floor(s1 / sq));
-                            const int cb0 = static_cast<int>(std::floor(t0 / sq)), cb1 = static_cast<int>(std::floor(t1 / sq));
+                            // Squares the footprint overlaps, only those of the sheet (a board seen edge-on has
+                            // footprints across all of it).
+                            const int ca0 = static_cast<int>(std::floor(std::max(s0 / sq, -3.0)));
+                            const int ca1 = static_cast<int>(std::floor(std::min(s1 / sq, spec.squares_x + 1.0)));
+                            const int cb0 = static_cast<int>(std::floor(std::max(t0 / sq, -3.0)));
+                            const int cb1 = static_cast<int>(std::floor(std::min(t1 / sq, spec.squares_y + 1.0)));
                             for (int cb = cb0; cb <= cb1; ++cb)
                                 for (int ca = ca0; ca <= ca1; ++ca) {
                                     const int cls = spec.cell_class(ca, cb);
@@ -897,23 +904,30 @@ void CameraRenderer::render_field(const GeometryAt& geometry, int64_t index, uin
         auto b = d.cam.project_frame(d.geo_end.markers[m].center_rig_mm);
         if (a && b) motion_px = std::max(motion_px, (*a - *b).norm());
     }
+    // The checkerboard's own time samples (it alone may move in its scene): the same rule, at most
+    // board_time_samples (a moving board is only ever rejected by calibration).
+    double board_px = 0;
     if (d.geo_start.board && d.geo_end.board)
         for (const Eigen::Vector3d& c : kCheckerboard.outline_board_mm()) {
             auto a = d.cam.project_frame(d.geo_start.board->to_rig(c));
             auto b = d.cam.project_frame(d.geo_end.board->to_rig(c));
-            if (a && b) motion_px = std::max(motion_px, (*a - *b).norm());
+            if (a && b) board_px = std::max(board_px, (*a - *b).norm());
         }
-    const int T = std::clamp(static_cast<int>(std::ceil(motion_px / d.opt.blur_step_px)), 1,
-                             std::min(64, d.opt.max_time_samples));
-    d.times.resize(static_cast<size_t>(T));
-    if (d.geo_t.size() < static_cast<size_t>(T)) d.geo_t.resize(static_cast<size_t>(T));
-    for (int k = 0; k < T; ++k) {
-        d.times[k] = ft.exposure_start_us + (k + 0.5) / T * (ft.exposure_end_us - ft.exposure_start_us);
-        geometry(d.times[k], d.geo_t[k]);
-    }
+    auto samples = [&](double px, int cap, std::vector<double>& times, std::vector<SceneGeometry>& geo) {
+        const int T = std::clamp(static_cast<int>(std::ceil(px / d.opt.blur_step_px)), 1, std::min(64, std::max(1, cap)));
+        times.resize(static_cast<size_t>(T));
+        if (geo.size() < static_cast<size_t>(T)) geo.resize(static_cast<size_t>(T));
+        for (int k = 0; k < T; ++k) {
+            times[k] = ft.exposure_start_us + (k + 0.5) / T * (ft.exposure_end_us - ft.exposure_start_us);
+            geometry(times[k], geo[k]);
+        }
+        return T;
+    };
+    samples(motion_px, d.opt.max_time_samples, d.times, d.geo_t);
     truth.resize(d.geo_mid.markers.size());
     if (uyvy_out) d.draw_shafts(p, d.geo_mid);
-    if (uyvy_out) d.draw_board(p, T);
+    if (uyvy_out && d.geo_mid.board)
+        d.draw_board(p, samples(board_px, std::min(d.opt.board_time_samples, d.opt.max_time_samples), d.times_b, d.geo_b));
     d.draw_markers(p, d.times, truth);
     d.composite(p);
     if (uyvy_out) d.to_uyvy(p, index, uyvy_out);

@@ -15,7 +15,8 @@
 ///   inside its aperture: pixels near an edge are split into n×n sub-cells (`board_subcells`), each mapped onto the
 ///   sheet as an affine footprint (parallelogram) and clipped exactly against the squares it overlaps; shading at
 ///   the pixel centre; drawn over the eye, background and shafts where it is nearer at the pixel centre; markers
-///   behind it are hidden (per sub-cell); blurred by the same time samples as markers;
+///   behind it are hidden (per sub-cell); its own time samples for motion blur (the same 0.5 px rule, at most
+///   `board_time_samples`);
 /// - eye and background: precomputed (the eye is a uniformly white sphere rotating about its centre, so its
 ///   image is static), 4×4 samples near its outline; shafts: one sample per pixel at mid-exposure;
 /// - noise (when noise_sigma > 0): Gaussian, σ_Y² = noise_sigma² + shot_gain·(Y − 16) on luma, σ = noise_sigma
@@ -56,6 +57,7 @@ struct RenderOptions {
     uint64_t seed = 1;            ///< noise seed
     int edge_subcells = 8;        ///< n: n×n sub-cells per marker outline pixel
     int board_subcells = 2;       ///< n: n×n sub-cells per checkerboard edge pixel (blurred fields: at most 2)
+    int board_time_samples = 8;   ///< cap on the checkerboard's time samples per field
     double blur_step_px = 0.5;    ///< max marker motion between time samples, frame px
     int max_time_samples = 32;    ///< cap on time samples per field
 };
