@@ -43,6 +43,18 @@ void require_dir(const std::string& path, const char* option) {
     if (!std::filesystem::is_directory(path)) throw Error(fmt::format("{} {}: no such recording directory", option, path));
 }
 
+/// A recording's camera with only what the recording itself says (name, image size, field order, shutter):
+/// pose, clock and intrinsics cleared, so none of its rig.yaml's calibration can reach the result.
+rig::CameraModel unposed(const rig::CameraModel& c) {
+    rig::CameraModel m;
+    m.name = c.name;
+    m.image_width = c.image_width;
+    m.image_height = c.image_height;
+    m.first_field_parity = c.first_field_parity;
+    m.exposure_us = c.exposure_us;
+    return m;
+}
+
 /// Prints the progress line on stderr (one line, rewritten in place).
 class ProgressLine {
 public:
@@ -87,10 +99,15 @@ int run(const CalibrateOptions& opt) {
     // The wand recording: camera count, field order and shutter (the recording's metadata). Its intrinsics,
     // poses and clocks are never read.
     rig::Recording wand_rec = rig::Recording::open(opt.wand);
-    for (const std::string& w : wand_rec.warnings()) {
-        std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
-        sum.warnings.push_back(w);
-    }
+    // A recording's findings (at open, and fields a video could not give as they are read), printed as they come.
+    auto flush_warnings = [&](rig::Recording& rec) {
+        for (std::string& w : rec.take_warnings()) {
+            line.end();
+            std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
+            sum.warnings.push_back(std::move(w));
+        }
+    };
+    flush_warnings(wand_rec);
     const int nc = wand_rec.camera_count();
 
     // Intrinsics.
@@ -101,7 +118,7 @@ int run(const CalibrateOptions& opt) {
         if (static_cast<int>(file.size()) != nc)
             throw Error(fmt::format("--intrinsics {}: {} cameras, the wand recording has {}", opt.intrinsics, file.size(), nc));
         for (int c = 0; c < nc; ++c) {
-            rig::CameraModel m = wand_rec.cameras()[static_cast<size_t>(c)];
+            rig::CameraModel m = unposed(wand_rec.cameras()[static_cast<size_t>(c)]);
             const rig::CameraModel& f = file[static_cast<size_t>(c)];
             m.fx = f.fx;
             m.fy = f.fy;
@@ -113,10 +130,7 @@ int run(const CalibrateOptions& opt) {
         }
     } else {
         rig::Recording board = rig::Recording::open(opt.board);
-        for (const std::string& w : board.warnings()) {
-            std::fprintf(stderr, "eyesim: warning: %s\n", w.c_str());
-            sum.warnings.push_back(w);
-        }
+        flush_warnings(board);
         if (board.camera_count() != nc)
             throw Error(fmt::format("--board {}: {} cameras, the wand recording has {}", opt.board, board.camera_count(), nc));
         if (!report_dir.empty()) std::filesystem::create_directories(report_dir);
@@ -130,7 +144,8 @@ int run(const CalibrateOptions& opt) {
                 else
                     line.show(fmt::format("calibrate: board cam{} solving", c));
             });
-            rig::CameraModel m = wand_rec.cameras()[static_cast<size_t>(c)];
+            flush_warnings(board);
+            rig::CameraModel m = unposed(wand_rec.cameras()[static_cast<size_t>(c)]);
             m.fx = r.camera.fx;
             m.fy = r.camera.fy;
             m.cx = r.camera.cx;
@@ -164,6 +179,7 @@ int run(const CalibrateOptions& opt) {
             line.show(s);
         });
     sum.detect_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    flush_warnings(wand_rec);
     sum.fields = blobs.fields;
     sum.views = cal::find_wand_views(blobs, bodies.wand, cams);
     // The eye's markers fix the rig frame: their images from the refinement stage's sphere fit (less biased than
@@ -172,6 +188,7 @@ int run(const CalibrateOptions& opt) {
     const cal::EyeImages eye = cal::eye_images(
         wand_rec, bodies.eye.markers.front().colour_class, opt.eye_fields, opt.max_fields,
         [&](const uint8_t* field, std::vector<eyesim::fpga::Blob>& b) { eye_refiner.refine(field, rig::kFieldHeight, b); });
+    flush_warnings(wand_rec);
 
     cal::WandOptions wo;
     wo.refine_intrinsics = opt.refine_intrinsics;
