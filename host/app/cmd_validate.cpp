@@ -1362,8 +1362,18 @@ int run_validate(const ValidateOptions& opt) {
     };
     if (have_truth) {
         unmeasured("eye", fs.eye_err_deg.size(), ts.eye_err_deg.size());
+        // An instrument none of whose markers the truth shows in two cameras in any scored field is out of view
+        // (a wand recording lifts both out): nothing to warn about, its figures are null.
+        std::set<std::string> in_view;
+        for (std::int64_t i = 0; i < n; ++i)
+            for (const rig::MarkerTruth& mt : truth[std::size_t(i)].markers) {
+                int seen = 0;
+                for (const rig::MarkerCameraTruth& v : mt.cams) seen += v.visible ? 1 : 0;
+                if (seen >= 2) in_view.insert(mt.body);
+            }
         for (int b = 0; b < cfg.bodies.instrument_count; ++b) {
             const std::size_t k = std::size_t(b);
+            if (!in_view.count(cfg.bodies.instruments[k].name)) continue;
             unmeasured(cfg.bodies.instruments[k].name, fs.frame_t_s.size() - std::size_t(fs.tip_held[k]),
                        ts.frame_t_s.size() - std::size_t(ts.tip_held[k]));
         }

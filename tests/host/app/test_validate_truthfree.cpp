@@ -3,7 +3,7 @@
 // error) while a copy of the true rig changes nothing; a recording without truth.jsonl and a capture with `--rig`
 // give the same truth-free figures with the truth figures null; a marker built 0.2 mm off its bodies file shows as
 // a 200 µm pair-distance error; `--report` writes index.html with the tables; a body one chain never measured is a
-// warning in either chain; progress with the time left on a terminal.
+// warning in either chain; progress with the time left on a terminal; the wand's length error on a wand recording.
 #include "cli_run.hpp"
 
 #include "eyesim/rig/camera.hpp"
@@ -315,4 +315,35 @@ TEST_CASE("validate: progress with the time left on a terminal, also while the r
     CHECK(tty.find("validate: writing report: ") != std::string::npos);
     const Result piped = run_eyesim("validate --recording " + rec.string());
     CHECK(piped.err.empty());
+}
+
+TEST_CASE("validate: the wand's length error on a wand recording, and 200 um when the file says 0.2 mm longer",
+          "[host][validate]") {
+    // The wand is not a tracked body: validate finds it among the markers no body claimed and measures its length
+    // (outermost markers) against scenes/bodies.json, as a wanding would.
+    const fs::path rec = synth("wand", "--scenario wand --seconds 1 --seed 2");
+    const Result r = run_eyesim("validate --recording " + rec.string() + " --json");
+    REQUIRE(r.rc == 0);
+    CHECK(r.err.empty());  // the instruments are lifted out of view: not measured, and nothing to warn about
+    const nlohmann::json j = nlohmann::json::parse(r.out);
+    CHECK(j["tip_rms_um"].is_null());
+    const nlohmann::json& w = j["truth_free"]["wand_length_error_um"];
+    REQUIRE(w.is_object());
+    CHECK(w["body"] == "wand");
+    CHECK(w["frames"].get<long>() >= 20);
+    CHECK(std::abs(w["mean_error_um"].get<double>()) < 20.0);
+    CHECK(w["rms_error_um"].get<double>() < 30.0);
+    // The same recording tracked with a bodies file whose wand is 0.2 mm longer: the wand measures 200 µm short.
+    nlohmann::json b = nlohmann::json::parse(slurp(fs::path(EYESIM_SOURCE_DIR) / "scenes/bodies.json"));
+    auto& last = b["wand"]["markers"].back()["distance_mm"];
+    last = last.get<double>() + 0.2;
+    const fs::path bodies = scratch() / "wand_longer.json";
+    std::ofstream(bodies, std::ios::trunc) << b.dump(1);
+    const nlohmann::json l = validate_json("--recording " + rec.string() + " --bodies " + bodies.string());
+    const nlohmann::json& wl = l["truth_free"]["wand_length_error_um"];
+    REQUIRE(wl.is_object());
+    CHECK(wl["frames"] == w["frames"]);
+    CHECK(wl["mean_error_um"].get<double>() == Approx(w["mean_error_um"].get<double>() - 200.0).margin(1.0));
+    // A recording without a wand has none.
+    CHECK(validate_json("--recording " + sweep().string())["truth_free"]["wand_length_error_um"].is_null());
 }
