@@ -57,6 +57,27 @@ TEST_CASE("default bodies: every body identifiable from colour classes and their
     CHECK(marker_class_rgb(4) == std::array<uint8_t, 3>{230, 210, 40});
 }
 
+TEST_CASE("the calibration wand: collinear markers of one class, unequal gaps; optional in the file", "[rig][bodies]") {
+    const Bodies b = load_bodies(default_bodies_path());
+    REQUIRE(b.wand.present());
+    REQUIRE(b.wand.markers.size() == 3);
+    CHECK(b.wand.markers[0].distance_mm == 0.0);
+    CHECK(b.wand.length_mm() == 20.0);
+    for (const auto& m : b.wand.markers) CHECK(m.colour_class == b.wand.markers[0].colour_class);
+    // The end gaps differ by far more than the image's depth ratio can make up at the rig's distances.
+    const double g1 = b.wand.markers[1].distance_mm, g2 = b.wand.markers[2].distance_mm - g1;
+    CHECK(std::max(g1, g2) / std::min(g1, g2) > 1.4);
+    CHECK(b.wand.marker_position_mm(2) == Eigen::Vector3d(0, 0, 20.0));
+
+    std::ifstream in(default_bodies_path());
+    nlohmann::json j = nlohmann::json::parse(in);
+    j.erase("wand");
+    const fs::path p = fs::temp_directory_path() / ("eyesim_test_bodies_wand_" + std::to_string(::getpid()) + ".json");
+    std::ofstream(p) << j.dump();
+    CHECK(!load_bodies(p.string()).wand.present());
+    fs::remove(p);
+}
+
 TEST_CASE("malformed bodies.json gives one-line errors naming the JSON pointer", "[rig][bodies]") {
     std::ifstream in(default_bodies_path());
     const nlohmann::json good = nlohmann::json::parse(in);
@@ -95,6 +116,15 @@ TEST_CASE("malformed bodies.json gives one-line errors naming the JSON pointer",
     j = good;
     j["instruments"][2]["markers"] = nlohmann::json::array({j["instruments"][2]["markers"][0]});
     expect(j, "/instruments/2/markers: needs at least 2 markers, has 1");
+    j = good;
+    j["wand"]["markers"][0]["distance_mm"] = 1.0;
+    expect(j, "/wand/markers/0/distance_mm: must be 0 for marker 0");
+    j = good;
+    j["wand"]["markers"][2]["distance_mm"] = 8.0;
+    expect(j, "/wand/markers/2/distance_mm: must exceed the previous marker's 8");
+    j = good;
+    j["wand"]["markers"] = nlohmann::json::array({j["wand"]["markers"][0]});
+    expect(j, "/wand/markers: needs at least 2 markers, has 1");
     std::ofstream(p) << "{ not json";
     CHECK_THROWS_WITH(load_bodies(p.string()), Catch::Contains("malformed JSON"));
     fs::remove(p);
