@@ -185,6 +185,7 @@ int run(const CalibrateOptions& opt) {
     // The eye's markers fix the rig frame: their images from the refinement stage's sphere fit (less biased than
     // the pipeline's centroids), on --eye-fields fields spread over the recording (they keep still).
     eyesim::app::BlobRefiner eye_refiner;
+    line.show(fmt::format("calibrate: the eye's marker images on {} fields (rig frame)", opt.eye_fields));
     const cal::EyeImages eye = cal::eye_images(
         wand_rec, bodies.eye.markers.front().colour_class, opt.eye_fields, opt.max_fields,
         [&](const uint8_t* field, std::vector<eyesim::fpga::Blob>& b) { eye_refiner.refine(field, rig::kFieldHeight, b); });
