@@ -57,7 +57,7 @@ TEST_CASE("default bodies: every body identifiable from colour classes and their
     CHECK(marker_class_rgb(4) == std::array<uint8_t, 3>{230, 210, 40});
 }
 
-TEST_CASE("the calibration wand: collinear markers of one class, unequal gaps; optional in the file", "[rig][bodies]") {
+TEST_CASE("the calibration wand: collinear markers of one class, unequal gaps, optional in the file", "[rig][bodies]") {
     const Bodies b = load_bodies(default_bodies_path());
     REQUIRE(b.wand.present());
     REQUIRE(b.wand.markers.size() == 3);
