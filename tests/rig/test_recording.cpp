@@ -251,7 +251,7 @@ TEST_CASE("video recordings: interlaced frames split into fields", "[rig][record
     fs::remove_all(r);
 }
 
-TEST_CASE("video: wrong frame size is an error; 30 frames/s, no field order, 50 frames/s are warnings", "[rig][recording][video]") {
+TEST_CASE("video: wrong frame size is an error, and 30 frames/s, no field order, 50 frames/s are warnings", "[rig][recording][video]") {
     const std::string base = recording();
     const std::string d = temp_dir("video_kinds");
     copy_dir(base, d);
@@ -318,7 +318,7 @@ Eigen::Vector3d triangulate(const std::vector<CameraModel>& cams, const std::vec
 
 }  // namespace
 
-TEST_CASE("truth is geometrically consistent: projected centres triangulate exactly; centroids nearly",
+TEST_CASE("truth is geometrically consistent: projected centres triangulate exactly, centroids nearly",
           "[rig][recording][truth]") {
     const std::string dir = temp_dir("static");
     SynthRequest req;

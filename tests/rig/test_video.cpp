@@ -241,7 +241,7 @@ TEST_CASE("lossy 4:2:0 and 4:1:1 video keeps each field's chroma in place to wit
     CHECK(std::min(std::abs(wrong.y[0]), std::abs(wrong.y[1])) > 0.2);
 }
 
-TEST_CASE("opening a video costs its first frame; a corrupt tail is found when read, named by camera and field",
+TEST_CASE("opening a video costs its first frame, a corrupt tail is found when read, named by camera and field",
           "[rig][recording][video][errors]") {
     const Pair p = make_recordings("tail", "ffv1");
     const fs::path cam1 = fs::path(p.video) / "cam1.mkv";

@@ -30,7 +30,7 @@ bool names_the_cut(const std::string& err, const std::string& prefix) {
 
 }  // namespace
 
-TEST_CASE("a cut video: fpga, validate, sim and eyesim-device print the lost fields; random bytes are an error",
+TEST_CASE("a cut video: fpga, validate, sim and eyesim-device print the lost fields, random bytes are an error",
           "[host][cli][video]") {
     ScratchDir scratch("eyesim_video_warnings");
     const fs::path rec = scratch.path() / "rec";
