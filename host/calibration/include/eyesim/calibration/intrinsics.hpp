@@ -12,8 +12,8 @@
 ///    being the field pair (2n, 2n+1)) is searched for the whole board (`find_board_corners`). A field is 720 × 288
 ///    and its row y of parity p is frame row 2y + p, so corners are kept in FRAME pixels: field (x, y) → (x, 2y + p).
 /// 2. Holds: a scan whose corners moved less than `still_px` (frame px, every corner) since the previous scan of
-///    the same parity AND until the next one is still (a moving board blurs, and woven, combs); consecutive still
-///    scans make one hold, one view.
+///    the same parity AND until the next one is still (a moving board blurs, and woven, combs); still scans at
+///    most one same-parity step apart that agree make one hold, one view.
 /// 3. Selection: when there are more holds than `max_views`, a well spread subset (greedy farthest point on the
 ///    board's image position, size and foreshortening).
 /// 4. Corners of each chosen view (`refine_board_corners`) on the hold's fields (every field from its first still
@@ -22,7 +22,7 @@
 ///    parities' rows at once, i.e. on the woven frame.
 /// 5. cv::calibrateCamera with K (fx, fy, cx, cy, no skew) and 5 distortion coefficients k1 k2 p1 p2 k3 in FRAME
 ///    pixels (720 × 576), exactly the model of rig::CameraModel; views whose own RMS is beyond 3× the median
-///    (and 0.1 px) are dropped once and the fit repeated.
+///    (and 0.02 px) are dropped and the fit repeated (twice at most).
 /// 6. Coverage: a PNG of the frame with every view's board outline and corners, and the fraction of a 16 × 12
 ///    grid over the image that holds a corner.
 
@@ -49,7 +49,8 @@ struct IntrinsicsOptions {
     double square_mm = rig::kCheckerboard.square_mm;   ///< side of one square
     bool woven_frames = false;   ///< corners from frames woven of fields (2n, 2n+1) instead of single fields
     int max_views = 40;          ///< at most this many views go to calibrateCamera
-    int field_step = 1;          ///< scan every n-th field (woven: frame); fields: odd, so both parities are seen
+    int field_step = 2;          ///< search every n-th field (woven: frame) for the board; the corners come from
+                                 ///< every field of a hold either way
     double still_px = 0.3;       ///< a scan is still when no corner moved more than this (frame px) to its neighbours
     int64_t max_fields = -1;     ///< scan only the first n fields (< 0: all)
     std::string coverage_png;    ///< write the coverage picture here ("" = none)
