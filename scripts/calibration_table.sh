@@ -5,8 +5,10 @@
 # that holds the true K and distortion on other poses with zero clock offsets (so no pose or clock can leak),
 # --truth-rig scoring the result; then a `sweep` recording of the same rig is validated with the true rig.yaml
 # and with the calibrated one (`validate --rig`). Prints one Markdown row per seed, then the median and worst.
+# --board: the intrinsics calibrated too, from a `checkerboard` recording of the same rig (17 s: 8 holds per
+# camera), instead of the file.
 #
-#   scripts/calibration_table.sh [--seeds "201 202 203 204 205"] [--seconds 40] [--sweep-seconds 10]
+#   scripts/calibration_table.sh [--seeds "201 202 203 204 205"] [--seconds 40] [--sweep-seconds 10] [--board]
 #                                [--eyesim PATH] [--work DIR] [--calibrate-options "..."]
 set -euo pipefail
 
@@ -17,6 +19,7 @@ seconds=40
 sweep_seconds=10
 work=""
 cal_opts=""
+board=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds="$2"; shift 2 ;;
@@ -25,6 +28,7 @@ while [ $# -gt 0 ]; do
     --eyesim) eyesim="$2"; shift 2 ;;
     --work) work="$2"; shift 2 ;;
     --calibrate-options) cal_opts="$2"; shift 2 ;;
+    --board) board=1; shift ;;
     *) echo "calibration_table.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -60,10 +64,15 @@ print(r.uniform(-1, 1), r.uniform(-3000, 3000), 1 + r.uniform(-0.01, 0.01))")
   sed -i 's/field_time_offset_us: .*/field_time_offset_us: 0./' "$d/intrinsics.yaml"
 
   "$eyesim" synth --scenario wand --seconds "$seconds" --seed "$seed" --rig "$d/true.yaml" --out "$d/wand" >/dev/null
+  intrinsics=(--intrinsics "$d/intrinsics.yaml")
+  if [ "$board" = 1 ]; then
+    "$eyesim" synth --scenario checkerboard --seconds 17 --seed "$seed" --rig "$d/true.yaml" --out "$d/board" >/dev/null
+    intrinsics=(--board "$d/board")
+  fi
   # shellcheck disable=SC2086
-  "$eyesim" calibrate --wand "$d/wand" --intrinsics "$d/intrinsics.yaml" --out "$d/calibrated.yaml" \
+  "$eyesim" calibrate --wand "$d/wand" "${intrinsics[@]}" --out "$d/calibrated.yaml" \
     --truth-rig "$d/true.yaml" --json $cal_opts >"$d/calibrate.json"
-  rm -rf "$d/wand"
+  rm -rf "$d/wand" "$d/board"
   "$eyesim" synth --scenario sweep --seconds "$sweep_seconds" --seed "$seed" --rig "$d/true.yaml" --out "$d/sweep" >/dev/null
   "$eyesim" validate --recording "$d/sweep" --json >"$d/validate_true.json"
   "$eyesim" validate --recording "$d/sweep" --rig "$d/calibrated.yaml" --json >"$d/validate_calibrated.json"
