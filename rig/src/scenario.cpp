@@ -255,9 +255,10 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
     if (name == "wand") {
         // A hand circling the eye with the wand: the marker centroid at distance rho from the eye centre (never
         // closer than the wand's half-length plus the eye and a marker, so no marker touches the eye), azimuth
-        // turning steadily round the eye and elevation from 60° below to 40° above its equator; the rod turns
-        // through all directions (azimuth turning, elevation a seeded tilt plus ±60° of waving). Markers move at
-        // about 25 mm/s (up to ~55), as a hand moves a wand through a volume this small.
+        // turning steadily round the eye and elevation from 5° below to 55° above its equator (where the
+        // instruments' markers are; lower, the wand would come so near a camera that its markers grow past 12 px);
+        // the rod turns through all directions (azimuth turning, elevation a seeded tilt plus ±60° of waving).
+        // Markers move at about 22 mm/s (up to ~60), as a hand moves a wand through a volume this small.
         if (!bodies.wand.present()) throw RigError("scenario: wand: bodies.json has no \"wand\"");
         s.wand_ = true;
         double sum = 0, reach = 0, marker_r = 0;
@@ -275,11 +276,11 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         for (int w = 0; w < 2; ++w) {
             s.wand_centre_[0].push_back({3.5, rng.uniform(0.15, 0.35), rng.uniform(0, 2 * kPi)});
             s.wand_centre_[1].push_back({0.35, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
-            s.wand_centre_[2].push_back({25 * kDeg, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
+            s.wand_centre_[2].push_back({15 * kDeg, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
             s.wand_azimuth_.push_back({0.6, rng.uniform(0.15, 0.4), rng.uniform(0, 2 * kPi)});
             s.wand_elevation_.push_back({30 * kDeg, rng.uniform(0.1, 0.35), rng.uniform(0, 2 * kPi)});
         }
-        s.wand_centre0_mm_ = Eigen::Vector3d(rng.uniform(0, 2 * kPi), -10 * kDeg, rng.uniform(-1.0, 1.0) * kPi / 4);
+        s.wand_centre0_mm_ = Eigen::Vector3d(rng.uniform(0, 2 * kPi), 25 * kDeg, rng.uniform(-1.0, 1.0) * kPi / 4);
     }
 
     s.eye_t0_s_ = -1.0;
