@@ -10,6 +10,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <Eigen/LU>
 
 #include <algorithm>
 #include <cfloat>
@@ -92,53 +93,55 @@ std::vector<cv::Point2f> find_board_corners(const cv::Mat& luma, int parity, int
 
 namespace {
 
-/// One luma sample in frame coordinates.
+/// One luma sample in frame coordinates, and its photometric group (BoardImage::group).
 struct Sample {
     double u, v, luma;
+    int group;
 };
 
-/// Fits the corner model (see refine_board_corners) to `s`; `x` holds the start and gets the result:
-/// u0 v0 θ1 θ2 m gx gy a hx hy ln σ, and `info` (may be null) the information matrix of (u0, v0). Returns false
-/// when the fit fails.
-bool fit_corner(const std::vector<Sample>& s, Eigen::Matrix<double, 11, 1>& x, Eigen::Matrix2d* info) {
-    using Vec = Eigen::Matrix<double, 11, 1>;
-    using Mat = Eigen::Matrix<double, 11, 11>;
+/// Fits the corner model (see refine_board_corners) to `s`; `x` holds the start and gets the result: the geometry
+/// u0 v0 θ1 θ2 ln σ, then per photometric group its levels and shading m gx gy a hx hy. `info` (may be null) gets
+/// the information matrix of (u0, v0). Returns false when the fit fails.
+bool fit_corner(const std::vector<Sample>& s, int groups, Eigen::VectorXd& x, Eigen::Matrix2d* info) {
+    const int n = 5 + 6 * groups;
     constexpr int kN = 3;  // kN × kN points over the pixel square
     constexpr double kSub[kN] = {-1.0 / 3.0, 0.0, 1.0 / 3.0};
     constexpr double kNN = kN * kN;
     const double kSqrt2 = std::sqrt(2.0), kTwoOverSqrtPi = 2.0 / std::sqrt(3.14159265358979323846);
-    // Residuals and Jacobian at x; returns the squared residual sum.
-    auto eval = [&](const Vec& p, Mat* JtJ, Vec* Jtr) {
+    // Squared residual sum at p, and (when JtJ is given) JᵀJ and Jᵀr.
+    Eigen::VectorXd g(n);
+    auto eval = [&](const Eigen::VectorXd& p, Eigen::MatrixXd* JtJ, Eigen::VectorXd* Jtr) {
         const double c1 = std::cos(p[2]), s1 = std::sin(p[2]), c2 = std::cos(p[3]), s2 = std::sin(p[3]);
-        const double sigma = std::exp(p[10]), k = 1.0 / (kSqrt2 * sigma);
+        const double sigma = std::exp(p[4]), k = 1.0 / (kSqrt2 * sigma);
         double sum2 = 0;
-        if (JtJ) JtJ->setZero(), Jtr->setZero();
+        if (JtJ) JtJ->setZero(n, n), Jtr->setZero(n);
         for (const Sample& q : s) {
+            const int o = 5 + 6 * q.group;  // this sample's levels and shading
+            const double m = p[o], gx = p[o + 1], gy = p[o + 2], a = p[o + 3], hx = p[o + 4], hy = p[o + 5];
             double f = 0;
-            Vec g = Vec::Zero();
+            g.setZero();
             for (int iv = 0; iv < kN; ++iv)
                 for (int iu = 0; iu < kN; ++iu) {
-                    const double du = kSub[iu], dv = kSub[iv];
-                    const double px = q.u + du - p[0], py = q.v + dv - p[1];
+                    const double px = q.u + kSub[iu] - p[0], py = q.v + kSub[iv] - p[1];
                     const double d1 = c1 * px + s1 * py, d2 = c2 * px + s2 * py;
                     const double e1 = std::erf(d1 * k), e2 = std::erf(d2 * k);
-                    const double E = e1 * e2, L = 1 + p[8] * px + p[9] * py;
-                    f += p[4] + p[5] * px + p[6] * py + p[7] * L * E;
+                    const double E = e1 * e2, L = 1 + hx * px + hy * py;
+                    f += m + gx * px + gy * py + a * L * E;
                     if (!JtJ) continue;
                     const double de1 = kTwoOverSqrtPi * std::exp(-d1 * d1 * k * k) * k;  // d e1 / d d1
                     const double de2 = kTwoOverSqrtPi * std::exp(-d2 * d2 * k * k) * k;
-                    const double aL = p[7] * L;
-                    g[0] += -p[5] - p[7] * p[8] * E - aL * (de1 * c1 * e2 + e1 * de2 * c2);
-                    g[1] += -p[6] - p[7] * p[9] * E - aL * (de1 * s1 * e2 + e1 * de2 * s2);
+                    const double aL = a * L;
+                    g[0] += -gx - a * hx * E - aL * (de1 * c1 * e2 + e1 * de2 * c2);
+                    g[1] += -gy - a * hy * E - aL * (de1 * s1 * e2 + e1 * de2 * s2);
                     g[2] += aL * de1 * (-s1 * px + c1 * py) * e2;
                     g[3] += aL * e1 * de2 * (-s2 * px + c2 * py);
-                    g[4] += 1;
-                    g[5] += px;
-                    g[6] += py;
-                    g[7] += L * E;
-                    g[8] += p[7] * px * E;
-                    g[9] += p[7] * py * E;
-                    g[10] += aL * (-d1 * de1 * e2 - e1 * d2 * de2);
+                    g[4] += aL * (-d1 * de1 * e2 - e1 * d2 * de2);
+                    g[o] += 1;
+                    g[o + 1] += px;
+                    g[o + 2] += py;
+                    g[o + 3] += L * E;
+                    g[o + 4] += a * px * E;
+                    g[o + 5] += a * py * E;
                 }
             const double r = f / kNN - q.luma;
             sum2 += r * r;
@@ -151,17 +154,17 @@ bool fit_corner(const std::vector<Sample>& s, Eigen::Matrix<double, 11, 1>& x, E
         if (JtJ) *JtJ = JtJ->selfadjointView<Eigen::Upper>();
         return sum2;
     };
-    Mat A;
-    Vec b;
+    Eigen::MatrixXd A;
+    Eigen::VectorXd b;
     double cost = eval(x, &A, &b);
     double lambda = 1e-3;
     const Eigen::Vector2d start(x[0], x[1]);
     for (int it = 0; it < 50; ++it) {
-        Mat H = A;
+        Eigen::MatrixXd H = A;
         H.diagonal() += lambda * A.diagonal().cwiseMax(1e-9);
-        const Vec step = H.ldlt().solve(-b);
+        const Eigen::VectorXd step = H.ldlt().solve(-b);
         if (!step.allFinite()) return false;
-        const Vec xn = x + step;
+        const Eigen::VectorXd xn = x + step;
         const double cn = eval(xn, nullptr, nullptr);
         if (cn < cost) {
             x = xn;
@@ -174,15 +177,16 @@ bool fit_corner(const std::vector<Sample>& s, Eigen::Matrix<double, 11, 1>& x, E
             if (lambda > 1e8) break;
         }
     }
-    const double sigma = std::exp(x[10]);
     if (info) {
         // Information of the corner position with the other parameters marginalised: inverse of the 2 × 2 block of
-        // (JᵀJ)⁻¹ (up to the noise variance, equal for images of the same camera).
-        const Mat cov = A.ldlt().solve(Mat::Identity());
+        // (JᵀJ)⁻¹ (up to the noise variance).
+        const Eigen::MatrixXd cov = A.ldlt().solve(Eigen::MatrixXd::Identity(n, n));
         *info = cov.topLeftCorner<2, 2>().inverse();
         if (!info->allFinite()) info->setZero();
     }
-    return x.allFinite() && std::hypot(x[0] - start.x(), x[1] - start.y()) < 1.5 && sigma < 5.0 && std::abs(x[7]) > 5.0;
+    bool levels_ok = true;
+    for (int gi = 0; gi < groups; ++gi) levels_ok = levels_ok && std::abs(x[5 + 6 * gi + 3]) > 5.0;
+    return x.allFinite() && std::hypot(x[0] - start.x(), x[1] - start.y()) < 1.5 && std::exp(x[4]) < 5.0 && levels_ok;
 }
 
 }  // namespace
@@ -209,7 +213,10 @@ int refine_board_corners(const std::vector<BoardImage>& images, int cols, int ro
             const double w = std::clamp(0.4 * std::min(row_step, col_step), 3.0, 10.0);
             const double u0 = corners[i].x, v0 = corners[i].y;
             samples.clear();
+            int groups = 0;
             for (const BoardImage& im : images) {
+                if (im.group < 0 || im.group > 7) return 0;
+                groups = std::max(groups, im.group + 1);
                 const int y0 = std::max(0, static_cast<int>(std::ceil((v0 - w - im.row_offset) / im.row_scale)));
                 const int y1 = std::min(im.luma.rows - 1, static_cast<int>(std::floor((v0 + w - im.row_offset) / im.row_scale)));
                 const int x0 = std::max(0, static_cast<int>(std::ceil(u0 - w)));
@@ -218,32 +225,48 @@ int refine_board_corners(const std::vector<BoardImage>& images, int cols, int ro
                     const double v = static_cast<double>(im.row_scale) * y + im.row_offset;
                     const float* row = im.luma.ptr<float>(y);
                     for (int x = x0; x <= x1; ++x)
-                        if ((x - u0) * (x - u0) + (v - v0) * (v - v0) <= w * w) samples.push_back({double(x), v, double(row[x])});
+                        if ((x - u0) * (x - u0) + (v - v0) * (v - v0) <= w * w)
+                            samples.push_back({double(x), v, double(row[x]), im.group});
                 }
             }
             if (samples.size() < 24) continue;
-            Eigen::Matrix<double, 11, 1> x;
-            x << u0, v0, std::atan2(row_dir.x, -row_dir.y), std::atan2(col_dir.x, -col_dir.y), 0, 0, 0, 0, 0, 0,
-                std::log(0.6);
-            // Levels: linear least squares for m and a with the starting geometry.
+            {
+                // Only the groups with samples here, numbered from 0.
+                int remap[8], present = 0;
+                for (int gi = 0; gi < 8; ++gi) remap[gi] = -1;
+                for (const Sample& q : samples)
+                    if (remap[q.group] < 0) remap[q.group] = present++;
+                for (Sample& q : samples) q.group = remap[q.group];
+                groups = present;
+            }
+            Eigen::VectorXd x = Eigen::VectorXd::Zero(5 + 6 * groups);
+            x[0] = u0;
+            x[1] = v0;
+            x[2] = std::atan2(row_dir.x, -row_dir.y);
+            x[3] = std::atan2(col_dir.x, -col_dir.y);
+            x[4] = std::log(0.6);
+            // Levels of each group: linear least squares for m and a with the starting geometry.
             {
                 const double k = 1.0 / (std::sqrt(2.0) * 0.6);
-                Eigen::Matrix2d M = Eigen::Matrix2d::Zero();
-                Eigen::Vector2d y = Eigen::Vector2d::Zero();
+                std::vector<Eigen::Matrix2d> M(static_cast<size_t>(groups), Eigen::Matrix2d::Zero());
+                std::vector<Eigen::Vector2d> y(static_cast<size_t>(groups), Eigen::Vector2d::Zero());
                 for (const Sample& q : samples) {
                     const double px = q.u - u0, py = q.v - v0;
                     const double E = std::erf((std::cos(x[2]) * px + std::sin(x[2]) * py) * k) *
                                      std::erf((std::cos(x[3]) * px + std::sin(x[3]) * py) * k);
                     const Eigen::Vector2d a(1.0, E);
-                    M += a * a.transpose();
-                    y += a * q.luma;
+                    M[static_cast<size_t>(q.group)] += a * a.transpose();
+                    y[static_cast<size_t>(q.group)] += a * q.luma;
                 }
-                const Eigen::Vector2d ma = M.ldlt().solve(y);
-                x[4] = ma[0];
-                x[7] = ma[1];
+                for (int gi = 0; gi < groups; ++gi) {
+                    if (!(M[static_cast<size_t>(gi)].determinant() > 0)) continue;  // a group with no sample here
+                    const Eigen::Vector2d ma = M[static_cast<size_t>(gi)].ldlt().solve(y[static_cast<size_t>(gi)]);
+                    x[5 + 6 * gi] = ma[0];
+                    x[5 + 6 * gi + 3] = ma[1];
+                }
             }
             Eigen::Matrix2d inf;
-            if (!fit_corner(samples, x, &inf)) continue;
+            if (!fit_corner(samples, groups, x, &inf)) continue;
             out[i] = cv::Point2f(static_cast<float>(x[0]), static_cast<float>(x[1]));
             infos[i] = cv::Matx22d(inf(0, 0), inf(0, 1), inf(1, 0), inf(1, 1));
             ++refined;
@@ -446,33 +469,12 @@ IntrinsicsResult calibrate_intrinsics(rig::Recording& rec, int cam, const Intrin
                 sum[p] += luma_f;
                 ++n[p];
             }
+            // Fields: each parity its own levels and shading (a field may be brighter than the other); woven: one.
             std::vector<BoardImage> images;
             for (int p = 0; p < 2; ++p)
-                if (n[p] > 0) images.push_back({sum[p] / static_cast<double>(n[p]), 2, p});
+                if (n[p] > 0) images.push_back({sum[p] / static_cast<double>(n[p]), 2, p, opt.woven_frames ? 0 : p});
             std::vector<cv::Point2f>& v = views[static_cast<size_t>(id)];
-            const int n_corners = cols * rows;
-            bool ok = true;
-            if (opt.woven_frames || images.size() == 1) {
-                ok = refine_board_corners(images, cols, rows, v) == n_corners;
-            } else {
-                // Each parity on its own; the two weighed by their information, since an edge nearly along the
-                // rows may fall between one parity's rows and be fixed only by the other's (a corner whose fit
-                // failed in one parity has no information there).
-                std::vector<cv::Point2f> a = v, b = v;
-                std::vector<cv::Matx22d> ia, ib;
-                refine_board_corners({images[0]}, cols, rows, a, &ia);
-                refine_board_corners({images[1]}, cols, rows, b, &ib);
-                for (size_t c = 0; ok && c < v.size(); ++c) {
-                    const cv::Matx22d W = ia[c] + ib[c];
-                    const double tr = W(0, 0) + W(1, 1);
-                    if (!(cv::determinant(W) > 1e-12 * tr * tr)) {
-                        ok = false;
-                        break;
-                    }
-                    const cv::Vec2d m = W.inv() * (ia[c] * cv::Vec2d(a[c].x, a[c].y) + ib[c] * cv::Vec2d(b[c].x, b[c].y));
-                    v[c] = cv::Point2f(static_cast<float>(m[0]), static_cast<float>(m[1]));
-                }
-            }
+            const bool ok = refine_board_corners(images, cols, rows, v) == cols * rows;
             if (ok) refined.push_back(id);
             if (progress) {
                 ++info.done;

@@ -17,9 +17,9 @@
 /// 3. Selection: when there are more holds than `max_views`, a well spread subset (greedy farthest point on the
 ///    board's image position, size and foreshortening).
 /// 4. Corners of each chosen view (`refine_board_corners`) on the hold's fields (every field from its first still
-///    scan to its last) averaged per parity (noise down by their number): fields: fitted on each parity's rows alone and the two fits combined by their
-///    information (an edge nearly along the rows can fall between one parity's rows); woven: fitted on both
-///    parities' rows at once, i.e. on the woven frame.
+///    scan to its last) averaged per parity (noise down by their number), both parities' rows in one fit at their
+///    own frame rows (a single parity cannot place an edge that lies between its rows): fields: each parity with
+///    its own levels and shading; woven: one set for both, i.e. the woven frame.
 /// 5. cv::calibrateCamera with K (fx, fy, cx, cy, no skew) and 5 distortion coefficients k1 k2 p1 p2 k3 in FRAME
 ///    pixels (720 × 576), exactly the model of rig::CameraModel; views whose own RMS is beyond 3× the median
 ///    (and 0.02 px) are dropped and the fit repeated (twice at most).
@@ -102,12 +102,13 @@ struct BoardImage {
     cv::Mat luma;          ///< CV_32F, 720 wide
     int row_scale = 1;     ///< frame rows per image row
     int row_offset = 0;    ///< frame row of image row 0
+    int group = 0;         ///< photometric group 0..7: images of one group share the corner model's levels and shading
 };
 
 /// Refines board corners (frame px, row by row, as `find_board_corners` gives them) by a least-squares fit of a
 /// corner model to the samples of `images` within 0.4 squares of each corner: two straight edges through the corner
-/// (their angles free), an edge spread σ (a Gaussian, free), the two levels with a linear shading across the window,
-/// each sample integrated over its pixel square (3 × 3 points). The model is point-symmetric about the corner, as a
+/// (their angles free), an edge spread σ (a Gaussian, free), the two levels with a linear shading across the window
+/// (per photometric group), each sample integrated over its pixel square (3 × 3 points). The model is point-symmetric about the corner, as a
 /// checkerboard corner is, so the fit has no bias from the edge profile; it uses the actual sample positions, so a
 /// field's rows two frame rows apart are used as they are. `information` (may be null) gets each corner's
 /// information matrix (inverse covariance up to the noise variance; zero where the fit failed), to weigh fits of
