@@ -258,7 +258,7 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         // turning steadily round the eye and elevation from 5° below to 55° above its equator (where the
         // instruments' markers are; lower, the wand would come so near a camera that its markers grow past 12 px);
         // the rod turns through all directions (azimuth turning, elevation a seeded tilt plus ±60° of waving).
-        // Markers move at about 22 mm/s (up to ~60), as a hand moves a wand through a volume this small.
+        // Markers move at about 25 mm/s (up to ~80), as a hand moves a wand through a volume this small.
         if (!bodies.wand.present()) throw RigError("scenario: wand: bodies.json has no \"wand\"");
         s.wand_ = true;
         double sum = 0, reach = 0, marker_r = 0;
@@ -274,7 +274,7 @@ Scenario Scenario::make(const std::string& name, uint64_t seed, double duration_
         s.wand_azimuth_rate_ = sign * 2 * kPi / rng.uniform(10.0, 16.0);
         // wand_centre_: [0] distance (mm, above the least), [1] position azimuth waves (rad), [2] elevation (rad).
         for (int w = 0; w < 2; ++w) {
-            s.wand_centre_[0].push_back({3.5, rng.uniform(0.15, 0.35), rng.uniform(0, 2 * kPi)});
+            s.wand_centre_[0].push_back({5.5, rng.uniform(0.15, 0.35), rng.uniform(0, 2 * kPi)});
             s.wand_centre_[1].push_back({0.35, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
             s.wand_centre_[2].push_back({15 * kDeg, rng.uniform(0.1, 0.3), rng.uniform(0, 2 * kPi)});
             s.wand_azimuth_.push_back({0.6, rng.uniform(0.15, 0.4), rng.uniform(0, 2 * kPi)});
@@ -323,7 +323,7 @@ Eigen::Vector3d Scenario::path_at(double t_s, double& pedal) const {
 
 void Scenario::wand_state(double t_s, SceneState& st) const {
     // wand_centre0_mm_ holds (rod azimuth phase, position elevation base, rod elevation base), in rad.
-    const double rho = wand_clear_mm_ + 7.0 + eval(wand_centre_[0], t_s);
+    const double rho = wand_clear_mm_ + 11.0 + eval(wand_centre_[0], t_s);
     const double az = wand_azimuth0_ + wand_azimuth_rate_ * t_s + eval(wand_centre_[1], t_s);
     const double el = wand_centre0_mm_.y() + eval(wand_centre_[2], t_s);
     const Eigen::Vector3d centre =

@@ -207,13 +207,13 @@ TEST_CASE("wand solve: biased views are down-weighted by the robust loss", "[cal
     const auto truth = perturbed_rig(9);
     cal::WandViews views = project_wand(truth, 34, 600);
     add_noise(views, 0.02, 6);
-    // 20 % of camera 1's views with its middle marker 0.4 px to the right (partly hidden): too small to leave the
+    // 30 % of camera 1's views with its middle marker 0.4 px to the right (partly hidden): too small to leave the
     // smooth track, a systematic pull on the solve.
     std::mt19937_64 g(7);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     int64_t biased = 0;
     for (auto& v : views.views[1])
-        if (!v.empty() && u(g) < 0.2) {
+        if (!v.empty() && u(g) < 0.3) {
             v[1].x() += 0.4;
             ++biased;
         }
@@ -231,8 +231,11 @@ TEST_CASE("wand solve: biased views are down-weighted by the robust loss", "[cal
     const auto [rc, rr] = worst_error(robust, truth);
     const auto [lc, lr] = worst_error(ls, truth);
     INFO("robust " << rc * 1e3 << " um " << rr << " deg; least squares " << lc * 1e3 << " um " << lr << " deg");
-    CHECK(rc < 0.5 * lc);
+    // The pull turns camera 1 (a shifted image point is mostly a rotation): least squares follows it, the robust
+    // solve stays at the noise's level.
     CHECK(rr < 0.5 * lr);
+    CHECK(rr < 0.003);
+    CHECK(rc < lc);
     CHECK(rc < 0.01);
 }
 
