@@ -5,11 +5,11 @@
 # that holds the true K and distortion on other poses with zero clock offsets (so no pose or clock can leak),
 # --truth-rig scoring the result; then a `sweep` recording of the same rig is validated with the true rig.yaml
 # and with the calibrated one (`validate --rig`). Prints one Markdown row per seed, then the median and worst.
-# --board: the intrinsics calibrated too, from a `checkerboard` recording of the same rig (17 s: 8 holds per
-# camera), instead of the file.
+# --board: the intrinsics calibrated too, from a `checkerboard` recording of the same rig (--board-seconds, 34 s:
+# 16 holds per camera), instead of the file.
 #
 #   scripts/calibration_table.sh [--seeds "201 202 203 204 205"] [--seconds 40] [--sweep-seconds 10] [--board]
-#                                [--eyesim PATH] [--work DIR] [--calibrate-options "..."]
+#                                [--board-seconds 34] [--eyesim PATH] [--work DIR] [--calibrate-options "..."]
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")/.." && pwd)
@@ -20,6 +20,7 @@ sweep_seconds=10
 work=""
 cal_opts=""
 board=0
+board_seconds=34
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds="$2"; shift 2 ;;
@@ -29,6 +30,7 @@ while [ $# -gt 0 ]; do
     --work) work="$2"; shift 2 ;;
     --calibrate-options) cal_opts="$2"; shift 2 ;;
     --board) board=1; shift ;;
+    --board-seconds) board_seconds="$2"; shift 2 ;;
     *) echo "calibration_table.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -66,7 +68,7 @@ print(r.uniform(-1, 1), r.uniform(-3000, 3000), 1 + r.uniform(-0.01, 0.01))")
   "$eyesim" synth --scenario wand --seconds "$seconds" --seed "$seed" --rig "$d/true.yaml" --out "$d/wand" >/dev/null
   intrinsics=(--intrinsics "$d/intrinsics.yaml")
   if [ "$board" = 1 ]; then
-    "$eyesim" synth --scenario checkerboard --seconds 17 --seed "$seed" --rig "$d/true.yaml" --out "$d/board" >/dev/null
+    "$eyesim" synth --scenario checkerboard --seconds "$board_seconds" --seed "$seed" --rig "$d/true.yaml" --out "$d/board" >/dev/null
     intrinsics=(--board "$d/board")
   fi
   # shellcheck disable=SC2086

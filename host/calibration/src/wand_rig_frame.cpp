@@ -246,6 +246,7 @@ RigFrameFit fit_rig_frame(const EyeImages& eye, const std::vector<rig::CameraMod
         size_t cam;
         Vec3 model;
         Vec2 px;
+        double fill = 0;  // blob area / a whole marker's at its distance (0: unknown)
         bool use = true;
     };
     std::vector<View> views;
@@ -260,12 +261,24 @@ RigFrameFit fit_rig_frame(const EyeImages& eye, const std::vector<rig::CameraMod
             // Field pixels: half the frame rows.
             const double whole = kPi * (cams[c].fx * mk.radius_mm / z) * (cams[c].fy * mk.radius_mm / z) / 2.0;
             const double area = c < eye.area_px.size() && k < eye.area_px[c].size() ? eye.area_px[c][k] : 0.0;
-            if (area > 0 && area < 0.75 * whole) {
+            v.fill = area > 0 ? area / whole : 0.0;
+            views.push_back(v);
+        }
+    }
+    // Partly hidden: a fill below 75 % of the camera's median fill (the median marker is whole; the median, not
+    // 1, because how far a blob reaches into a marker's rim depends on the camera and the video's chroma).
+    for (size_t c = 0; c < nc; ++c) {
+        std::vector<double> f;
+        for (const View& v : views)
+            if (v.cam == c && v.fill > 0) f.push_back(v.fill);
+        if (f.empty()) continue;
+        std::nth_element(f.begin(), f.begin() + static_cast<std::ptrdiff_t>(f.size() / 2), f.end());
+        const double med = f[f.size() / 2];
+        for (View& v : views)
+            if (v.cam == c && v.fill > 0 && v.fill < 0.75 * med) {
                 v.use = false;
                 ++fit.views_dropped;
             }
-            views.push_back(v);
-        }
     }
     const Eigen::Matrix3d R_c0_rig = fit.R_rig_cam0.transpose();
     const Vec3 t_c0_rig = -R_c0_rig * fit.t_rig_cam0_mm;
@@ -298,18 +311,25 @@ RigFrameFit fit_rig_frame(const EyeImages& eye, const std::vector<rig::CameraMod
         EyeResidual{cams[v.cam], v.model, v.px}(pose, r);
         return std::hypot(r[0], r[1]);
     };
-    refine();
-    std::vector<double> e;
-    for (const View& v : views)
-        if (v.use) e.push_back(residual(v));
-    std::nth_element(e.begin(), e.begin() + static_cast<std::ptrdiff_t>(e.size() / 2), e.end());
-    const double bound = std::max(0.2, 5.0 * e[e.size() / 2]);
-    for (View& v : views)
-        if (v.use && residual(v) > bound) {
-            v.use = false;
-            ++fit.views_dropped;
-        }
+    // Then the worst image, one at a time, while it is off by more than max(0.2 px, 4 × the median of the others)
+    // and enough images are left (a marker's image half hidden by another body pulls the whole fit).
     fit.views = refine();
+    while (fit.views > 4) {
+        std::vector<double> e;
+        View* worst = nullptr;
+        for (View& v : views)
+            if (v.use) {
+                e.push_back(residual(v));
+                if (!worst || e.back() > residual(*worst)) worst = &v;
+            }
+        const double w = residual(*worst);
+        std::sort(e.begin(), e.end());
+        e.pop_back();  // the worst itself
+        if (!(w > std::max(0.2, 4.0 * e[e.size() / 2]))) break;
+        worst->use = false;
+        ++fit.views_dropped;
+        fit.views = refine();
+    }
     double se2 = 0;
     for (const View& v : views)
         if (v.use) se2 += residual(v) * residual(v);

@@ -202,10 +202,10 @@ struct RigFrameFit {
 };
 
 /// Finds the rig frame from the eye's averaged marker images (cameras in camera 0's frame). An image whose blob
-/// area is below 75 % of a whole marker's at its distance (a marker partly behind the eye's limb: its centroid is
-/// pulled off the centre) is left out, and so is one whose reprojection after a first refinement is off by more
-/// than max(0.2 px, 5 × the median); then the pose is refined again. Throws CalibrationError when fewer than 3
-/// eye markers can be triangulated and matched.
+/// fills less than 75 % of what the camera's median image fills (blob area over a whole marker's at its distance:
+/// a marker partly behind the eye's limb, its centroid pulled off the centre) is left out; then, refining the pose
+/// on the images, the worst one at a time while it is off by more than max(0.2 px, 4 × the median of the others).
+/// Throws CalibrationError when fewer than 3 eye markers can be triangulated and matched.
 RigFrameFit fit_rig_frame(const EyeImages& eye, const std::vector<rig::CameraModel>& cams_in_cam0,
                           const rig::EyeBody& body);
 
