@@ -16,7 +16,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     std::array<RegisterInfo, kNumRegisters> t{};
     int i = 0;
     t[i++] = {reg::kId, 32, false, 0x45594650u, "ID"};
-    t[i++] = {reg::kVersion, 16, false, 0x0102u, "VERSION"};
+    t[i++] = {reg::kVersion, 16, false, 0x0103u, "VERSION"};
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
@@ -32,6 +32,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     t[i++] = {reg::kFastPath, 1, true, 1u, "FAST_PATH"};
     t[i++] = {reg::kEdgeRing, 1, true, 1u, "EDGE_RING"};
     t[i++] = {reg::kBgTrack, 3, true, 4u, "BG_TRACK"};
+    t[i++] = {reg::kPatchEnable, 4, true, 0u, "PATCH_ENABLE"};
     const char* roi_names[2 * kNumRoiWindows] = {"ROI0_X", "ROI0_Y", "ROI1_X", "ROI1_Y",
                                                  "ROI2_X", "ROI2_Y", "ROI3_X", "ROI3_Y"};
     for (int w = 0; w < kNumRoiWindows; ++w) {
@@ -165,6 +166,7 @@ PipelineParams decode(const RegisterMap& m) {
     p.fast_path = m.get(reg::kFastPath) != 0;
     p.edge_ring = m.get(reg::kEdgeRing) != 0;
     p.bg_track_shift = static_cast<uint8_t>(m.get(reg::kBgTrack));
+    p.patch_enable = static_cast<uint8_t>(m.get(reg::kPatchEnable));
     for (int w = 0; w < kNumRoiWindows; ++w) {
         const uint32_t x = m.get(reg::roi_x(w)), y = m.get(reg::roi_y(w));
         p.roi_x0[w] = static_cast<uint16_t>(x & 0x3FFu);

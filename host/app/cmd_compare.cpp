@@ -232,6 +232,7 @@ int run(const CompareOptions& opt) {
                 break;
             }
             case proto::MessageType::Command: ++commands; break;
+            case proto::MessageType::BlobPatch: break;  // pixels, not markers: compared by the patch tests
         }
     }
     const proto::ParserStats& ps = replay->stats();

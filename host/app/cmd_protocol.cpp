@@ -168,6 +168,24 @@ proto::Message random_message(std::mt19937_64& rng, int type) {
         case 4:
             return proto::Command{rnd<std::uint32_t>(rng, 0, ~0u), rnd<std::uint8_t>(rng, 0, 255),
                                   rnd<std::uint32_t>(rng, 0, ~0u), rnd<std::uint32_t>(rng, 0, ~0u), rng()};
+        case 6: {
+            proto::BlobPatch b;
+            b.camera_id = rnd<std::uint8_t>(rng, 0, proto::kCameraCount - 1);
+            b.field_parity = rnd<std::uint8_t>(rng, 0, 1);
+            b.colour_class = rnd<std::uint8_t>(rng, proto::kMinColourClass, proto::kMaxColourClass);
+            b.flags = rnd<std::uint8_t>(rng, 0, proto::kPatchFlagsDefined);
+            b.field_counter = rnd<std::uint32_t>(rng, 0, ~0u);
+            b.blob_index = rnd<std::uint16_t>(rng, 0, 0xFFFF);
+            b.width_px = static_cast<std::uint16_t>(2 * rnd<int>(rng, 1, proto::kPatchMaxWidthPx / 2));
+            b.height_px = rnd<std::uint16_t>(rng, 1, proto::kPatchMaxHeightPx);
+            b.origin_x = static_cast<std::uint16_t>(2 * rnd<int>(rng, 0, (proto::kPatchFieldWidthPx - b.width_px) / 2));
+            b.origin_y = rnd<std::uint16_t>(rng, 0, static_cast<std::uint16_t>(proto::kPatchFieldHeightPx - b.height_px));
+            b.fragment_count = static_cast<std::uint8_t>(
+                proto::patch_fragment_count(proto::patch_bytes(b.width_px, b.height_px)));
+            b.fragment_index = rnd<std::uint8_t>(rng, 0, static_cast<std::uint8_t>(b.fragment_count - 1));
+            for (auto& v : b.samples) v = rnd<std::uint8_t>(rng, 0, 255);
+            return b;
+        }
         default: {
             const auto status = rnd<std::uint8_t>(rng, 0, 1);
             return proto::Reply{rnd<std::uint32_t>(rng, 0, ~0u), rnd<std::uint8_t>(rng, 0, 255), status,

@@ -131,7 +131,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         check_stream(framed_stream(data + 1, size - 1), chunk_seed);
         // The payload decoder on its own, every type.
         Message m;
-        for (int t = 0; t <= 6; ++t) {
+        for (int t = 0; t <= static_cast<int>(kMessageTypeCount) + 1; ++t) {
             const DecodeError e = decode_payload(static_cast<MessageType>(t), {data + 1, size - 1}, m);
             if (e == DecodeError::None) require(valid_message(m));
         }

@@ -33,6 +33,17 @@ bool valid(const Reply& r) noexcept {
     if (r.status == static_cast<std::uint8_t>(ReplyStatus::Nack)) return r.reason >= 1 && r.reason <= kMaxNackReason;
     return false;
 }
+bool valid(const BlobPatch& b) noexcept {
+    if (b.camera_id >= kCameraCount || b.field_parity > 1 || b.colour_class < kMinColourClass ||
+        b.colour_class > kMaxColourClass || (b.flags & ~kPatchFlagsDefined) != 0)
+        return false;
+    if (b.width_px < 2 || b.width_px > kPatchMaxWidthPx || b.width_px % 2 != 0 || b.height_px < 1 ||
+        b.height_px > kPatchMaxHeightPx || b.origin_x % 2 != 0)
+        return false;
+    if (b.origin_x + b.width_px > kPatchFieldWidthPx || b.origin_y + b.height_px > kPatchFieldHeightPx) return false;
+    return b.fragment_count == patch_fragment_count(patch_bytes(b.width_px, b.height_px)) &&
+           b.fragment_index < b.fragment_count;
+}
 
 std::size_t size_of(const FieldMarkers& f) noexcept {
     const std::size_t n = f.marker_count <= kMaxMarkersPerMessage ? f.marker_count : kMaxMarkersPerMessage;
@@ -42,6 +53,7 @@ std::size_t size_of(const PedalState&) noexcept { return kPedalStatePayloadBytes
 std::size_t size_of(const DeviceStatus&) noexcept { return kDeviceStatusPayloadBytes; }
 std::size_t size_of(const Command&) noexcept { return kCommandPayloadBytes; }
 std::size_t size_of(const Reply&) noexcept { return kReplyPayloadBytes; }
+std::size_t size_of(const BlobPatch& b) noexcept { return kBlobPatchHeaderBytes + b.sample_bytes(); }
 
 void put(std::uint8_t* p, const FieldMarkers& f) noexcept {
     put_u8(p + 0, f.camera_id);
@@ -98,6 +110,22 @@ void put(std::uint8_t* p, const Reply& r) noexcept {
     put_u32(p + 7, r.value);
     put_u64(p + 11, r.host_us);
     put_u64(p + 19, r.device_us);
+}
+void put(std::uint8_t* p, const BlobPatch& b) noexcept {
+    put_u8(p + 0, b.camera_id);
+    put_u8(p + 1, b.field_parity);
+    put_u8(p + 2, b.colour_class);
+    put_u8(p + 3, b.flags);
+    put_u32(p + 4, b.field_counter);
+    put_u16(p + 8, b.blob_index);
+    put_u16(p + 10, b.origin_x);
+    put_u16(p + 12, b.origin_y);
+    put_u16(p + 14, b.width_px);
+    put_u16(p + 16, b.height_px);
+    put_u8(p + 18, b.fragment_index);
+    put_u8(p + 19, b.fragment_count);
+    const std::size_t n = b.sample_bytes();
+    for (std::size_t i = 0; i < n; ++i) p[kBlobPatchHeaderBytes + i] = b.samples[i];
 }
 
 void get(const std::uint8_t* p, FieldMarkers& f) noexcept {
@@ -157,6 +185,23 @@ void get(const std::uint8_t* p, Reply& r) noexcept {
     r.host_us = get_u64(p + 11);
     r.device_us = get_u64(p + 19);
 }
+void get(const std::uint8_t* p, BlobPatch& b) noexcept {
+    b.camera_id = get_u8(p + 0);
+    b.field_parity = get_u8(p + 1);
+    b.colour_class = get_u8(p + 2);
+    b.flags = get_u8(p + 3);
+    b.field_counter = get_u32(p + 4);
+    b.blob_index = get_u16(p + 8);
+    b.origin_x = get_u16(p + 10);
+    b.origin_y = get_u16(p + 12);
+    b.width_px = get_u16(p + 14);
+    b.height_px = get_u16(p + 16);
+    b.fragment_index = get_u8(p + 18);
+    b.fragment_count = get_u8(p + 19);
+    // Called only once the length is known to match sample_bytes() (decode_as).
+    const std::size_t n = b.sample_bytes();
+    for (std::size_t i = 0; i < n; ++i) b.samples[i] = p[kBlobPatchHeaderBytes + i];
+}
 
 template <class T>
 DecodeError decode_as(MessageType type, std::span<const std::uint8_t> payload, Message& out) noexcept {
@@ -167,6 +212,15 @@ DecodeError decode_as(MessageType type, std::span<const std::uint8_t> payload, M
     if constexpr (std::is_same_v<T, FieldMarkers>) {
         // The length is a valid FieldMarkers length; a marker_count that disagrees with it is a payload error.
         if (payload.size() != kFieldMarkersHeaderBytes + payload[3] * kMarkerRecordBytes) return DecodeError::BadPayload;
+    }
+    if constexpr (std::is_same_v<T, BlobPatch>) {
+        // The samples the header announces must be exactly the bytes after it, and the header must be in range
+        // before sample_bytes() is trusted.
+        BlobPatch h;
+        h.width_px = get_u16(payload.data() + 14);
+        h.height_px = get_u16(payload.data() + 16);
+        h.fragment_index = get_u8(payload.data() + 18);
+        if (payload.size() != kBlobPatchHeaderBytes + h.sample_bytes()) return DecodeError::BadPayload;
     }
     get(payload.data(), m);
     return valid(m) ? DecodeError::None : DecodeError::BadPayload;
@@ -198,6 +252,9 @@ bool valid_payload_length(MessageType type, std::size_t n) noexcept {
         case MessageType::DeviceStatus: return n == kDeviceStatusPayloadBytes;
         case MessageType::Command: return n == kCommandPayloadBytes;
         case MessageType::Reply: return n == kReplyPayloadBytes;
+        case MessageType::BlobPatch:
+            return n >= kBlobPatchHeaderBytes + 4 && n <= kBlobPatchHeaderBytes + kPatchFragmentBytes &&
+                   (n - kBlobPatchHeaderBytes) % 4 == 0;
     }
     return false;
 }
@@ -228,6 +285,7 @@ DecodeError decode_payload(MessageType type, std::span<const std::uint8_t> paylo
         case MessageType::DeviceStatus: return decode_as<DeviceStatus>(type, payload, out);
         case MessageType::Command: return decode_as<Command>(type, payload, out);
         case MessageType::Reply: return decode_as<Reply>(type, payload, out);
+        case MessageType::BlobPatch: return decode_as<BlobPatch>(type, payload, out);
     }
     return DecodeError::UnknownType;
 }

@@ -97,6 +97,25 @@ void body(Out& o, const Reply& m) noexcept {
     o.u("host_us", m.host_us);
     o.u("device_us", m.device_us);
 }
+void body(Out& o, const BlobPatch& m) noexcept {
+    o.u("camera_id", m.camera_id);
+    o.u("field_parity", m.field_parity);
+    o.u("colour_class", m.colour_class);
+    o.u("flags", m.flags);
+    o.u("field_counter", m.field_counter);
+    o.u("blob_index", m.blob_index);
+    o.u("origin_x", m.origin_x);
+    o.u("origin_y", m.origin_y);
+    o.u("width_px", m.width_px);
+    o.u("height_px", m.height_px);
+    o.u("fragment_index", m.fragment_index);
+    o.u("fragment_count", m.fragment_count);
+    // The samples as one lower-case hex string (two digits per byte), in wire order.
+    o.add(",\"samples_hex\":\"");
+    const std::size_t n = m.sample_bytes();
+    for (std::size_t i = 0; i < n; ++i) o.add("%02x", static_cast<unsigned>(m.samples[i]));
+    o.add("\"");
+}
 
 }  // namespace
 

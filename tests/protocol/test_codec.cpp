@@ -5,6 +5,8 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
+
 using namespace eyesim::protocol;
 using namespace eyesim::protocol::test;
 
@@ -36,6 +38,7 @@ TEST_CASE("every message type round-trips with random values", "[protocol][codec
         round_trip(random_status(rng), static_cast<std::uint16_t>(rng()));
         round_trip(random_command(rng), static_cast<std::uint16_t>(rng()));
         round_trip(random_reply(rng), static_cast<std::uint16_t>(rng()));
+        round_trip(random_blob_patch(rng), static_cast<std::uint16_t>(rng()));
     }
 }
 
@@ -138,7 +141,7 @@ TEST_CASE("the decoder reports each kind of bad frame", "[protocol][codec]") {
     b[2] = 2;
     CHECK(decode_frame(b, out, used) == DecodeError::BadVersion);
     b = good;
-    b[3] = 6;
+    b[3] = 7;
     CHECK(decode_frame(b, out, used) == DecodeError::UnknownType);
     b = good;
     b[3] = 3;  // DeviceStatus with a PedalState length
@@ -180,5 +183,88 @@ TEST_CASE("payload lengths accepted per type", "[protocol][codec]") {
         REQUIRE(valid_payload_length(MessageType::DeviceStatus, n) == (n == 56));
         REQUIRE(valid_payload_length(MessageType::Command, n) == (n == 21));
         REQUIRE(valid_payload_length(MessageType::Reply, n) == (n == 27));
+        const bool bp = n >= 24 && n <= 492 && (n - 20) % 4 == 0;
+        REQUIRE(valid_payload_length(MessageType::BlobPatch, n) == bp);
     }
+}
+
+TEST_CASE("BlobPatch: fragments of every patch size reassemble the patch, and out-of-range headers are refused",
+          "[protocol][codec]") {
+    std::mt19937_64 rng(2020);
+    for (std::uint16_t w = 2; w <= kPatchMaxWidthPx; w += 2) {
+        for (std::uint16_t h = 1; h <= kPatchMaxHeightPx; ++h) {
+            const std::size_t total = patch_bytes(w, h);
+            Bytes patch(total);
+            for (auto& v : patch) v = uniform<std::uint8_t>(rng, 0, 255);
+            const std::size_t count = patch_fragment_count(total);
+            // Independent count: whole 472-byte fragments plus one for any remainder.
+            REQUIRE(count == total / 472 + (total % 472 != 0));
+            Bytes joined;
+            for (std::size_t i = 0; i < count; ++i) {
+                BlobPatch b;
+                b.camera_id = 2;
+                b.colour_class = 3;
+                b.width_px = w;
+                b.height_px = h;
+                b.origin_x = static_cast<std::uint16_t>(720 - w);
+                b.origin_y = static_cast<std::uint16_t>(288 - h);
+                b.fragment_count = static_cast<std::uint8_t>(count);
+                b.fragment_index = static_cast<std::uint8_t>(i);
+                const std::size_t first = i * 472, n = std::min<std::size_t>(472, total - first);
+                REQUIRE(b.sample_bytes() == n);
+                std::copy(patch.begin() + static_cast<std::ptrdiff_t>(first),
+                          patch.begin() + static_cast<std::ptrdiff_t>(first + n), b.samples.begin());
+                const Bytes f = frame_of(b, static_cast<std::uint16_t>(i));
+                REQUIRE(f.size() == 12 + 20 + n);
+                REQUIRE(f.size() <= 506);
+                DecodedFrame out;
+                std::size_t used = 0;
+                REQUIRE(decode_frame(f, out, used) == DecodeError::None);
+                const auto& got = std::get<BlobPatch>(out.message);
+                REQUIRE(got == b);
+                joined.insert(joined.end(), got.samples.begin(), got.samples.begin() + static_cast<std::ptrdiff_t>(n));
+            }
+            REQUIRE(joined == patch);
+        }
+    }
+    // Each header field out of its range, on an otherwise valid fragment.
+    BlobPatch ok;
+    ok.colour_class = 1;
+    ok.width_px = 10;
+    ok.height_px = 7;
+    ok.origin_x = 100;
+    ok.origin_y = 50;
+    ok.fragment_count = 1;
+    CHECK(valid_message(ok));
+    auto refused = [&](auto change) {
+        BlobPatch b = ok;
+        change(b);
+        Bytes out(kMaxFrameBytes);
+        return !valid_message(b) && encode_frame(b, 0, out) == 0;
+    };
+    CHECK(refused([](BlobPatch& b) { b.camera_id = 3; }));
+    CHECK(refused([](BlobPatch& b) { b.field_parity = 2; }));
+    CHECK(refused([](BlobPatch& b) { b.colour_class = 0; }));
+    CHECK(refused([](BlobPatch& b) { b.colour_class = 5; }));
+    CHECK(refused([](BlobPatch& b) { b.flags = 0x02; }));
+    CHECK(refused([](BlobPatch& b) { b.width_px = 11; }));
+    CHECK(refused([](BlobPatch& b) { b.width_px = 0; }));
+    CHECK(refused([](BlobPatch& b) { b.width_px = kPatchMaxWidthPx + 2; }));
+    CHECK(refused([](BlobPatch& b) { b.height_px = 0; }));
+    CHECK(refused([](BlobPatch& b) { b.height_px = kPatchMaxHeightPx + 1; }));
+    CHECK(refused([](BlobPatch& b) { b.origin_x = 101; }));
+    CHECK(refused([](BlobPatch& b) { b.origin_x = 712; }));
+    CHECK(refused([](BlobPatch& b) { b.origin_y = 282; }));
+    CHECK(refused([](BlobPatch& b) { b.fragment_count = 2; }));
+    CHECK(refused([](BlobPatch& b) { b.fragment_index = 1; }));
+    // Under a good CRC: a length that disagrees with the header's size is a payload error, not a length error.
+    Bytes payload(kMaxPayloadBytes);
+    payload.resize(encode_payload(ok, payload));
+    REQUIRE(payload.size() == 20 + 140);
+    payload.resize(payload.size() - 4);
+    Bytes frame(kMaxFrameBytes);
+    frame.resize(encode_frame_raw(6, 0, payload, frame, schema_hash(MessageType::BlobPatch)));
+    DecodedFrame out;
+    std::size_t used = 0;
+    CHECK(decode_frame(frame, out, used) == DecodeError::BadPayload);
 }

@@ -359,7 +359,7 @@ TEST_CASE("oversize and invalid lengths, bad versions and unknown types are coun
     CHECK(with_header(0, 2, 16).bad_version == 1);
     CHECK(with_header(2, 2, 16).bad_version == 1);
     CHECK(with_header(1, 0, 16).unknown_type == 1);
-    CHECK(with_header(1, 6, 16).unknown_type == 1);
+    CHECK(with_header(1, 7, 16).unknown_type == 1);
 }
 
 TEST_CASE("a frame with a good CRC but out-of-range fields is counted and dropped whole", "[protocol][parser]") {

@@ -85,6 +85,25 @@ inline Reply random_reply(std::mt19937_64& rng) {
     return r;
 }
 
+/// A random valid BlobPatch fragment: any patch size and place in the field, any fragment of it.
+inline BlobPatch random_blob_patch(std::mt19937_64& rng) {
+    BlobPatch b;
+    b.camera_id = uniform<std::uint8_t>(rng, 0, kCameraCount - 1);
+    b.field_parity = uniform<std::uint8_t>(rng, 0, 1);
+    b.colour_class = uniform<std::uint8_t>(rng, kMinColourClass, kMaxColourClass);
+    b.flags = uniform<std::uint8_t>(rng, 0, kPatchFlagsDefined);
+    b.field_counter = uniform<std::uint32_t>(rng, 0, 0xFFFFFFFF);
+    b.blob_index = uniform<std::uint16_t>(rng, 0, 0xFFFF);
+    b.width_px = static_cast<std::uint16_t>(2 * uniform<int>(rng, 1, kPatchMaxWidthPx / 2));
+    b.height_px = uniform<std::uint16_t>(rng, 1, kPatchMaxHeightPx);
+    b.origin_x = static_cast<std::uint16_t>(2 * uniform<int>(rng, 0, (kPatchFieldWidthPx - b.width_px) / 2));
+    b.origin_y = uniform<std::uint16_t>(rng, 0, static_cast<std::uint16_t>(kPatchFieldHeightPx - b.height_px));
+    b.fragment_count = static_cast<std::uint8_t>(patch_fragment_count(patch_bytes(b.width_px, b.height_px)));
+    b.fragment_index = uniform<std::uint8_t>(rng, 0, static_cast<std::uint8_t>(b.fragment_count - 1));
+    for (auto& v : b.samples) v = uniform<std::uint8_t>(rng, 0, 255);
+    return b;
+}
+
 /// A random valid message of a random type (FieldMarkers more often, as in a real stream).
 inline Message random_message(std::mt19937_64& rng) {
     switch (uniform<int>(rng, 0, 7)) {

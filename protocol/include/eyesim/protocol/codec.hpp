@@ -17,7 +17,7 @@ enum class DecodeError : std::uint8_t {
     TooShort,         ///< fewer bytes than the header or the header's length announce
     BadSync,          ///< the first two bytes are not 0xE7 0x5A
     BadVersion,       ///< version byte is not kProtocolVersion
-    UnknownType,      ///< message type not 1..5
+    UnknownType,      ///< message type not 1..kMessageTypeCount
     BadLength,        ///< payload length over kMaxPayloadBytes or not valid for the type
     BadCrc,           ///< CRC mismatch (corruption, or a peer with another schema)
     BadPayload,       ///< CRC good but a field is out of its documented range

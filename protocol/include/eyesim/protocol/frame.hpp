@@ -50,7 +50,8 @@ struct DecodedFrame {
     Message message;     ///< the message (its index matches header.type)
 };
 
-/// True when `n` is a valid payload length for `type` (FieldMarkers: 18 + 34·k with k ≤ 14).
+/// True when `n` is a valid payload length for `type` (FieldMarkers: 18 + 34·k with k ≤ 14; BlobPatch: 20 + 4·j,
+/// 1 ≤ j ≤ 118).
 bool valid_payload_length(MessageType type, std::size_t n) noexcept;
 
 /// Total frame size for a payload of `payload_bytes`.

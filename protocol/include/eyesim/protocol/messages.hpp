@@ -57,9 +57,10 @@ enum class MessageType : std::uint8_t {
     DeviceStatus = 3,  ///< device → host: health counters
     Command = 4,       ///< host → device: register access, streaming control, ping
     Reply = 5,         ///< device → host: answer to one Command
+    BlobPatch = 6,     ///< device → host: one fragment of a blob's pixels (box + halo), precision mode
 };
 /// Number of message types (type codes 1..kMessageTypeCount).
-inline constexpr std::size_t kMessageTypeCount = 5;
+inline constexpr std::size_t kMessageTypeCount = 6;
 
 // ---------------------------------------------------------------------------------------------------------------
 // FieldMarkers
@@ -223,11 +224,89 @@ struct Reply {
 };
 
 // ---------------------------------------------------------------------------------------------------------------
+// BlobPatch
+// ---------------------------------------------------------------------------------------------------------------
+
+/// Bytes of the fixed part of a BlobPatch payload (before the samples).
+inline constexpr std::size_t kBlobPatchHeaderBytes = 20;
+/// Sample bytes in one BlobPatch fragment at most: 118 UYVY pixel pairs (whole pairs only), so the largest
+/// BlobPatch frame is 504 bytes, within the largest FieldMarkers frame (506).
+inline constexpr std::size_t kPatchFragmentBytes = 472;
+static_assert(kFrameHeaderBytes + kBlobPatchHeaderBytes + kPatchFragmentBytes + kFrameCrcBytes == 504 &&
+              kPatchFragmentBytes % 4 == 0);
+/// Widest patch, px (even: whole UYVY pairs).
+inline constexpr std::uint16_t kPatchMaxWidthPx = 64;
+/// Tallest patch, field rows (the device's patch line buffers hold this many lines).
+inline constexpr std::uint16_t kPatchMaxHeightPx = 32;
+/// Largest patch in sample bytes (2 per pixel: UYVY).
+inline constexpr std::size_t kPatchMaxBytes = 2u * kPatchMaxWidthPx * kPatchMaxHeightPx;
+/// Fragments of the largest patch (9).
+inline constexpr std::size_t kPatchMaxFragments = (kPatchMaxBytes + kPatchFragmentBytes - 1) / kPatchFragmentBytes;
+/// Field width and height, px, that bound a patch (PAL field: 720 × 288).
+inline constexpr std::uint16_t kPatchFieldWidthPx = 720, kPatchFieldHeightPx = 288;
+
+/// BlobPatch.flags: the box plus halo reached the field's edge and was clipped to it.
+inline constexpr std::uint8_t kPatchFlagClipped = 0x01;
+/// BlobPatch.flags: every defined bit; the others must be zero.
+inline constexpr std::uint8_t kPatchFlagsDefined = 0x01;
+
+/// Sample bytes of a width × height patch.
+constexpr std::size_t patch_bytes(std::uint16_t width_px, std::uint16_t height_px) noexcept {
+    return std::size_t{2} * width_px * height_px;
+}
+/// Fragments a patch of `bytes` sample bytes is sent in (at least 1).
+constexpr std::size_t patch_fragment_count(std::size_t bytes) noexcept {
+    return bytes == 0 ? 1 : (bytes + kPatchFragmentBytes - 1) / kPatchFragmentBytes;
+}
+
+/// One fragment of a blob's patch: the field's UYVY samples (Cb Y Cr Y per pixel pair, as BT.656 carries them)
+/// of the rectangle [origin_x, origin_x + width_px) × [origin_y, origin_y + height_px), row by row. Fragment i
+/// carries sample bytes [i · kPatchFragmentBytes, min(total, (i + 1) · kPatchFragmentBytes)) of the patch.
+struct BlobPatch {
+    std::uint8_t camera_id = 0;       ///< camera 0..2
+    std::uint8_t field_parity = 0;    ///< 0 top field, 1 bottom field
+    std::uint8_t colour_class = 0;    ///< the blob's colour class 1..4
+    std::uint8_t flags = 0;           ///< kPatchFlag* bits
+    std::uint32_t field_counter = 0;  ///< the field's FieldMarkers field_counter
+    std::uint16_t blob_index = 0;     ///< position of the blob's Marker in the field's FieldMarkers, counted
+                                      ///< over its parts in order from 0
+    std::uint16_t origin_x = 0;       ///< first column, px (even)
+    std::uint16_t origin_y = 0;       ///< first field row, px
+    std::uint16_t width_px = 0;       ///< columns (even, 2..kPatchMaxWidthPx)
+    std::uint16_t height_px = 0;      ///< field rows (1..kPatchMaxHeightPx)
+    std::uint8_t fragment_index = 0;  ///< 0..fragment_count-1
+    std::uint8_t fragment_count = 0;  ///< patch_fragment_count(patch_bytes(width_px, height_px))
+    std::array<std::uint8_t, kPatchFragmentBytes> samples{};  ///< the first sample_bytes() entries are valid
+
+    /// Sample bytes this fragment carries (0 when the header is inconsistent).
+    constexpr std::size_t sample_bytes() const noexcept {
+        const std::size_t total = patch_bytes(width_px, height_px);
+        const std::size_t first = static_cast<std::size_t>(fragment_index) * kPatchFragmentBytes;
+        if (first >= total) return 0;
+        return total - first < kPatchFragmentBytes ? total - first : kPatchFragmentBytes;
+    }
+
+    /// Equality over the header and the valid samples.
+    friend bool operator==(const BlobPatch& a, const BlobPatch& b) noexcept {
+        if (a.camera_id != b.camera_id || a.field_parity != b.field_parity || a.colour_class != b.colour_class ||
+            a.flags != b.flags || a.field_counter != b.field_counter || a.blob_index != b.blob_index ||
+            a.origin_x != b.origin_x || a.origin_y != b.origin_y || a.width_px != b.width_px ||
+            a.height_px != b.height_px || a.fragment_index != b.fragment_index ||
+            a.fragment_count != b.fragment_count)
+            return false;
+        const std::size_t n = a.sample_bytes();
+        for (std::size_t i = 0; i < n; ++i)
+            if (a.samples[i] != b.samples[i]) return false;
+        return true;
+    }
+};
+
+// ---------------------------------------------------------------------------------------------------------------
 // Message
 // ---------------------------------------------------------------------------------------------------------------
 
 /// Any one message. The variant index + 1 is the wire MessageType value.
-using Message = std::variant<FieldMarkers, PedalState, DeviceStatus, Command, Reply>;
+using Message = std::variant<FieldMarkers, PedalState, DeviceStatus, Command, Reply, BlobPatch>;
 
 /// The wire type of a message.
 constexpr MessageType message_type(const Message& m) noexcept {
@@ -242,6 +321,7 @@ constexpr const char* message_type_name(MessageType t) noexcept {
         case MessageType::DeviceStatus: return "DeviceStatus";
         case MessageType::Command: return "Command";
         case MessageType::Reply: return "Reply";
+        case MessageType::BlobPatch: return "BlobPatch";
     }
     return "Unknown";
 }

@@ -33,6 +33,12 @@ inline constexpr std::string_view kCommandSchema =
 inline constexpr std::string_view kReplySchema =
     "Reply{command_id:u32,opcode:u8,status:u8,reason:u8,value:u32,host_us:u64,device_us:u64}";
 
+/// Schema string of BlobPatch: the fixed part, then the fragment's UYVY sample bytes.
+inline constexpr std::string_view kBlobPatchSchema =
+    "BlobPatch{camera_id:u8,field_parity:u8,colour_class:u8,flags:u8,field_counter:u32,blob_index:u16,"
+    "origin_x:u16,origin_y:u16,width_px:u16,height_px:u16,fragment_index:u8,fragment_count:u8,"
+    "samples:u8[<=472]}";
+
 /// Schema string of a message type ("" for an unknown type).
 constexpr std::string_view schema_string(MessageType t) noexcept {
     switch (t) {
@@ -41,6 +47,7 @@ constexpr std::string_view schema_string(MessageType t) noexcept {
         case MessageType::DeviceStatus: return kDeviceStatusSchema;
         case MessageType::Command: return kCommandSchema;
         case MessageType::Reply: return kReplySchema;
+        case MessageType::BlobPatch: return kBlobPatchSchema;
     }
     return {};
 }
@@ -49,7 +56,7 @@ namespace detail {
 /// Schema hashes by type code, computed at compile time (index 0 unused).
 inline constexpr std::array<std::uint32_t, kMessageTypeCount + 1> kSchemaHashes = {
     0u, crc32c(kFieldMarkersSchema), crc32c(kPedalStateSchema), crc32c(kDeviceStatusSchema), crc32c(kCommandSchema),
-    crc32c(kReplySchema)};
+    crc32c(kReplySchema), crc32c(kBlobPatchSchema)};
 }  // namespace detail
 
 /// Schema hash of a message type: CRC-32C of its schema string (0 for an unknown type). A table look-up.
