@@ -1,0 +1,133 @@
+// The headline figures of `eyesim validate --json` against the truth, through the program a user runs:
+// `marker3d_all_rms_um` (every marker matched to a truth marker, the ones the tracker flags as partly occluded
+// included), `tip_rms_um`, `eye_rot_rms_deg` and `exposure_to_pose_us` (p50, p99); null where nothing is behind them.
+#include "cli_run.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <string>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+using Result = eyesim::test::CliResult;
+
+const fs::path& scratch() {
+    static const eyesim::test::ScratchDir dir("eyesim_test_validate_figures");
+    return dir.path();
+}
+
+Result run_eyesim(const std::string& args) { return eyesim::test::run_cli(scratch(), EYESIM_EXE, args, 180); }
+
+/// A 0.6 s sweep (30 fields; both instruments moving, markers passing behind the shafts and the eye's rim).
+fs::path sweep() {
+    const fs::path d = scratch() / "sweep";
+    if (fs::exists(d / "rig.yaml")) return d;
+    const Result r = run_eyesim("synth --scenario sweep --seconds 0.6 --seed 3 --out " + d.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    return d;
+}
+
+nlohmann::json validate_json(const std::string& args) {
+    const Result r = run_eyesim("validate " + args + " --json");
+    INFO("validate " << args << "\nstderr: " << r.err);
+    REQUIRE(r.rc == 0);
+    return nlohmann::json::parse(r.out);
+}
+
+}  // namespace
+
+TEST_CASE("validate: the 3D RMS over all matched markers takes in the flagged ones the reliable figure leaves out",
+          "[host][validate]") {
+    const nlohmann::json j = validate_json("--recording " + sweep().string());
+    for (const char* chain : {"fpga_chain", "truth_centroids"}) {
+        INFO(chain);
+        const nlohmann::json& c = j[chain];
+        const nlohmann::json &all = c["marker3d_all_um"], &reliable = c["marker3d_um"],
+                             &flagged = c["marker3d_flagged_occluded_um"];
+        // This sweep has markers behind the shafts: the case the figure is for.
+        REQUIRE(flagged["count"].get<long>() > 0);
+        REQUIRE(reliable["count"].get<long>() > 0);
+        REQUIRE(c["marker3d_all_rms_um"].is_number());
+        const double a = c["marker3d_all_rms_um"].get<double>();
+        CHECK(std::isfinite(a));
+        CHECK(a == all["rms"].get<double>());
+        // Every matched marker is in exactly one of the two parts, so the squares add up.
+        const long n = all["count"].get<long>(), nr = reliable["count"].get<long>(), nf = flagged["count"].get<long>();
+        CHECK(n == nr + nf);
+        const double rr = reliable["rms"].get<double>(), rf = flagged["rms"].get<double>();
+        CHECK(a * a * double(n) == Approx(rr * rr * double(nr) + rf * rf * double(nf)).epsilon(1e-9));
+        CHECK(all["max"].get<double>() == std::max(reliable["max"].get<double>(), flagged["max"].get<double>()));
+        // Flagged markers are the biased ones (up to a marker radius): with them the figure is larger.
+        CHECK(rf > rr);
+        CHECK(a > rr);
+    }
+    // The headline keys are the FPGA chain's.
+    for (const char* k : {"marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg", "exposure_to_pose_us"}) {
+        INFO(k);
+        CHECK(j[k] == j["fpga_chain"][k]);
+    }
+    CHECK(j["marker3d_all_rms_um"].get<double>() >= j["marker3d_rms_um"].get<double>());
+    CHECK(j["tip_rms_um"].get<double>() > 0.0);
+    CHECK(j["tip_rms_um"].get<double>() < 1000.0);
+    CHECK(j["eye_rot_rms_deg"].get<double>() > 0.0);
+    CHECK(j["eye_rot_rms_deg"].get<double>() < 1.0);
+}
+
+TEST_CASE("validate: exposure mid to pose available as p50 and p99, in the JSON and the text", "[host][validate]") {
+    const fs::path rec = sweep();
+    const nlohmann::json j = validate_json("--recording " + rec.string());
+    const nlohmann::json& e = j["exposure_to_pose_us"];
+    REQUIRE(e["p50"].is_number());
+    REQUIRE(e["p99"].is_number());
+    // A pose cannot be ready before its exposure, and the modelled chain delivers within a few fields (20 ms each).
+    CHECK(e["p50"].get<double>() > 0.0);
+    CHECK(e["p50"].get<double>() <= e["p99"].get<double>());
+    CHECK(e["p99"].get<double>() <= e["max"].get<double>());
+    CHECK(e["max"].get<double>() < 100e3);
+    // Exposure mid comes before the field's end, so this span is longer than field end → poses ready.
+    CHECK(e["p50"].get<double>() > j["latency_us"]["p50"].get<double>());
+
+    const Result text = run_eyesim("validate --recording " + rec.string());
+    REQUIRE(text.rc == 0);
+    INFO(text.out);
+    CHECK(text.out.find("latency exposure mid -> poses ready: p50 ") != std::string::npos);
+    CHECK(text.out.find("matched markers (flagged occluded included)") != std::string::npos);
+    CHECK(text.out.find("not measured") == std::string::npos);
+}
+
+TEST_CASE("validate: with nothing to score against, the all-markers figure and a capture's latency are null",
+          "[host][validate]") {
+    const fs::path rec = sweep();
+    // The same recording without its truth: no marker is matched to a truth marker.
+    const fs::path bare = scratch() / "bare";
+    fs::remove_all(bare);
+    fs::copy(rec, bare);
+    fs::remove(bare / "truth.jsonl");
+    const nlohmann::json j = validate_json("--recording " + bare.string());
+    CHECK(j["marker3d_all_rms_um"].is_null());
+    CHECK(j["fpga_chain"]["marker3d_all_um"]["count"] == 0);
+    CHECK(j["fpga_chain"]["marker3d_all_um"]["rms"].is_null());
+    CHECK(j["tip_rms_um"].is_null());
+    CHECK(j["eye_rot_rms_deg"].is_null());
+    // The latency needs no truth: still measured.
+    CHECK(j["exposure_to_pose_us"]["p50"].is_number());
+
+    // A capture replayed has no exposure times on the host clock, and no truth.
+    const fs::path cap = scratch() / "sweep.cap";
+    REQUIRE(run_eyesim("fpga --recording " + rec.string() + " --out " + cap.string()).rc == 0);
+    const nlohmann::json c = validate_json("--capture " + cap.string() + " --rig " + (rec / "rig.yaml").string());
+    for (const char* k : {"marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg"}) {
+        INFO(k);
+        CHECK(c[k].is_null());
+    }
+    CHECK(c["exposure_to_pose_us"]["p50"].is_null());
+    CHECK(c["exposure_to_pose_us"]["p99"].is_null());
+}
