@@ -8,7 +8,7 @@
 #include "luma_estimate.hpp"
 #include "opencv_baseline.hpp"
 
-#include "eyesim/fpga/sphere_fit.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -250,17 +250,17 @@ int main(int argc, char** argv) {
                 "|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     // The refinement stage with a flat-disc marker model: these markers are unshaded, their colours mixed
     // linearly with the background, and a field pixel integrates a whole field line (two frame rows).
-    SphereFitConfig disc_cfg;
+    eyesim::tracking::SphereFitConfig disc_cfg;
     for (int c = 1; c <= 4; ++c) {
         const auto& rgb = kColours[static_cast<size_t>(c)];
-        disc_cfg.colour[static_cast<size_t>(c)] = MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+        disc_cfg.colour[static_cast<size_t>(c)] = eyesim::tracking::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
     }
     disc_cfg.shade_ambient = 1.0;
     disc_cfg.shade_diffuse = 0.0;
     disc_cfg.shot_gain = 0.0;
     disc_cfg.noise_dn = noise;
     disc_cfg.aperture_lines_px = 2.0;
-    auto fit_work = std::make_unique<SphereFitWorkspace>();
+    auto fit_work = std::make_unique<eyesim::tracking::SphereFitWorkspace>();
     int fit_ok = 0, fit_all = 0;
     for (double d : {4.0, 6.0, 8.0, 10.0, 14.0}) {
         ErrorStats em, efit, e11, eb, ew, ec, el, emix;
@@ -279,7 +279,8 @@ int main(int argc, char** argv) {
                 for (const Blob& b : blobs) {
                     det.push_back({b.class_id, b.cx_px(), b.cy_px()});
                     if (p == &pm) {
-                        const SphereFitResult r = fit_sphere(s.field.bytes.data(), 288, b, disc_cfg, *fit_work);
+                        const eyesim::tracking::SphereFitResult r =
+                            eyesim::tracking::fit_sphere(s.field.bytes.data(), 288, eyesim::tracking::blob_box(b), disc_cfg, *fit_work);
                         ++fit_all;
                         fit_ok += r.ok;
                         det_fit.push_back({b.class_id, r.ok ? r.cx_px : b.cx_px(), r.ok ? r.cy_px : b.cy_px()});

@@ -1,6 +1,6 @@
 // Centroid accuracy of the FPGA model on a rig recording (rendered truth), per marker size, beside a binary
 // centroid of the same model and the OpenCV baseline; with fields/s of each on the same fields. Then the
-// refinement stage (fpga/sphere_fit.hpp) alone: its run time against error by sub-samples per pixel, and its
+// refinement stage (tracking/refine.hpp) alone: its run time against error by sub-samples per pixel, and its
 // effect and refusals by marker size and body (instrument markers, eye markers off and beside the eye's limb).
 //
 // Usage: bench_fpga_rig RECORDING_DIR [max_fields]
@@ -9,12 +9,12 @@
 #include "opencv_baseline.hpp"
 
 #include "eyesim/fpga/pipeline.hpp"
-#include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -30,6 +30,7 @@ using eyesim::fpga::bench::Detection;
 using eyesim::fpga::bench::OpenCvPipeline;
 namespace fpga = eyesim::fpga;
 namespace rig = eyesim::rig;
+namespace tracking = eyesim::tracking;
 
 namespace {
 
@@ -147,12 +148,12 @@ int main(int argc, char** argv) {
             };
         };
         // The refinement stage (sphere fit on each blob's patch), falling back to the pipeline's centroid.
-        fpga::SphereFitConfig fit_cfg;
+        tracking::SphereFitConfig fit_cfg;
         for (int c = 1; c <= 4; ++c) {
             const auto rgb = rig::marker_class_rgb(c);
-            fit_cfg.colour[static_cast<size_t>(c)] = fpga::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+            fit_cfg.colour[static_cast<size_t>(c)] = tracking::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
         }
-        auto fit_work = std::make_unique<fpga::SphereFitWorkspace>();
+        auto fit_work = std::make_unique<tracking::SphereFitWorkspace>();
         int fit_ok = 0, fit_all = 0;
         auto fitted = [&](const uint8_t* f) {
             blobs.clear();
@@ -160,7 +161,7 @@ int main(int argc, char** argv) {
             pm.process_field(f, rig::kFieldHeight, 0, 0);
             std::vector<Detection> det;
             for (const fpga::Blob& b : blobs) {
-                const fpga::SphereFitResult r = fpga::fit_sphere(f, rig::kFieldHeight, b, fit_cfg, *fit_work);
+                const tracking::SphereFitResult r = tracking::fit_sphere(f, rig::kFieldHeight, tracking::blob_box(b), fit_cfg, *fit_work);
                 ++fit_all;
                 fit_ok += r.ok;
                 det.push_back({b.class_id, r.ok ? r.cx_px : b.cx_px(), r.ok ? r.cy_px : b.cy_px()});
@@ -206,7 +207,7 @@ int main(int argc, char** argv) {
         // Where the refinement stage helps and why it refuses: unoccluded markers by size and body.
         struct Split {
             int n = 0, refined = 0;
-            int refusals[fpga::kFitRefusalCount] = {};
+            int refusals[tracking::kFitRefusalCount] = {};
             double se_model_refined = 0, se_fit_refined = 0, se_model_refused = 0;
         };
         std::map<std::pair<int, int>, Split> split;  // (size bin, 0 instrument / 1 eye / 2 eye on its outline)
@@ -217,10 +218,10 @@ int main(int argc, char** argv) {
                         &blobs);
             pm.process_field(f, rig::kFieldHeight, 0, 0);
             std::vector<rig::DetectedMarker> found;
-            std::vector<fpga::SphereFitResult> fits;
+            std::vector<tracking::SphereFitResult> fits;
             for (const fpga::Blob& b : blobs) {
                 found.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
-                fits.push_back(fpga::fit_sphere(f, rig::kFieldHeight, b, fit_cfg, *fit_work));
+                fits.push_back(tracking::fit_sphere(f, rig::kFieldHeight, tracking::blob_box(b), fit_cfg, *fit_work));
             }
             std::vector<bool> used;
             rig::match_markers(
@@ -231,7 +232,7 @@ int main(int argc, char** argv) {
                 [&](const rig::MarkerMatch& m) {
                     if (m.detection < 0) return;
                     const fpga::Blob& b = blobs[static_cast<size_t>(m.detection)];
-                    const fpga::SphereFitResult& r = fits[static_cast<size_t>(m.detection)];
+                    const tracking::SphereFitResult& r = fits[static_cast<size_t>(m.detection)];
                     Split& sp = split[{size_bin(m.view->radius_px), m.marker->body != "eye" ? 0 : r.outline ? 2 : 1}];
                     const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
                     ++sp.n;
@@ -255,7 +256,7 @@ int main(int argc, char** argv) {
             pm.process_field(fields[k].data(), rig::kFieldHeight, 0, 0);
             n_blobs += field_blobs[k].size();
         }
-        // Run time against error of the stage: sub-samples per pixel side of the model render.
+        // Run time against error of the stage: the analytic pixel integrals, and sub-samples per pixel side.
         std::printf("\nRefinement stage alone (every blob of every field, thread CPU time, best of 3 repeats; %zu blobs, "
                     "%.1f per field) against centroid RMS px of the unoccluded markers (pipeline where it refuses)\n\n",
                     n_blobs, static_cast<double>(n_blobs) / static_cast<double>(fields.size()));
@@ -264,14 +265,17 @@ int main(int argc, char** argv) {
         std::printf("\n|---:|---:|---:|---:|");
         for (size_t i = 0; i < methods[0].bins.size(); ++i) std::printf("---:|");
         std::printf("\n");
-        for (int ss : {3, 4, 6}) {
-            fpga::SphereFitConfig cfg = fit_cfg;
-            cfg.supersample = ss;
+        for (int ss : {0, 3, 4, 6}) {  // 0: the analytic pixel integrals (the default)
+            tracking::SphereFitConfig cfg = fit_cfg;
+            if (ss > 0) {
+                cfg.model = tracking::SphereFitModel::kSupersampled;
+                cfg.supersample = ss;
+            }
             double best_s = 1e30;
             for (int rep = 0; rep < 3; ++rep) {
                 const double t0 = cpu_s();
                 for (size_t k = 0; k < fields.size(); ++k)
-                    for (const fpga::Blob& b : field_blobs[k]) fpga::fit_sphere(fields[k].data(), rig::kFieldHeight, b, cfg, *fit_work);
+                    for (const fpga::Blob& b : field_blobs[k]) tracking::fit_sphere(fields[k].data(), rig::kFieldHeight, tracking::blob_box(b), cfg, *fit_work);
                 best_s = std::min(best_s, cpu_s() - t0);
             }
             std::map<int, Acc> bins;
@@ -279,13 +283,13 @@ int main(int argc, char** argv) {
             for (size_t k = 0; k < fields.size(); ++k) {
                 std::vector<Detection> det;
                 for (const fpga::Blob& b : field_blobs[k]) {
-                    const fpga::SphereFitResult r = fpga::fit_sphere(fields[k].data(), rig::kFieldHeight, b, cfg, *fit_work);
+                    const tracking::SphereFitResult r = tracking::fit_sphere(fields[k].data(), rig::kFieldHeight, tracking::blob_box(b), cfg, *fit_work);
                     ok += r.ok;
                     det.push_back({b.class_id, r.ok ? r.cx_px : b.cx_px(), r.ok ? r.cy_px : b.cy_px()});
                 }
                 score(det, truth[static_cast<size_t>(ids[k].second)], ids[k].first, bins);
             }
-            std::printf("| %d%s | %.1f | %.0f | %d |", ss, ss == fit_cfg.supersample ? " (default)" : "",
+            std::printf("| %s | %.1f | %.0f | %d |", ss == 0 ? "analytic (default)" : std::to_string(ss).c_str(),
                         1e6 * best_s / static_cast<double>(n_blobs), static_cast<double>(fields.size()) / best_s, ok);
             for (const auto& [bin, acc] : methods[0].bins) std::printf(" %.4f |", bins[bin].rms());
             std::printf("\n");
@@ -301,11 +305,11 @@ int main(int argc, char** argv) {
                         key.first == 12 ? 99 : key.first + 2, key.second == 0 ? "instrument" : key.second == 1 ? "eye" : "eye, on the outline", sp.n, sp.refined,
                         rms(sp.se_model_refined, sp.refined), rms(sp.se_fit_refined, sp.refined),
                         rms(sp.se_model_refused, sp.n - sp.refined),
-                        sp.refusals[static_cast<int>(fpga::FitRefusal::kChi2)],
-                        sp.refusals[static_cast<int>(fpga::FitRefusal::kImplausible)],
-                        sp.refusals[static_cast<int>(fpga::FitRefusal::kOutliers)],
-                        sp.refusals[static_cast<int>(fpga::FitRefusal::kShift)],
-                        sp.refusals[static_cast<int>(fpga::FitRefusal::kStorage)]);
+                        sp.refusals[static_cast<int>(tracking::FitRefusal::kChi2)],
+                        sp.refusals[static_cast<int>(tracking::FitRefusal::kImplausible)],
+                        sp.refusals[static_cast<int>(tracking::FitRefusal::kOutliers)],
+                        sp.refusals[static_cast<int>(tracking::FitRefusal::kShift)],
+                        sp.refusals[static_cast<int>(tracking::FitRefusal::kStorage)]);
     } catch (const rig::RigError& e) {
         std::fprintf(stderr, "%s\n", e.what());
         return 1;

@@ -3,7 +3,6 @@
 #include "eyesim/app/fpga_run.hpp"
 #include "eyesim/app/refine.hpp"
 #include "eyesim/fpga/pipeline.hpp"
-#include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/fpga/wire.hpp"
 #include "eyesim/firmware/latency.hpp"
 #include "eyesim/firmware/pc/pedal_track.hpp"
@@ -13,6 +12,7 @@
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -181,7 +181,7 @@ int run(const FpgaOptions& opt) {
         records.erase(records.begin(), records.begin() + static_cast<std::ptrdiff_t>(k));
     };
     double refine_s = 0;
-    // Refinement stage: a model fit on each blob's patch with the rig's marker colours (fpga/sphere_fit.hpp).
+    // Refinement stage: a model fit on each blob's patch with the rig's marker colours (tracking/refine.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
     const bool progress = eyesim::app::show_progress(opt.json);
@@ -307,8 +307,8 @@ int run(const FpgaOptions& opt) {
             std::printf("  refinement: %lld of %lld blobs refined by the sphere fit, %.0f fields/s; refused:",
                         static_cast<long long>(refined), static_cast<long long>(total_blobs),
                         refine_s > 0 ? total_fields / refine_s : 0.0);
-            for (int r = 1; r < fpga::kFitRefusalCount; ++r)
-                std::printf(" %s %lld", fpga::to_string(static_cast<fpga::FitRefusal>(r)),
+            for (int r = 1; r < eyesim::tracking::kFitRefusalCount; ++r)
+                std::printf(" %s %lld", eyesim::tracking::to_string(static_cast<eyesim::tracking::FitRefusal>(r)),
                             static_cast<long long>(refiner->refusals()[static_cast<size_t>(r)]));
             std::printf("\n");
         }

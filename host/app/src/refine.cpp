@@ -6,21 +6,21 @@
 
 namespace eyesim::app {
 
-fpga::SphereFitConfig rig_sphere_fit_config() {
-    fpga::SphereFitConfig cfg;
+tracking::SphereFitConfig rig_sphere_fit_config() {
+    tracking::SphereFitConfig cfg;
     for (int c = 1; c <= 4; ++c) {
         const auto rgb = rig::marker_class_rgb(c);
-        cfg.colour[static_cast<size_t>(c)] = fpga::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+        cfg.colour[static_cast<size_t>(c)] = tracking::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
     }
     return cfg;
 }
 
-BlobRefiner::BlobRefiner() : config_(rig_sphere_fit_config()), work_(std::make_unique<fpga::SphereFitWorkspace>()) {}
+BlobRefiner::BlobRefiner() : config_(rig_sphere_fit_config()), work_(std::make_unique<tracking::SphereFitWorkspace>()) {}
 
 int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs) {
     int refined = 0;
     for (fpga::Blob& b : blobs) {
-        const fpga::SphereFitResult r = fpga::fit_sphere(field, height, b, config_, *work_);
+        const tracking::SphereFitResult r = tracking::fit_sphere(field, height, tracking::blob_box(b), config_, *work_);
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];
             continue;
@@ -35,8 +35,8 @@ int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob
 
 nlohmann::json BlobRefiner::refusals_json() const {
     nlohmann::json why = nlohmann::json::object();
-    for (int r = 1; r < fpga::kFitRefusalCount; ++r)
-        why[fpga::to_string(static_cast<fpga::FitRefusal>(r))] = refusals_[static_cast<size_t>(r)];
+    for (int r = 1; r < tracking::kFitRefusalCount; ++r)
+        why[tracking::to_string(static_cast<tracking::FitRefusal>(r))] = refusals_[static_cast<size_t>(r)];
     return why;
 }
 

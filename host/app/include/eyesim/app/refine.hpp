@@ -1,10 +1,10 @@
 #pragma once
 /// \file
-/// The refinement stage (fpga/sphere_fit.hpp) applied to a field's blobs with the rig's marker colours, as
+/// Blob refinement (tracking/refine.hpp) applied to a field's blobs with the rig's marker colours, as
 /// `eyesim fpga --refine` and `eyesim validate --refine` run it.
 
 #include "eyesim/fpga/blob.hpp"
-#include "eyesim/fpga/sphere_fit.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <array>
 #include <cstdint>
@@ -15,7 +15,7 @@
 namespace eyesim::app {
 
 /// The fit's configuration with the rig's default marker colours (classes 1..4, sRGB as lit on the rig).
-fpga::SphereFitConfig rig_sphere_fit_config();
+tracking::SphereFitConfig rig_sphere_fit_config();
 
 /// Replaces blob centroids by the refinement stage's where it accepts the fit; counts refusals by reason.
 class BlobRefiner {
@@ -26,15 +26,15 @@ public:
     /// Returns how many were refined.
     int refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs);
 
-    /// Blobs whose fit was refused, by fpga::FitRefusal.
-    const std::array<int64_t, fpga::kFitRefusalCount>& refusals() const { return refusals_; }
+    /// Blobs whose fit was refused, by tracking::FitRefusal.
+    const std::array<int64_t, tracking::kFitRefusalCount>& refusals() const { return refusals_; }
     /// {"chi2": n, "implausible": n, …}: the refusals by name.
     nlohmann::json refusals_json() const;
 
 private:
-    fpga::SphereFitConfig config_;
-    std::unique_ptr<fpga::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
-    std::array<int64_t, fpga::kFitRefusalCount> refusals_{};
+    tracking::SphereFitConfig config_;
+    std::unique_ptr<tracking::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
+    std::array<int64_t, tracking::kFitRefusalCount> refusals_{};
 };
 
 }  // namespace eyesim::app

@@ -1,28 +1,33 @@
-// Refinement stage after the streaming pipeline: a least-squares fit of a shaded-sphere marker model (an ellipse
-// in the image, over a background with, where it shows, the eye's limb) to the Y, Cb and Cr samples of a small
-// patch around one blob (docs/fpga-pipeline.md §"Refinement stage").
-//
-// Why: the pipeline's centroid weights come from chroma alone, which 4:2:2 samples once per pixel pair and
-// spreads two columns past the marker; at σ = 1 DN even the best estimator from chroma alone is ≈ 0.017 px off for
-// a 9-px marker (Cramér–Rao bound, docs/bench/fpga-model.md). The luma edge of a shaded sphere (a dark rim against
-// the eye white, at full horizontal resolution) carries most of the position information, but only a model can
-// use it: the luma contrast changes sign with the shading, so no per-pixel weight does.
-//
-// The patch is what the device's line buffers still hold when the blob is emitted plus two more lines; the fit
-// runs on fixed-size storage (no heap, no exceptions) so that it can run on the device's CPU as it does here.
+/// \file
+/// Blob refinement on the host: a least-squares fit of a shaded-sphere marker model (an ellipse
+/// in the image, over a background with, where it shows, the eye's limb) to the Y, Cb and Cr samples of a small
+/// patch around one blob (docs/tracking.md §"Blob refinement").
+///
+/// Why: the pipeline's centroid weights come from chroma alone, which 4:2:2 samples once per pixel pair and
+/// spreads two columns past the marker; at σ = 1 DN even the best estimator from chroma alone is ≈ 0.017 px off for
+/// a 9-px marker (Cramér–Rao bound, docs/bench/fpga-model.md). The luma edge of a shaded sphere (a dark rim against
+/// the eye white, at full horizontal resolution) carries most of the position information, but only a model can
+/// use it: the luma contrast changes sign with the shading, so no per-pixel weight does.
+///
+/// The patch is the blob's box with a margin (what a precision-mode camera sends beside the blob); the fit runs on
+/// fixed-size storage (no heap, no exceptions in the per-blob path).
 #pragma once
-
-#include "eyesim/fpga/blob.hpp"
 
 #include <array>
 #include <cstdint>
 
-namespace eyesim::fpga {
+namespace eyesim::tracking {
 
 /// A marker class's colour at full shade as offset-free BT.601 studio-swing YCbCr (DN).
 struct MarkerColour {
     double y_dn = 0, cb_dn = 0, cr_dn = 0;
     static MarkerColour from_rgb(double r, double g, double b);
+};
+
+/// How the marker's pixels are rendered in the fit.
+enum class SphereFitModel : uint8_t {
+    kAnalytic,      ///< per pixel: exact coverage of a straight edge through the pixel box, shading in closed form
+    kSupersampled,  ///< supersample × supersample points per pixel (slower; the reference)
 };
 
 /// What the fit models and when it refuses. The defaults are the rig's shaded spheres; shading 1 / 0 with
@@ -33,7 +38,8 @@ struct SphereFitConfig {
     double shade_diffuse = 0.65;
     double noise_dn = 1.0;                 ///< sensor noise σ on Y, Cb, Cr (DN)
     double shot_gain = 0.02;               ///< luma shot-noise variance per DN above black
-    int supersample = 4;                   ///< sub-samples per pixel side for coverage and shading
+    SphereFitModel model = SphereFitModel::kAnalytic;
+    int supersample = 4;                   ///< kSupersampled: sub-samples per pixel side for coverage and shading
     bool fit_ellipse = true;               ///< fit the outline's ellipticity (pixel aspect, perspective); else a circle
     int max_iterations = 12;
     double max_reduced_chi2 = 5.0;         ///< a worse fit is refused (another object in the patch, occlusion)
@@ -99,9 +105,24 @@ struct SphereFitWorkspace {
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
 };
 
+/// What the fit needs of a pipeline blob: its class, field parity, box and centroid (field px).
+struct BlobBox {
+    int class_id = 0;                        ///< colour class 1..4
+    int parity = 0;                          ///< field parity (0 top, 1 bottom)
+    int x_min = 0, x_max = -1;               ///< bounding box, inclusive columns
+    int y_min = 0, y_max = -1;               ///< bounding box, inclusive field lines
+    double cx_px = 0, cy_px = 0;             ///< the pipeline's centroid (field px)
+};
+
+/// The BlobBox of any blob type with the pipeline blob's fields (fpga::Blob).
+template <class B>
+BlobBox blob_box(const B& b) {
+    return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px()};
+}
+
 /// Fits the blob's marker in `field` (UYVY, 720 × `height` lines). The field must hold the blob's lines and
 /// `margin_lines` more either side where the image has them.
-SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, const SphereFitConfig& config,
+SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& config,
                            SphereFitWorkspace& work);
 
-}  // namespace eyesim::fpga
+}  // namespace eyesim::tracking

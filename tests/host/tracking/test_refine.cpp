@@ -1,13 +1,13 @@
-// Refinement stage (sphere fit on a blob's patch) against the rig's rendered truth — an independent renderer with
+// Blob refinement (sphere fit on a blob's patch) against the rig's rendered truth — an independent renderer with
 // perspective, lens distortion, exact edge coverage, motion blur, shot noise and an eye outline — and its refusals.
 #include "field_gen.hpp"
 #include "rig_fixture.hpp"
 
-#include "eyesim/fpga/sphere_fit.hpp"
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -17,6 +17,7 @@
 
 using namespace eyesim::fpga;
 using namespace eyesim::fpga::test;
+using namespace eyesim::tracking;
 namespace rig = eyesim::rig;
 
 namespace {
@@ -42,7 +43,7 @@ SphereFitConfig generator_config() {
 
 }  // namespace
 
-TEST_CASE("sphere fit: rig surgery recording beats the pipeline and meets 0.02 px", "[fpga][rig][fit]") {
+TEST_CASE("sphere fit: rig surgery recording beats the pipeline and meets 0.02 px", "[tracking][rig][refine]") {
     // σ = 1 DN, and noise off: then what is left is the model's own error against the rig's renderer.
     const double noise = GENERATE(1.0, 0.0);
     const double max_rms_px = noise > 0 ? 0.015 : 0.006;  // docs/bench/fpga-model.md: 0.0107 / 0.0034 px, 50 fields
@@ -66,7 +67,7 @@ TEST_CASE("sphere fit: rig surgery recording beats the pipeline and meets 0.02 p
             std::vector<SphereFitResult> fits;
             for (const Blob& b : blobs) {
                 det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
-                fits.push_back(fit_sphere(f.bytes.data(), f.height, b, cfg, *work));
+                fits.push_back(fit_sphere(f.bytes.data(), f.height, blob_box(b), cfg, *work));
             }
             std::vector<bool> used;
             rig::match_markers(
@@ -131,7 +132,7 @@ TEST_CASE("sphere fit: rig surgery recording beats the pipeline and meets 0.02 p
     CHECK(std::sqrt(se_inst_fit / inst) < 0.7 * std::sqrt(se_inst_model / inst));
 }
 
-TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage centroid", "[fpga][fit]") {
+TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage centroid", "[tracking][refine]") {
     // The refinement stage with shading off models a flat disc; field_gen renders flat discs whose pixels integrate
     // a whole field line (aperture 2 frame px) and whose truth is the coverage centroid.
     SphereFitConfig cfg = generator_config();
@@ -165,7 +166,7 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
                 }
             }
             REQUIRE(best != nullptr);
-            const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, *best, cfg, *work);
+            const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blob_box(*best), cfg, *work);
             const double fx = r.ok ? r.cx_px : best->cx_px(), fy = r.ok ? r.cy_px : best->cy_px();
             se_model += bd * bd;
             se_fit += std::pow(fx - truth[i][0], 2) + std::pow(fy - truth[i][1], 2);
@@ -184,7 +185,7 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
     CHECK(rms_fit < 0.7 * rms_model);
 }
 
-TEST_CASE("sphere fit: refuses what is not one shaded sphere and patches beyond its storage", "[fpga][fit]") {
+TEST_CASE("sphere fit: refuses what is not one shaded sphere and patches beyond its storage", "[tracking][refine]") {
     SphereFitConfig cfg = generator_config();
     auto work = std::make_unique<SphereFitWorkspace>();
     Pipeline p{RegisterMap{}};
@@ -195,7 +196,7 @@ TEST_CASE("sphere fit: refuses what is not one shaded sphere and patches beyond 
         const Field f = field_from_labels(labels);
         const std::vector<Blob> blobs = run_field(p, f);
         REQUIRE(blobs.size() == 1);
-        const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blobs[0], cfg, *work);
+        const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blob_box(blobs[0]), cfg, *work);
         INFO("reduced chi2 " << r.reduced_chi2 << ", refusal " << to_string(r.refusal));
         CHECK_FALSE(r.ok);
         // Either the whole fit is poor, or what it had to leave out (the corners) is not a shaft's band.
@@ -207,14 +208,15 @@ TEST_CASE("sphere fit: refuses what is not one shaded sphere and patches beyond 
         const Field f = field_from_labels(labels);
         const std::vector<Blob> blobs = run_field(p, f);
         REQUIRE(blobs.size() == 1);
-        const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blobs[0], cfg, *work);
+        const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blob_box(blobs[0]), cfg, *work);
         CHECK_FALSE(r.ok);
         CHECK(r.iterations == 0);
     }
     SECTION("a blob with an invalid class is refused") {
-        Blob b;
+        BlobBox b;
         b.class_id = 7;
-        b.sum_w = 10;
+        b.x_min = b.x_max = 100;
+        b.y_min = b.y_max = 50;
         const Field f(288);
         CHECK_FALSE(fit_sphere(f.bytes.data(), f.height, b, cfg, *work).ok);
     }

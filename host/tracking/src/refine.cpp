@@ -1,9 +1,9 @@
-#include "eyesim/fpga/sphere_fit.hpp"
+#include "eyesim/tracking/refine.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-namespace eyesim::fpga {
+namespace eyesim::tracking {
 
 // The documented storage of one fit (docs/fpga-pipeline.md): a fixed block a device CPU can hold.
 static_assert(sizeof(SphereFitWorkspace) <= 160 * 1024, "SphereFitWorkspace grew past 160 KiB");
@@ -66,6 +66,111 @@ bool solve_damped(const Mat& a, const Vec& g, int n, double lambda, Vec& x) {
         double s = y[i];
         for (int k = i + 1; k < n; ++k) s -= l[k * kMaxPar + i] * x[k];
         x[i] = s / l[i * kMaxPar + i];
+    }
+    return true;
+}
+
+// Analytic pixel integrals of the marker model (SphereFitModel::kAnalytic). With the outline metric
+// ρ(x) = √(xᵀMx), M = [[1 + e1, e2], [e2, 1 − e1]], the marker is coverage c(ρ) = [ρ < r] and shading
+// q(ρ) = √(1 − ρ²/r²) inside it. Across an edge pixel ρ is nearly linear: ρ ≈ ρ_eff + g·u over the pixel box u, so
+// ρ is ρ_eff plus a sum of two uniform variables (half-widths α = |g_x|/2, β = |g_v|·ap/2) and the pixel's mean of
+// any h(ρ) is a second difference of h's second antiderivative over the box's four corners. ρ_eff adds the mean
+// of the quadratic term (the outline's curvature within the pixel). Inside, away from the rim, q is smooth in ρ²
+// (which is exactly quadratic over the pixel): its mean is taken to second order.
+struct PixelIntegral {
+    double cov = 0, q = 0;    // pixel means of c and q (fractions of the pixel)
+    double dcov = 0, dq = 0;  // their derivatives by ρ
+    double drho[5] = {};      // ∂ρ_eff by centre x, centre v, r (0), e1, e2
+    bool inside = false;      // interior branch: dq_dp holds ∂E[q] by the shape parameters directly
+    double dq_dp[5] = {};
+};
+
+// Second antiderivatives (and first) of c and q in ρ, extended evenly to ρ < 0 (c, q even; S1, Q1 odd).
+struct Anti {
+    double s1, s2, q1, q2;
+};
+inline Anti anti(double rho, double r) {
+    const double a = std::fabs(rho), sg = rho < 0 ? -1.0 : 1.0;
+    constexpr double kQuarterPi = 0.78539816339744831;
+    Anti o;
+    if (a >= r) {
+        o.s1 = sg * r;
+        o.s2 = r * a - 0.5 * r * r;
+        o.q1 = sg * r * kQuarterPi;
+        o.q2 = r * r * kQuarterPi + r * kQuarterPi * (a - r);
+        return o;
+    }
+    const double t = a / r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = std::asin(t);
+    o.s1 = sg * a;
+    o.s2 = 0.5 * a * a;
+    o.q1 = sg * 0.5 * r * (t * s + as);
+    o.q2 = 0.5 * r * r * (s - s * s * s / 3.0 + t * as);
+    return o;
+}
+
+// Mean of c, q and of their ρ-derivatives over the pixel whose centre is (dx, dv) from the marker's centre.
+// Returns false when the pixel is wholly outside the marker.
+template <bool kDeriv>
+bool pixel_integral(double dx, double dv, double r, double e1, double e2, double ap, PixelIntegral& o) {
+    const double mx = (1.0 + e1) * dx + e2 * dv, mv = e2 * dx + (1.0 - e1) * dv;  // M·x
+    const double w = dx * mx + dv * mv;                                            // ρ²
+    const double rho = std::sqrt(w);
+    // |∇ρ| ≤ √(1 + |e|) ≤ 1.23 (|e| ≤ 0.5): a pixel whose centre is past r + its half diagonal is outside.
+    if (rho > r + 0.62 * (1.0 + ap)) return false;
+    const double inv_r2 = 1.0 / (r * r);
+    if (rho + 0.62 * (1.0 + ap) < 0.8 * r) {
+        // Interior: ρ² = w + 2(Mx)·u + uᵀMu over the pixel; mean and variance of that, q = ψ(ρ²) to second order.
+        const double wm = w + ((1.0 + e1) + (1.0 - e1) * ap * ap) / 12.0;
+        const double var = 4.0 * (mx * mx + mv * mv * ap * ap) / 12.0;
+        const double psi = std::sqrt(1.0 - wm * inv_r2);
+        const double d1 = -0.5 * inv_r2 / psi, d2 = -0.25 * inv_r2 * inv_r2 / (psi * psi * psi);
+        o.inside = true;
+        o.cov = 1.0;
+        o.q = psi + 0.5 * d2 * var;
+        o.dcov = o.dq = 0.0;
+        if constexpr (kDeriv) {
+            o.dq_dp[0] = -2.0 * mx * d1;
+            o.dq_dp[1] = -2.0 * mv * d1;
+            o.dq_dp[2] = wm * inv_r2 / (r * psi);
+            o.dq_dp[3] = (dx * dx - dv * dv + (1.0 - ap * ap) / 12.0) * d1;
+            o.dq_dp[4] = 2.0 * dx * dv * d1;
+        }
+        return true;
+    }
+    o.inside = false;
+    const double inv_rho = 1.0 / std::max(rho, 1e-9);
+    const double gx = mx * inv_rho, gv = mv * inv_rho;
+    // Mean of the quadratic term: ½·tr(H·Σ_u), H = (M − g gᵀ)/ρ, Σ_u = diag(1, ap²)/12.
+    const double hxx = ((1.0 + e1) - gx * gx) * inv_rho, hvv = ((1.0 - e1) - gv * gv) * inv_rho;
+    const double re = rho + (hxx + hvv * ap * ap) / 24.0;
+    double al = 0.5 * std::fabs(gx), be = 0.5 * ap * std::fabs(gv);
+    if (al < be) std::swap(al, be);
+    if (re - al - be >= r) return false;
+    if (be > 1e-4) {
+        const Anti a = anti(re + al + be, r), b = anti(re + al - be, r), c = anti(re - al + be, r),
+                   d = anti(re - al - be, r);
+        const double k = 1.0 / (4.0 * al * be);
+        o.cov = (a.s2 - b.s2 - c.s2 + d.s2) * k;
+        o.q = (a.q2 - b.q2 - c.q2 + d.q2) * k;
+        o.dcov = (a.s1 - b.s1 - c.s1 + d.s1) * k;
+        o.dq = (a.q1 - b.q1 - c.q1 + d.q1) * k;
+    } else {
+        // One uniform variable: first differences of the first antiderivatives.
+        const Anti a = anti(re + al, r), b = anti(re - al, r);
+        const double k = 0.5 / al;
+        o.cov = (a.s1 - b.s1) * k;
+        o.q = (a.q1 - b.q1) * k;
+        const double hi = std::fabs(re + al), lo = std::fabs(re - al);
+        auto qv = [&](double x) { return x < r ? std::sqrt(1.0 - x * x * inv_r2) : 0.0; };
+        o.dcov = ((hi < r ? 1.0 : 0.0) - (lo < r ? 1.0 : 0.0)) * k;
+        o.dq = (qv(hi) - qv(lo)) * k;
+    }
+    if constexpr (kDeriv) {
+        o.drho[0] = -gx;
+        o.drho[1] = -gv;
+        o.drho[2] = 0.0;
+        o.drho[3] = 0.5 * (dx * dx - dv * dv) * inv_rho;
+        o.drho[4] = dx * dv * inv_rho;
     }
     return true;
 }
@@ -183,6 +288,52 @@ public:
         }
     }
 
+    // raster() with per-pixel analytic integrals (SphereFitModel::kAnalytic); the same outputs.
+    template <bool kDeriv>
+    void raster_analytic(const Vec& t, double* cov, double* shade) const {
+        const int n = p_.lines * p_.cols;
+        const double x0 = t[kX0], v0 = t[kV0], r = std::max(t[kR], 0.25);
+        const double e1 = std::clamp(t[kE1], -0.5, 0.5), e2 = std::clamp(t[kE2], -0.5, 0.5);
+        const double ap = cfg_.aperture_lines_px, amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
+        double* dc = w_.dcov.data();
+        double* ds = w_.dshade.data();
+        PixelIntegral pi;
+        for (int j = 0; j < p_.lines; ++j) {
+            const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
+            for (int i = 0; i < p_.cols; ++i) {
+                const int k = j * p_.cols + i;
+                const double dx = (p_.x0 - 1 + i) - x0;
+                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) {
+                    cov[k] = shade[k] = 0.0;
+                    if constexpr (kDeriv)
+                        for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
+                    continue;
+                }
+                cov[k] = pi.cov;
+                shade[k] = amb * pi.cov + dif * pi.q;
+                if constexpr (kDeriv) {
+                    if (pi.inside) {
+                        for (int m = 0; m < kShapePar; ++m) {
+                            dc[m * n + k] = 0.0;
+                            ds[m * n + k] = dif * pi.dq_dp[m];
+                        }
+                    } else {
+                        // ∂/∂r of c(ρ; r) = [ρ < r] is −∂/∂ρ; q(ρ; r) = φ(ρ/r) gives ∂q/∂r = −(ρ/r)·∂q/∂ρ.
+                        const double dsh = amb * pi.dcov + dif * pi.dq;
+                        for (int m = 0; m < kShapePar; ++m) {
+                            dc[m * n + k] = pi.dcov * pi.drho[m];
+                            ds[m * n + k] = dsh * pi.drho[m];
+                        }
+                        const double rho_r = std::sqrt(std::max(0.0, dx * dx * (1.0 + e1) + 2.0 * e2 * dx * dv +
+                                                                       dv * dv * (1.0 - e1))) / r;
+                        dc[2 * n + k] = -pi.dcov;
+                        ds[2 * n + k] = -amb * pi.dcov - dif * rho_r * pi.dq;
+                    }
+                }
+            }
+        }
+    }
+
     // Model value of every model pixel and channel at t, from a render (cov, shade) of t's sphere.
     void model(const Vec& t, const double* cov, const double* shade, double* val) const {
         const int n = p_.lines * p_.cols;
@@ -234,7 +385,10 @@ public:
         const int n = SphereFitWorkspace::kPx;
         double* cov = w_.trial.data();
         double* shade = cov + n;
-        raster<false>(t, cov, shade);
+        if (cfg_.model == SphereFitModel::kAnalytic)
+            raster_analytic<false>(t, cov, shade);
+        else
+            raster<false>(t, cov, shade);
         model(t, cov, shade, w_.val.data());
         return chi2(w_.val.data());
     }
@@ -302,7 +456,12 @@ public:
     }
 
     // Base render with its derivatives by the shape parameters, in one pass.
-    void linearise(const Vec& t) { raster<true>(t, w_.cov.data(), w_.shade.data()); }
+    void linearise(const Vec& t) {
+        if (cfg_.model == SphereFitModel::kAnalytic)
+            raster_analytic<true>(t, w_.cov.data(), w_.shade.data());
+        else
+            raster<true>(t, w_.cov.data(), w_.shade.data());
+    }
 
     int np() const { return p_.outline ? kMaxPar : kPhi; }
     double var_c() const { return cfg_.noise_dn * cfg_.noise_dn + 1.0 / 12.0; }
@@ -450,6 +609,28 @@ private:
     double m_[3] = {};
 };
 
+// intensity_centroid() from the analytic pixel integrals: Σ x·I / Σ I over the pixels the marker reaches.
+void intensity_centroid_analytic(const SphereFitConfig& cfg, const Vec& t, int parity, double& cx, double& cy) {
+    const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2], ap = cfg.aperture_lines_px;
+    const double reach = r / std::sqrt(1.0 - std::hypot(e1, e2)) + 1.5;
+    double si = 0, sx = 0, sv = 0;
+    PixelIntegral pi;
+    int lo_v = static_cast<int>(std::floor(v0 - reach));
+    lo_v += ((lo_v - parity) & 1);
+    const int hi_v = static_cast<int>(std::ceil(v0 + reach));
+    const int lo_x = static_cast<int>(std::floor(x0 - reach)), hi_x = static_cast<int>(std::ceil(x0 + reach));
+    for (int v = lo_v; v <= hi_v; v += 2)
+        for (int x = lo_x; x <= hi_x; ++x) {
+            if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi)) continue;
+            const double in = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
+            si += in;
+            sx += in * x;
+            sv += in * v;
+        }
+    cx = sx / si;
+    cy = 0.5 * (sv / si - parity);
+}
+
 // Intensity centroid of the fitted sphere over the field's pixels (pixel centres weighted by the coverage ×
 // shading each pixel integrates — the rig's truth definition), field px.
 void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, double& cx, double& cy) {
@@ -500,11 +681,11 @@ void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, do
 
 }  // namespace
 
-SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, const SphereFitConfig& cfg,
+SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& cfg,
                            SphereFitWorkspace& w) {
     SphereFitResult res;
     constexpr int kWidth = 720, kStride = 1440;
-    if (blob.class_id < 1 || blob.class_id > 4 || blob.sum_w == 0) return res;
+    if (blob.class_id < 1 || blob.class_id > 4 || blob.x_max < blob.x_min || blob.y_max < blob.y_min) return res;
     Patch p;
     p.x0 = std::max(1, blob.x_min - cfg.margin_px);
     p.x1 = std::min(kWidth - 2, blob.x_max + cfg.margin_px);
@@ -516,7 +697,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     res.refusal = FitRefusal::kStorage;
     if (p.x1 - p.x0 + 1 > kFitMaxCols || p.lines > kFitMaxLines || p.x1 <= p.x0) return res;
     p.colour = cfg.colour[blob.class_id];
-    const double cx0 = blob.cx_px(), cy0 = blob.cy_px();
+    const double cx0 = blob.cx_px, cy0 = blob.cy_px;
     p.xc = cx0;
     p.vc = 2.0 * cy0 + p.parity;
 
@@ -704,7 +885,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
                       std::hypot(t[kE1], t[kE2]) < 0.3 &&
                       std::fabs(t[kX0] - cx0) < 1.5 && std::fabs(t[kV0] - p.vc) < 2.0;
     if (!sane) return res;
-    intensity_centroid(cfg, t, p.parity, res.cx_px, res.cy_px);
+    if (cfg.model == SphereFitModel::kAnalytic)
+        intensity_centroid_analytic(cfg, t, p.parity, res.cx_px, res.cy_px);
+    else
+        intensity_centroid(cfg, t, p.parity, res.cx_px, res.cy_px);
     if (!std::isfinite(res.cx_px) || !std::isfinite(res.cy_px)) return res;
     res.refusal = FitRefusal::kOutliers;
     if (res.outliers > 0 && !res.outlier_band) return res;
@@ -719,4 +903,4 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const Blob& blob, c
     return res;
 }
 
-}  // namespace eyesim::fpga
+}  // namespace eyesim::tracking

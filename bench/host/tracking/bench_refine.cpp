@@ -1,0 +1,345 @@
+// Blob refinement (tracking/refine.hpp): run time per blob against centroid error, beside the pipeline's own
+// centroid, on fields with known truth:
+//  - rig: shaded spheres from the rig renderer (perspective, lens distortion, shading, motion blur, shot noise,
+//    the eye's limb), one recording per seed, truth = the rendered intensity centroid; unoccluded markers only;
+//  - discs: flat discs from the pipeline tests' generator (field_gen.hpp), 24 per field with random sub-pixel
+//    centres and diameters, truth = the coverage centroid; the fit with its flat-disc model.
+// Each fit configuration runs on the same blobs; time is thread CPU per blob (every blob of every field, refused
+// ones included), error is the RMS over matched markers of the fit's centroid where it accepts and the pipeline's
+// where it refuses.
+//
+// Usage: bench_refine [--seeds N=6] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20] [--json]
+#include "field_gen.hpp"
+
+#include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/error.hpp"
+#include "eyesim/rig/match.hpp"
+#include "eyesim/rig/recording.hpp"
+#include "eyesim/rig/synth.hpp"
+#include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/refine.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace fpga = eyesim::fpga;
+namespace rig = eyesim::rig;
+namespace tracking = eyesim::tracking;
+
+namespace {
+
+double cpu_s() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+// Size bins by diameter in frame px: 4–6, 6–10, 10–16 (others are not reported).
+int size_bin(double diameter_px) {
+    if (diameter_px >= 4 && diameter_px < 6) return 0;
+    if (diameter_px >= 6 && diameter_px < 10) return 1;
+    if (diameter_px >= 10 && diameter_px < 16) return 2;
+    return -1;
+}
+const char* kBinName[3] = {"4-6", "6-10", "10-16"};
+
+struct Method {
+    std::string name;
+    bool fit = true;  // false: the pipeline's centroid
+    tracking::SphereFitConfig cfg;
+};
+
+// One (data, noise, method, size) cell.
+struct Cell {
+    double se = 0;
+    int n = 0, refined = 0;
+    double iterations = 0;
+    std::vector<double> us;  // fit time of each matched marker's blob
+};
+
+// Per blob of one field: the method's centroid, whether it was refined, thread-CPU µs.
+struct Out {
+    double x = 0, y = 0, us = 0;
+    bool ok = false;
+    int iterations = 0;
+};
+
+std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, const std::vector<fpga::Blob>& blobs,
+                            tracking::SphereFitWorkspace& work, std::vector<double>& all_us) {
+    std::vector<Out> out;
+    out.reserve(blobs.size());
+    for (const fpga::Blob& b : blobs) {
+        Out o{b.cx_px(), b.cy_px(), 0, false};
+        if (m.fit) {
+            const tracking::BlobBox box = tracking::blob_box(b);
+            const double t0 = cpu_s();
+            const tracking::SphereFitResult r = tracking::fit_sphere(field, height, box, m.cfg, work);
+            o.us = 1e6 * (cpu_s() - t0);
+            all_us.push_back(o.us);
+            o.iterations = r.iterations;
+            if (r.ok) {
+                o.x = r.cx_px;
+                o.y = r.cy_px;
+                o.ok = true;
+            }
+        }
+        out.push_back(o);
+    }
+    return out;
+}
+
+double pct(std::vector<double> v, double p) {
+    if (v.empty()) return std::nan("");
+    std::sort(v.begin(), v.end());
+    const size_t i = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+    return v[i];
+}
+
+nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+std::vector<fpga::Blob> blobs_of(fpga::Pipeline& p, const uint8_t* field, int height) {
+    std::vector<fpga::Blob> blobs;
+    p.set_sink([](void* c, const fpga::Blob& b) { static_cast<std::vector<fpga::Blob>*>(c)->push_back(b); }, &blobs);
+    p.process_field(field, height, 0, 0);
+    return blobs;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    int seeds = 6, disc_fields = 20;
+    double seconds = 0.4;
+    std::string scenario = "sweep";
+    bool json = false;
+    for (int i = 1; i < argc; ++i) {
+        const bool has = i + 1 < argc;
+        if (!std::strcmp(argv[i], "--json")) json = true;
+        else if (!std::strcmp(argv[i], "--seeds") && has) seeds = std::max(1, std::atoi(argv[++i]));
+        else if (!std::strcmp(argv[i], "--seconds") && has) seconds = std::atof(argv[++i]);
+        else if (!std::strcmp(argv[i], "--scenario") && has) scenario = argv[++i];
+        else if (!std::strcmp(argv[i], "--disc-fields") && has) disc_fields = std::max(1, std::atoi(argv[++i]));
+        else {
+            std::fprintf(stderr, "eyesim: error: bench_refine: unknown or incomplete option %s\n", argv[i]);
+            return 2;
+        }
+    }
+    if (!(seconds > 0) || seconds > 60) {
+        std::fprintf(stderr, "eyesim: error: bench_refine: --seconds must be in (0, 60]\n");
+        return 2;
+    }
+
+    // The configurations compared: the rig's marker colours; the disc data's own colours and flat-disc model.
+    tracking::SphereFitConfig rig_cfg;
+    for (int c = 1; c <= 4; ++c) {
+        const auto rgb = rig::marker_class_rgb(c);
+        rig_cfg.colour[static_cast<size_t>(c)] = tracking::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+    }
+    tracking::SphereFitConfig disc_cfg;
+    for (int c = 1; c <= 4; ++c) {
+        const auto& rgb = fpga::test::kColours[static_cast<size_t>(c)];
+        disc_cfg.colour[static_cast<size_t>(c)] = tracking::MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
+    }
+    disc_cfg.shade_ambient = 1.0;
+    disc_cfg.shade_diffuse = 0.0;
+    disc_cfg.shot_gain = 0.0;
+    disc_cfg.aperture_lines_px = 2.0;
+    auto methods_for = [](const tracking::SphereFitConfig& base, double noise) {
+        std::vector<Method> ms;
+        ms.push_back({"pipeline", false, base});
+        tracking::SphereFitConfig ref = base;
+        ref.noise_dn = noise;
+        ref.model = tracking::SphereFitModel::kSupersampled;
+        ms.push_back({"sphere fit, 4x4 supersampled (reference)", true, ref});
+        tracking::SphereFitConfig fast = base;
+        fast.noise_dn = noise;
+        ms.push_back({"sphere fit, analytic coverage (default)", true, fast});
+        return ms;
+    };
+
+    auto work = std::make_unique<tracking::SphereFitWorkspace>();
+    fpga::Pipeline pipe{fpga::RegisterMap{}};
+    // results[data][noise][method] → cells per size bin, and every blob's time.
+    struct Row {
+        std::string data, method;
+        double noise = 0;
+        Cell bins[3];
+        std::vector<double> all_us;
+    };
+    std::vector<Row> rows;
+    auto row_for = [&](const std::string& data, double noise, const std::string& method) -> Row& {
+        for (Row& r : rows)
+            if (r.data == data && r.noise == noise && r.method == method) return r;
+        rows.push_back({data, method, noise, {}, {}});
+        return rows.back();
+    };
+    std::vector<uint64_t> seed_list;
+    for (int s = 1; s <= seeds; ++s) seed_list.push_back(static_cast<uint64_t>(s));
+
+    try {
+        for (double noise : {1.0, 2.0}) {
+            const std::vector<Method> ms = methods_for(rig_cfg, noise);
+            for (uint64_t seed : seed_list) {
+                const std::string dir =
+                    (std::filesystem::temp_directory_path() / ("eyesim_bench_refine_" + std::to_string(seed))).string();
+                std::filesystem::remove_all(dir);
+                rig::SynthRequest req;
+                req.out_dir = dir;
+                req.scenario = scenario;
+                req.seconds = seconds;
+                req.seed = seed;
+                req.render.noise_sigma = noise;
+                rig::write_recording(req);
+                rig::Recording rec = rig::Recording::open(dir);
+                const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+                const int64_t n = std::min<int64_t>(rec.common_field_count(), static_cast<int64_t>(truth.size()));
+                std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
+                for (int64_t i = 0; i < n; ++i)
+                    for (int cam = 0; cam < rec.camera_count(); ++cam) {
+                        rec.read_field(cam, i, field.data());
+                        const std::vector<fpga::Blob> blobs = blobs_of(pipe, field.data(), rig::kFieldHeight);
+                        std::vector<rig::DetectedMarker> det;
+                        for (const fpga::Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+                        // Match once on the pipeline's centroids: every method is scored on the same markers.
+                        std::vector<std::pair<int, const rig::MarkerCameraTruth*>> matched;
+                        std::vector<bool> used;
+                        rig::match_markers(
+                            truth[static_cast<size_t>(i)], cam, det, 3.0,
+                            [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+                                return v.visible && !(v.area_px < 2.0) && !(v.occluded_fraction > 0.0);
+                            },
+                            [&](const rig::MarkerMatch& m) {
+                                if (m.detection >= 0) matched.emplace_back(m.detection, m.view);
+                            },
+                            used);
+                        for (const Method& m : ms) {
+                            Row& row = row_for("rig " + scenario, noise, m.name);
+                            const std::vector<Out> out =
+                                run_method(m, field.data(), rig::kFieldHeight, blobs, *work, row.all_us);
+                            for (const auto& [d, v] : matched) {
+                                const int bin = size_bin(2.0 * v->radius_px);
+                                if (bin < 0) continue;
+                                const Out& o = out[static_cast<size_t>(d)];
+                                Cell& c = row.bins[bin];
+                                c.se += std::pow(o.x - v->centroid_px.x(), 2) + std::pow(o.y - v->centroid_px.y(), 2);
+                                ++c.n;
+                                c.refined += o.ok;
+                                c.iterations += o.iterations;
+                                if (m.fit) c.us.push_back(o.us);
+                            }
+                        }
+                    }
+                std::filesystem::remove_all(dir);
+            }
+        }
+    } catch (const rig::RigError& e) {
+        std::fprintf(stderr, "eyesim: error: bench_refine: %s\n", e.what());
+        return 1;
+    }
+
+    // Flat discs from the generator: 24 per field on a 6 × 4 grid, every class, diameter uniform in the bin.
+    for (double noise : {1.0, 2.0}) {
+        const std::vector<Method> ms = methods_for(disc_cfg, noise);
+        for (int bin = 0; bin < 3; ++bin) {
+            const double lo = bin == 0 ? 4.0 : bin == 1 ? 6.0 : 10.0, hi = bin == 0 ? 6.0 : bin == 1 ? 10.0 : 16.0;
+            for (uint64_t seed : seed_list)
+                for (int fi = 0; fi < disc_fields; ++fi) {
+                    std::mt19937 rng(static_cast<uint32_t>(1000 * seed + 100 * bin + fi));
+                    std::uniform_real_distribution<double> u01(0, 1), ud(lo, hi);
+                    std::vector<fpga::test::Marker> markers;
+                    for (int k = 0; k < 24; ++k) {
+                        const double d = ud(rng);
+                        markers.push_back({1 + k % 4, 60.0 + 110.0 * (k % 6) + u01(rng), 30.0 + 60.0 * (k / 6) + u01(rng),
+                                           0.5 * d, 0.25 * d});
+                    }
+                    std::vector<std::array<double, 2>> truth;
+                    const fpga::test::Field f = fpga::test::render_markers(
+                        markers, noise, static_cast<uint32_t>(7919 * seed + 31 * bin + fi), 288, 8, {14, 14, 18}, &truth);
+                    const std::vector<fpga::Blob> blobs = blobs_of(pipe, f.bytes.data(), f.height);
+                    for (const Method& m : ms) {
+                        Row& row = row_for("discs", noise, m.name);
+                        const std::vector<Out> out = run_method(m, f.bytes.data(), f.height, blobs, *work, row.all_us);
+                        for (size_t i = 0; i < markers.size(); ++i) {
+                            int best = -1;
+                            double bd = 2.0;
+                            for (size_t k = 0; k < blobs.size(); ++k) {
+                                const double d = std::hypot(blobs[k].cx_px() - truth[i][0], blobs[k].cy_px() - truth[i][1]);
+                                if (blobs[k].class_id == markers[i].cls && d < bd) {
+                                    bd = d;
+                                    best = static_cast<int>(k);
+                                }
+                            }
+                            if (best < 0) continue;
+                            const Out& o = out[static_cast<size_t>(best)];
+                            Cell& c = row.bins[bin];
+                            c.se += std::pow(o.x - truth[i][0], 2) + std::pow(o.y - truth[i][1], 2);
+                            ++c.n;
+                            c.refined += o.ok;
+                            c.iterations += o.iterations;
+                            if (m.fit) c.us.push_back(o.us);
+                        }
+                    }
+                }
+        }
+    }
+
+    nlohmann::json j;
+    j["command"] = "bench_refine";
+    j["seeds"] = seed_list;
+    j["scenario"] = scenario;
+    j["seconds"] = seconds;
+    j["disc_fields_per_seed_and_size"] = disc_fields;
+    j["rows"] = nlohmann::json::array();
+    if (!json)
+        std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched, unoccluded markers; the "
+                    "pipeline's centroid where a fit refuses). Seeds 1-%d; rig: %s, %.2f s per seed.\n\n"
+                    "| data | noise σ DN | method | size px | markers | refined | RMS px | iterations | µs/blob p50 | µs/blob p99 |\n"
+                    "|---|---:|---|---|---:|---:|---:|---:|---:|---:|\n",
+                    seeds, scenario.c_str(), seconds);
+    for (const Row& r : rows) {
+        for (int b = 0; b < 3; ++b) {
+            const Cell& c = r.bins[b];
+            if (c.n == 0) continue;
+            const double rms = std::sqrt(c.se / c.n), p50 = pct(c.us, 0.5), p99 = pct(c.us, 0.99);
+            j["rows"].push_back({{"data", r.data},
+                                 {"noise_dn", r.noise},
+                                 {"method", r.method},
+                                 {"size_px", kBinName[b]},
+                                 {"markers", c.n},
+                                 {"refined", c.refined},
+                                 {"rms_px", num(rms)},
+                                 {"iterations_mean", num(c.iterations / c.n)},
+                                 {"us_per_blob", {{"p50", num(p50)}, {"p99", num(p99)}}}});
+            if (!json) {
+                auto us = [](double v) { return std::isfinite(v) ? std::to_string(v).substr(0, std::to_string(v).find('.') + 2) : std::string("–"); };
+                std::printf("| %s | %.0f | %s | %s | %d | %d | %.4f | %.1f | %s | %s |\n", r.data.c_str(), r.noise,
+                            r.method.c_str(), kBinName[b], c.n, c.refined, rms, c.iterations / c.n, us(p50).c_str(),
+                            us(p99).c_str());
+            }
+        }
+        if (!r.all_us.empty()) {
+            j["all_blobs"].push_back({{"data", r.data},
+                                      {"noise_dn", r.noise},
+                                      {"method", r.method},
+                                      {"blobs", r.all_us.size()},
+                                      {"us_per_blob", {{"p50", num(pct(r.all_us, 0.5))}, {"p99", num(pct(r.all_us, 0.99))}}}});
+            if (!json)
+                std::printf("| %s | %.0f | %s | every blob | %zu | | | | %.1f | %.1f |\n", r.data.c_str(), r.noise,
+                            r.method.c_str(), r.all_us.size(), pct(r.all_us, 0.5), pct(r.all_us, 0.99));
+        }
+    }
+    if (json) std::printf("%s\n", j.dump(2).c_str());
+    return 0;
+}
