@@ -16,6 +16,9 @@ using protocol::ReplyStatus;
 
 namespace {
 
+/// Frame bytes besides the payload: header and CRC.
+constexpr std::size_t kFrameOverheadBytes = protocol::kFrameHeaderBytes + protocol::kFrameCrcBytes;
+
 /// Device time (ns) of a pipeline cycle of the field that started at `field_start_us`.
 std::uint64_t cycle_time_ns(std::uint64_t field_start_us, std::uint32_t cycle) noexcept {
     return field_start_us * 1000u + fpga::cycles_to_ns(cycle);
@@ -49,7 +52,10 @@ DeviceCore::DeviceCore(const DeviceHal& hal, const CoreConfig& config) noexcept
       low_latency_(config.low_latency),
       status_period_ms_(config.status_period_ms),
       pedal_period_ms_(config.pedal_period_ms) {
-    for (std::size_t c = 0; c < kCameras; ++c) cams_[c].pipeline.set_sink(&DeviceCore::blob_sink, this);
+    for (std::size_t c = 0; c < kCameras; ++c) {
+        cams_[c].pipeline.set_sink(&DeviceCore::blob_sink, this);
+        cams_[c].capture.set_sink(&DeviceCore::patch_sink, this);
+    }
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -75,6 +81,8 @@ StepStatus DeviceCore::step_cameras() noexcept {
                 }
                 if (line.width_px == fpga::kActivePixelsPerLine && line.uyvy != nullptr) {
                     sink_camera_ = c;
+                    // The patch buffers take the line first: a blob the pipeline completes on it finds it there.
+                    cam.capture.push_line(line.uyvy, line.line);
                     cam.pipeline.push_line(line.uyvy, line.line);
                 }
                 break;
@@ -110,6 +118,10 @@ void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcep
     cam.blobs.clear();
     cam.pending.clear();
     cam.pipeline.begin_field(line.field, line.parity);
+    cam.capture.begin_field(cam.pipeline.params(), line.field, line.parity);
+    cam.patches.clear();
+    cam.patch_pool_used = 0;
+    cam.patch_wire_bytes = 0;
 }
 
 void DeviceCore::blob_sink(void* context, const fpga::Blob& blob) {
@@ -126,13 +138,94 @@ void DeviceCore::on_blob(std::size_t camera, const fpga::Blob& blob) noexcept {
     if (!cam.blobs.push_back(blob) || !cam.pending.push_back(p)) {
         cam.blobs_dropped = true;
         ++blobs_dropped_;
+        return;
     }
+    // Its marker's position in the field's FieldMarkers names the patch (blob_index on the wire).
+    const std::uint64_t too_large = cam.capture.stats().too_large;
+    cam.capture.add_blob(blob, static_cast<std::uint16_t>(cam.blobs.size() - 1));
+    counters_.patches_too_large += cam.capture.stats().too_large - too_large;
+}
+
+void DeviceCore::patch_sink(void* context, const fpga::Patch& patch) {
+    auto* self = static_cast<DeviceCore*>(context);
+    self->on_patch(self->sink_camera_, patch);
+}
+
+void DeviceCore::on_patch(std::size_t camera, const fpga::Patch& patch) noexcept {
+    Camera& cam = cams_[camera];
+    if (!streaming_ || cam.abandoned) return;
+    // The field's patch budget, counted in wire bytes; the samples wait in the camera's pool of the same size.
+    const std::size_t bytes = patch.bytes();
+    const std::size_t wire =
+        bytes + protocol::patch_fragment_count(bytes) * (kFrameOverheadBytes + protocol::kBlobPatchHeaderBytes);
+    if (cam.patch_wire_bytes + wire > kPatchBudgetBytesPerField || cam.patch_pool_used + bytes > cam.patch_pool.size() ||
+        cam.patches.full()) {
+        ++counters_.patches_dropped;
+        return;
+    }
+    StoredPatch s;
+    s.class_id = patch.class_id;
+    s.flags = patch.flags;
+    s.blob_index = patch.blob_index;
+    s.origin_x = patch.origin_x;
+    s.origin_y = patch.origin_y;
+    s.width_px = patch.width_px;
+    s.height_px = patch.height_px;
+    s.offset = cam.patch_pool_used;
+    for (std::size_t i = 0; i < bytes; ++i) cam.patch_pool[s.offset + i] = patch.samples[i];
+    cam.patch_pool_used += bytes;
+    cam.patch_wire_bytes += wire;
+    cam.patches.push_back(s);
+}
+
+void DeviceCore::send_patches(std::size_t camera, std::uint64_t ready_ns) noexcept {
+    Camera& cam = cams_[camera];
+    for (std::size_t k = 0; k < cam.patches.size(); ++k) {
+        const StoredPatch& s = cam.patches[k];
+        const std::size_t bytes = protocol::patch_bytes(s.width_px, s.height_px);
+        const std::size_t fragments = protocol::patch_fragment_count(bytes);
+        const std::size_t wire = bytes + fragments * (kFrameOverheadBytes + protocol::kBlobPatchHeaderBytes);
+        // A patch never pushes markers out of the queue: it goes whole, or not at all, and leaves room.
+        if (queue_.bytes() + wire + kTxQueueReserveBytes > TxQueue::byte_capacity() ||
+            queue_.packets() + fragments + kTxQueueReservePackets > TxQueue::packet_capacity()) {
+            ++counters_.patches_dropped;
+            continue;
+        }
+        protocol::BlobPatch& m = patch_msg_;
+        m.camera_id = static_cast<std::uint8_t>(camera);
+        m.field_parity = cam.parity;
+        m.colour_class = s.class_id;
+        m.flags = s.flags;
+        m.field_counter = cam.field;
+        m.blob_index = s.blob_index;
+        m.origin_x = s.origin_x;
+        m.origin_y = s.origin_y;
+        m.width_px = s.width_px;
+        m.height_px = s.height_px;
+        m.fragment_count = static_cast<std::uint8_t>(fragments);
+        for (std::size_t f = 0; f < fragments; ++f) {
+            m.fragment_index = static_cast<std::uint8_t>(f);
+            const std::size_t first = f * protocol::kPatchFragmentBytes, n = m.sample_bytes();
+            for (std::size_t i = 0; i < n; ++i) m.samples[i] = cam.patch_pool[s.offset + first + i];
+            const std::size_t sent = queue_message(protocol::Message{m}, 0);
+            if (sent == 0) continue;  // cannot happen for a captured patch (valid by construction)
+            ++counters_.patch_frames;
+            counters_.patch_bytes += sent;
+            // Modelled timeline, as for markers: the soft core copies the frame, then the link sends it.
+            const std::uint64_t start_ns = ready_ns > core_free_ns_ ? ready_ns : core_free_ns_;
+            core_free_ns_ = start_ns + frame_cost_ns(sent, 0);
+            link_.transmit(core_free_ns_, sent);
+        }
+        ++counters_.patches_sent;
+    }
+    cam.patches.clear();
 }
 
 void DeviceCore::end_field(std::size_t camera) noexcept {
     Camera& cam = cams_[camera];
     sink_camera_ = camera;
     cam.pipeline.end_field();  // may deliver the blobs touching the last line through blob_sink
+    cam.capture.end_field();   // cuts the patches still waiting for their halo lines
     cam.in_field = false;
     ++cam.fields_processed;
     const fpga::FieldStats& st = cam.pipeline.field_stats();
@@ -163,6 +256,7 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
         send_part(camera, parts_[p], cam.pending.data() + first, ready_ns);
         first += parts_[p].marker_count;
     }
+    send_patches(camera, ready_ns);  // precision mode: after the field's markers
 }
 
 void DeviceCore::flush_low_latency() noexcept {
@@ -205,7 +299,10 @@ void DeviceCore::flush_low_latency() noexcept {
         const std::uint64_t ready = last && cam.close_ready_ns > t ? cam.close_ready_ns : t;
         send_part(pick, fm, cam.pending.data() + cam.sent, ready);
         cam.sent += k;
-        if (last) cam.closed = false, cam.low_latency = false;  // done with this field
+        if (last) {
+            cam.closed = false, cam.low_latency = false;  // done with this field
+            send_patches(pick, ready);                   // precision mode: after the closing part
+        }
     }
 }
 

@@ -22,6 +22,16 @@ inline constexpr std::size_t kMaxMarkersPerField = 128;
 /// FieldMarkers messages of one camera field at most (kMaxMarkersPerField / 14, rounded up).
 inline constexpr std::size_t kMaxPartsPerField =
     (kMaxMarkersPerField + protocol::kMaxMarkersPerMessage - 1) / protocol::kMaxMarkersPerMessage;
+/// Precision mode: BlobPatch bytes on the wire (frames of all fragments) per camera field at most; patches past
+/// it are dropped and counted (CoreCounters::patches_dropped). 8 KiB × 3 cameras × 50 fields/s = 1.2 MB/s, 3 % of
+/// USB 2.0 high-speed bulk; 12 patches of 16-px markers take 7104 bytes (docs/protocol.md section 4.7).
+inline constexpr std::size_t kPatchBudgetBytesPerField = 8 * 1024;
+/// Patches kept per camera field (their samples share a pool of kPatchBudgetBytesPerField bytes).
+inline constexpr std::size_t kMaxPatchesPerField = 32;
+/// Transmit-queue bytes a patch never takes: kept for the markers, pedal, status and replies that follow it.
+inline constexpr std::size_t kTxQueueReserveBytes = 8 * 1024;
+/// Transmit-queue packets a patch never takes.
+inline constexpr std::size_t kTxQueueReservePackets = 64;
 /// Bytes read from the host per service call (commands are 33-byte frames).
 inline constexpr std::size_t kRxChunkBytes = 256;
 /// Commands executed per service call at most (bounds the time one call can take).

@@ -19,6 +19,7 @@
 #include "eyesim/firmware/latency.hpp"
 #include "eyesim/firmware/packet_queue.hpp"
 
+#include "eyesim/fpga/patch_capture.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/register_map.hpp"
 #include "eyesim/fpga/wire.hpp"
@@ -63,6 +64,12 @@ struct CoreCounters {
     std::uint64_t frames_queued = 0;   ///< frames put into the transmit queue
     std::uint64_t frames_written = 0;  ///< frames whose last byte the sink took
     std::uint64_t blobs_sent = 0;      ///< blobs put into queued frames
+    std::uint64_t patches_sent = 0;    ///< precision mode: patches whose BlobPatch fragments were all queued
+    std::uint64_t patch_frames = 0;    ///< BlobPatch frames queued
+    std::uint64_t patch_bytes = 0;     ///< bytes of those frames
+    std::uint64_t patches_dropped = 0; ///< patches captured but not sent: over the field's budget, or no room in
+                                       ///< the transmit queue beside the markers
+    std::uint64_t patches_too_large = 0;  ///< blobs of an enabled class too large for a patch (no patch)
 };
 
 /// The device firmware core.
@@ -112,10 +119,20 @@ private:
         std::uint64_t complete_ns;
         std::uint16_t index;
     };
+    struct StoredPatch {             // a captured patch; its samples are in the camera's pool at `offset`
+        std::uint8_t class_id = 0, flags = 0;
+        std::uint16_t blob_index = 0, origin_x = 0, origin_y = 0, width_px = 0, height_px = 0;
+        std::size_t offset = 0;
+    };
     struct Camera {
         Camera() noexcept : pipeline(&regs) {}
         fpga::RegisterMap regs;
         fpga::Pipeline pipeline;
+        fpga::PatchCapture capture;      // precision mode: PATCH_ENABLE classes' patches, line buffers only
+        FixedVector<StoredPatch, kMaxPatchesPerField> patches;  // this field's, sent after its markers
+        std::array<std::uint8_t, kPatchBudgetBytesPerField> patch_pool{};
+        std::size_t patch_pool_used = 0;
+        std::size_t patch_wire_bytes = 0;
         bool in_field = false;
         std::uint32_t field = 0;
         std::uint8_t parity = 0;
@@ -135,6 +152,9 @@ private:
     };
 
     static void blob_sink(void* context, const fpga::Blob& blob);
+    static void patch_sink(void* context, const fpga::Patch& patch);
+    void on_patch(std::size_t camera, const fpga::Patch& patch) noexcept;
+    void send_patches(std::size_t camera, std::uint64_t ready_ns) noexcept;
     void on_blob(std::size_t camera, const fpga::Blob& blob) noexcept;
     void begin_field(std::size_t camera, const CameraLine& line) noexcept;
     void end_field(std::size_t camera) noexcept;
@@ -169,6 +189,7 @@ private:
     TxQueue queue_;
     std::array<std::uint8_t, kMaxFrameBytes> frame_{};  // encode scratch
     std::array<protocol::FieldMarkers, kMaxPartsPerField> parts_{};  // one field's messages (per-field mode)
+    protocol::BlobPatch patch_msg_{};                    // one BlobPatch fragment being encoded
     std::array<std::uint8_t, kMaxFrameBytes> tx_{};     // frame being written to the sink
     std::size_t tx_len_ = 0;
     std::size_t tx_off_ = 0;
