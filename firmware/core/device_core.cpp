@@ -16,6 +16,9 @@ using protocol::ReplyStatus;
 
 namespace {
 
+/// send_patches: no limit on the blob index.
+constexpr std::size_t kAllPatches = ~std::size_t{0};
+
 /// Frame bytes besides the payload: header and CRC.
 constexpr std::size_t kFrameOverheadBytes = protocol::kFrameHeaderBytes + protocol::kFrameCrcBytes;
 
@@ -120,6 +123,7 @@ void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcep
     cam.pipeline.begin_field(line.field, line.parity);
     cam.capture.begin_field(cam.pipeline.params(), line.field, line.parity);
     cam.patches.clear();
+    cam.patches_next = 0;
     cam.patch_pool_used = 0;
     cam.patch_wire_bytes = 0;
 }
@@ -172,16 +176,21 @@ void DeviceCore::on_patch(std::size_t camera, const fpga::Patch& patch) noexcept
     s.width_px = patch.width_px;
     s.height_px = patch.height_px;
     s.offset = cam.patch_pool_used;
+    s.ready_ns = cycle_time_ns(cam.field_start_us,
+                               fpga::active_line_end_cycle(static_cast<std::uint32_t>(patch.origin_y + patch.height_px - 1)));
     for (std::size_t i = 0; i < bytes; ++i) cam.patch_pool[s.offset + i] = patch.samples[i];
     cam.patch_pool_used += bytes;
     cam.patch_wire_bytes += wire;
     cam.patches.push_back(s);
 }
 
-void DeviceCore::send_patches(std::size_t camera, std::uint64_t ready_ns) noexcept {
+void DeviceCore::send_patches(std::size_t camera, std::uint64_t ready_ns, std::size_t below_index) noexcept {
     Camera& cam = cams_[camera];
-    for (std::size_t k = 0; k < cam.patches.size(); ++k) {
-        const StoredPatch& s = cam.patches[k];
+    // In capture order (the blobs' order); a patch waits until its marker is queued (blob_index < below_index).
+    for (; cam.patches_next < cam.patches.size() && cam.patches[cam.patches_next].blob_index < below_index;
+         ++cam.patches_next) {
+        const StoredPatch& s = cam.patches[cam.patches_next];
+        const std::uint64_t ready = s.ready_ns > ready_ns ? s.ready_ns : ready_ns;
         const std::size_t bytes = protocol::patch_bytes(s.width_px, s.height_px);
         const std::size_t fragments = protocol::patch_fragment_count(bytes);
         const std::size_t wire = bytes + fragments * (kFrameOverheadBytes + protocol::kBlobPatchHeaderBytes);
@@ -212,13 +221,12 @@ void DeviceCore::send_patches(std::size_t camera, std::uint64_t ready_ns) noexce
             ++counters_.patch_frames;
             counters_.patch_bytes += sent;
             // Modelled timeline, as for markers: the soft core copies the frame, then the link sends it.
-            const std::uint64_t start_ns = ready_ns > core_free_ns_ ? ready_ns : core_free_ns_;
+            const std::uint64_t start_ns = ready > core_free_ns_ ? ready : core_free_ns_;
             core_free_ns_ = start_ns + frame_cost_ns(sent, 0);
             link_.transmit(core_free_ns_, sent);
         }
         ++counters_.patches_sent;
     }
-    cam.patches.clear();
 }
 
 void DeviceCore::end_field(std::size_t camera) noexcept {
@@ -256,7 +264,7 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
         send_part(camera, parts_[p], cam.pending.data() + first, ready_ns);
         first += parts_[p].marker_count;
     }
-    send_patches(camera, ready_ns);  // precision mode: after the field's markers
+    send_patches(camera, ready_ns, kAllPatches);  // precision mode: after the field's markers
 }
 
 void DeviceCore::flush_low_latency() noexcept {
@@ -275,7 +283,12 @@ void DeviceCore::flush_low_latency() noexcept {
             else if (cam.closed) k = cam.close_ready_ns;
             if (k < key) key = k, pick = c;
         }
-        if (pick == kCameras) return;
+        if (pick == kCameras) {
+            // Precision mode: the patches cut since, whose markers are out, follow at once (low latency).
+            for (std::size_t c = 0; c < kCameras; ++c)
+                if (cams_[c].low_latency) send_patches(c, 0, cams_[c].sent);
+            return;
+        }
         Camera& cam = cams_[pick];
         const std::uint64_t t = key > core_free_ns_ ? key : core_free_ns_;
         std::size_t k = 0;
@@ -301,7 +314,9 @@ void DeviceCore::flush_low_latency() noexcept {
         cam.sent += k;
         if (last) {
             cam.closed = false, cam.low_latency = false;  // done with this field
-            send_patches(pick, ready);                   // precision mode: after the closing part
+            send_patches(pick, ready, kAllPatches);      // precision mode: the rest, after the closing part
+        } else {
+            send_patches(pick, ready, cam.sent);         // precision mode: those whose markers are now out
         }
     }
 }

@@ -28,6 +28,7 @@ protocol::Command cmd(std::uint32_t id, protocol::Opcode op, std::uint32_t addre
 struct Received {
     std::map<test::FieldKey, std::vector<protocol::Marker>> markers;
     std::map<test::FieldKey, std::size_t> last_part_frame;          // frame number of the field's last part
+    std::map<std::tuple<int, std::uint32_t, int>, std::size_t> marker_frame;  // frame number of each marker's part
     // (camera, field, blob) → the patch's header; its samples pointer is the assembler's and is not kept.
     std::map<std::tuple<int, std::uint32_t, int>, transport::AssembledPatch> patches;
     std::map<std::tuple<int, std::uint32_t, int>, std::vector<std::uint8_t>> samples;
@@ -46,7 +47,10 @@ Received receive(const std::vector<std::uint8_t>& bytes) {
     for (std::size_t i = 0; i < frames.size(); ++i) {
         if (const auto* fm = std::get_if<protocol::FieldMarkers>(&frames[i].message)) {
             auto& v = r.markers[{fm->camera_id, fm->field_counter}];
-            for (int k = 0; k < fm->marker_count; ++k) v.push_back(fm->markers[k]);
+            for (int k = 0; k < fm->marker_count; ++k) {
+                r.marker_frame[{fm->camera_id, fm->field_counter, static_cast<int>(v.size())}] = i;
+                v.push_back(fm->markers[k]);
+            }
             if (!(fm->flags & protocol::kFieldFlagMoreFollows)) r.last_part_frame[{fm->camera_id, fm->field_counter}] = i;
         } else if (const auto* bp = std::get_if<protocol::BlobPatch>(&frames[i].message)) {
             const std::tuple<int, std::uint32_t, int> key{bp->camera_id, bp->field_counter, bp->blob_index};
@@ -64,7 +68,7 @@ Received receive(const std::vector<std::uint8_t>& bytes) {
 }
 
 /// Checks every received patch against the camera streams and its marker; returns the patches checked.
-std::size_t check_against_fields(const Received& r, const test::CoreRig& rig) {
+std::size_t check_against_fields(const Received& r, const test::CoreRig& rig, bool low_latency) {
     std::size_t checked = 0;
     for (const auto& [key, p] : r.patches) {
         const auto [cam, field, blob] = key;
@@ -101,8 +105,9 @@ std::size_t check_against_fields(const Received& r, const test::CoreRig& rig) {
                 wrong += q.y(c, row) != f[at + 1] || q.cb(c, row) != f[pair] || q.cr(c, row) != f[pair + 2];
             }
         CHECK(wrong == 0);
-        // After the field's markers.
-        CHECK(r.patch_frame.at(key) > r.last_part_frame.at({cam, field}));
+        // After its marker; per-field mode: after all the field's markers.
+        CHECK(r.patch_frame.at(key) > r.marker_frame.at(key));
+        if (!low_latency) CHECK(r.patch_frame.at(key) > r.last_part_frame.at({cam, field}));
         ++checked;
     }
     return checked;
@@ -142,7 +147,14 @@ TEST_CASE("precision mode end to end: patches per camera and class arrive whole 
                     CHECK(r.patches.count({key.first, key.second, static_cast<int>(i)}) == (on ? 1u : 0u));
                 }
             REQUIRE(wanted > 60);
-            CHECK(check_against_fields(r, rig) == wanted);
+            CHECK(check_against_fields(r, rig, low_latency) == wanted);
+            // Low-latency mode sends a patch as soon as its lines and its marker are out, long before the field
+            // ends for the markers in the upper part of the field.
+            std::size_t early = 0;
+            for (const auto& [key, frame] : r.patch_frame)
+                early += frame < r.last_part_frame.at({std::get<0>(key), std::get<1>(key)});
+            if (low_latency) CHECK(early > wanted / 2);
+            else CHECK(early == 0);
             CHECK(r.assembler.completed == wanted);
             CHECK(r.assembler.incomplete == 0);
             CHECK(rig.core->counters().patches_sent == wanted);
@@ -167,7 +179,7 @@ TEST_CASE("precision mode over the budget: patches dropped and counted, markers 
     CHECK(k.patches_sent + k.patches_dropped == markers);
     CHECK(r.patches.size() == k.patches_sent);
     for (const auto& [key, bytes] : r.patch_wire_bytes) CHECK(bytes <= firmware::kPatchBudgetBytesPerField);
-    CHECK(check_against_fields(r, rig) == k.patches_sent);
+    CHECK(check_against_fields(r, rig, false) == k.patches_sent);
     CHECK(rig.core->queue_stats().dropped_packets == 0);
 }
 

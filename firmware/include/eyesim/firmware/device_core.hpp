@@ -123,13 +123,15 @@ private:
         std::uint8_t class_id = 0, flags = 0;
         std::uint16_t blob_index = 0, origin_x = 0, origin_y = 0, width_px = 0, height_px = 0;
         std::size_t offset = 0;
+        std::uint64_t ready_ns = 0;  // its last line is in
     };
     struct Camera {
         Camera() noexcept : pipeline(&regs) {}
         fpga::RegisterMap regs;
         fpga::Pipeline pipeline;
         fpga::PatchCapture capture;      // precision mode: PATCH_ENABLE classes' patches, line buffers only
-        FixedVector<StoredPatch, kMaxPatchesPerField> patches;  // this field's, sent after its markers
+        FixedVector<StoredPatch, kMaxPatchesPerField> patches;  // this field's, each sent after its marker
+        std::size_t patches_next = 0;    // patches[0, patches_next) are sent
         std::array<std::uint8_t, kPatchBudgetBytesPerField> patch_pool{};
         std::size_t patch_pool_used = 0;
         std::size_t patch_wire_bytes = 0;
@@ -154,7 +156,7 @@ private:
     static void blob_sink(void* context, const fpga::Blob& blob);
     static void patch_sink(void* context, const fpga::Patch& patch);
     void on_patch(std::size_t camera, const fpga::Patch& patch) noexcept;
-    void send_patches(std::size_t camera, std::uint64_t ready_ns) noexcept;
+    void send_patches(std::size_t camera, std::uint64_t ready_ns, std::size_t below_index) noexcept;
     void on_blob(std::size_t camera, const fpga::Blob& blob) noexcept;
     void begin_field(std::size_t camera, const CameraLine& line) noexcept;
     void end_field(std::size_t camera) noexcept;
