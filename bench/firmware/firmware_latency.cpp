@@ -3,7 +3,10 @@
 // against its peer, the three bare FPGA pipelines on the same fields. Error column: markers that differ from the
 // FPGA model's (must be 0).
 //
-// Usage: firmware_latency_bench [--seconds S] [--repeats N] [--json]
+// With --patches CLASSES (PATCH_ENABLE bits, e.g. 0xF) the core also runs precision mode on every camera and the
+// table adds the BlobPatch traffic: patches sent and dropped, bytes per camera field, MB/s at 50 fields/s.
+//
+// Usage: firmware_latency_bench [--seconds S] [--repeats N] [--patches CLASSES] [--json]
 #include "eyesim/firmware/device_core.hpp"
 #include "eyesim/firmware/pc/field_source.hpp"
 #include "eyesim/firmware/pc/latency_log.hpp"
@@ -63,7 +66,12 @@ struct CoreRun {
     double seconds = 0;
     std::map<std::pair<int, std::uint32_t>, std::vector<protocol::Marker>> markers;
     std::uint64_t frames = 0;
+    std::map<std::pair<int, std::uint32_t>, std::size_t> patch_bytes;  // BlobPatch frame bytes per camera field
+    std::uint64_t patches_sent = 0, patches_dropped = 0, patches_too_large = 0;
 };
+
+/// PATCH_ENABLE written to every camera before streaming (0: precision mode off).
+std::uint32_t g_patch_enable = 0;
 
 /// Runs the firmware core over the streams (fields start at k·20 000 µs) and decodes what it sent.
 void run_core(const Streams& streams, bool low_latency, CoreRun& out) {
@@ -85,11 +93,20 @@ void run_core(const Streams& streams, bool low_latency, CoreRun& out) {
     ByteCounter sink;
     sink.bytes.reserve(64u << 20);
     Commands cmds;
+    protocol::Command patches;
+    patches.command_id = 1;
+    patches.opcode = static_cast<std::uint8_t>(protocol::Opcode::RegisterWrite);
+    patches.address = fpga::reg::kPatchEnable;  // the all-cameras window
+    patches.value = g_patch_enable;
     protocol::Command start;
-    start.command_id = 1;
+    start.command_id = 2;
     start.opcode = static_cast<std::uint8_t>(protocol::Opcode::StreamStart);
-    cmds.pending.resize(protocol::kMaxFrameBytes);
-    cmds.pending.resize(protocol::encode_frame(protocol::Message{start}, 0, cmds.pending));
+    std::vector<std::uint8_t> frame(protocol::kMaxFrameBytes);
+    for (const auto& [c, seq] : {std::pair{patches, 0}, std::pair{start, 1}}) {
+        frame.resize(protocol::kMaxFrameBytes);
+        frame.resize(protocol::encode_frame(protocol::Message{c}, static_cast<std::uint16_t>(seq), frame));
+        cmds.pending.insert(cmds.pending.end(), frame.begin(), frame.end());
+    }
     hal.sink = &sink;
     hal.source = &cmds;
     hal.clock = &clock;
@@ -104,13 +121,19 @@ void run_core(const Streams& streams, bool low_latency, CoreRun& out) {
     while (!core->tx_idle()) core->service();
     out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     out.markers.clear();
+    out.patch_bytes.clear();
     out.frames = 0;
+    out.patches_sent = core->counters().patches_sent;
+    out.patches_dropped = core->counters().patches_dropped;
+    out.patches_too_large = core->counters().patches_too_large;
     protocol::StreamParser parser;
     parser.parse(sink.bytes, [&](const protocol::DecodedFrame& f) {
         ++out.frames;
         if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message)) {
             auto& v = out.markers[{fm->camera_id, fm->field_counter}];
             for (int i = 0; i < fm->marker_count; ++i) v.push_back(fm->markers[i]);
+        } else if (const auto* bp = std::get_if<protocol::BlobPatch>(&f.message)) {
+            out.patch_bytes[{bp->camera_id, bp->field_counter}] += protocol::frame_size(f.header.payload_bytes);
         }
     });
 }
@@ -183,9 +206,10 @@ int main(int argc, char** argv) {
         const std::string a = argv[i];
         if (a == "--seconds" && i + 1 < argc) seconds = std::atof(argv[++i]);
         else if (a == "--repeats" && i + 1 < argc) repeats = std::max(1, std::atoi(argv[++i]));
+        else if (a == "--patches" && i + 1 < argc) g_patch_enable = static_cast<std::uint32_t>(std::strtoul(argv[++i], nullptr, 0));
         else if (a == "--json") json = true;
         else {
-            std::fprintf(stderr, "usage: firmware_latency_bench [--seconds S] [--repeats N] [--json]\n");
+            std::fprintf(stderr, "usage: firmware_latency_bench [--seconds S] [--repeats N] [--patches CLASSES] [--json]\n");
             return 2;
         }
     }
@@ -221,6 +245,7 @@ int main(int argc, char** argv) {
                     "max µs | ≤ 100 µs | marker errors | core ms/field | vs 3 bare pipelines |\n");
         std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     }
+    std::vector<std::string> patch_rows;
     for (const auto& [name, streams] : workloads) {
         std::map<std::pair<int, std::uint32_t>, std::vector<protocol::Marker>> ref;
         std::vector<double> peer_s;
@@ -242,6 +267,11 @@ int main(int argc, char** argv) {
             const double frac = written.count ? static_cast<double>(within) / static_cast<double>(written.count) : 0;
             const std::size_t errors = mismatches(ref, run.markers) + mismatches(run.markers, ref);
             const double ms_per_field = 1e3 * core_s / (3.0 * fields);
+            // Precision mode's traffic: BlobPatch bytes per camera field (fields without patches count as 0).
+            std::size_t patch_total = 0, patch_max = 0;
+            for (const auto& [key, b] : run.patch_bytes) patch_total += b, patch_max = std::max(patch_max, b);
+            const double patch_mean = static_cast<double>(patch_total) / (3.0 * fields);
+            const double patch_mb_s = patch_mean * 3.0 * 50.0 / 1e6;
             if (json) {
                 out.push_back({{"workload", name},
                                {"mode", ll ? "low_latency" : "per_field"},
@@ -253,16 +283,38 @@ int main(int argc, char** argv) {
                                {"within_100us", frac},
                                {"errors", errors},
                                {"core_ms_per_field", ms_per_field},
-                               {"core_vs_pipelines", core_s / peer}});
+                               {"core_vs_pipelines", core_s / peer},
+                               {"patch_enable", g_patch_enable},
+                               {"patches_sent", run.patches_sent},
+                               {"patches_dropped", run.patches_dropped},
+                               {"patches_too_large", run.patches_too_large},
+                               {"patch_bytes_per_camera_field", {{"mean", patch_mean}, {"max", patch_max}}},
+                               {"patch_mb_per_s", patch_mb_s}});
             } else {
                 std::printf("| %s | %s | %zu | %.1f / %.1f | %.1f / %.1f | %.1f / %.1f / %.1f | %.1f %% | %zu | %.3f | "
                             "%.2fx |\n",
                             name.c_str(), ll ? "low-latency (per blob)" : "per field", written.count, complete.p50_us,
                             complete.p99_us, queued.p50_us, queued.p99_us, written.p50_us, written.p99_us,
                             written.max_us, 100.0 * frac, errors, ms_per_field, core_s / peer);
+                if (g_patch_enable != 0) {
+                    char row[512];
+                    std::snprintf(row, sizeof row, "| %s | %s | %llu | %llu | %llu | %.0f / %zu | %.2f |\n", name.c_str(),
+                                  ll ? "low-latency (per blob)" : "per field",
+                                  static_cast<unsigned long long>(run.patches_sent),
+                                  static_cast<unsigned long long>(run.patches_dropped),
+                                  static_cast<unsigned long long>(run.patches_too_large), patch_mean, patch_max,
+                                  patch_mb_s);
+                    patch_rows.emplace_back(row);
+                }
             }
         }
     }
     if (json) std::printf("%s\n", out.dump().c_str());
+    if (!json && !patch_rows.empty()) {
+        std::printf("\nPrecision mode (PATCH_ENABLE 0x%X on every camera):\n\n", g_patch_enable);
+        std::printf("| workload | mode | patches sent | dropped | too large | BlobPatch bytes per camera field mean / max | "
+                    "MB/s (3 cameras, 50 fields/s) |\n|---|---|---:|---:|---:|---:|---:|\n");
+        for (const auto& r : patch_rows) std::printf("%s", r.c_str());
+    }
     return 0;
 }
