@@ -4,6 +4,8 @@
 // patches are dropped and counted while the markers stay exactly the FPGA model's.
 #include "core_rig.hpp"
 #include "eyesim/protocol/codec.hpp"
+#include "eyesim/transport/device_link.hpp"
+#include "eyesim/transport/inproc.hpp"
 #include "eyesim/transport/patch_assembler.hpp"
 
 #include <catch2/catch.hpp>
@@ -232,4 +234,88 @@ TEST_CASE("PatchAssembler: fragments of three cameras interleaved, a lost fragme
     CHECK(a->stats().incomplete == 2);
     CHECK(a->stats().completed == 3);
     CHECK(a->stats().fragments == 13);
+}
+
+namespace {
+
+/// Device side of the in-process link: the core's ByteSink/ByteSource over one end (never waiting).
+struct LinkPort final : firmware::ByteSink, firmware::ByteSource {
+    transport::Transport* t = nullptr;
+    std::size_t write_some(const std::uint8_t* d, std::size_t n) noexcept override {
+        return t->write(std::span<const std::uint8_t>(d, n), 0).bytes;
+    }
+    bool connected() const noexcept override { return t->connected(); }
+    std::size_t read_some(std::uint8_t* out, std::size_t cap) noexcept override {
+        return t->read(std::span<std::uint8_t>(out, cap), 0).bytes;
+    }
+};
+
+}  // namespace
+
+TEST_CASE("precision mode through the host API: DeviceLink enables patches, the host assembles them equal to the field",
+          "[firmware][patch][session]") {
+    test::CoreRig rig(3, 12);
+    auto [host_end, device_end] = transport::make_inproc_pair(1u << 20);
+    LinkPort port;
+    port.t = device_end.get();
+    firmware::DeviceHal hal;
+    for (int c = 0; c < 3; ++c) hal.cameras[c] = rig.cams[c].get();
+    hal.sink = &port;
+    hal.source = &port;
+    hal.clock = &rig.clock;
+    auto core = std::make_unique<firmware::DeviceCore>(hal);
+    transport::DeviceLink link(std::move(host_end));
+
+    // Camera 1 only, blue and yellow (classes 3 and 4), in low-latency mode.
+    const auto w = link.command(protocol::Opcode::RegisterWrite, 0x2000 + 0x03C, 0xC);
+    link.command(protocol::Opcode::SetLowLatency, 0, 1);
+    link.command(protocol::Opcode::StreamStart);
+    auto assembler = std::make_unique<transport::PatchAssembler>();
+    std::map<test::FieldKey, std::vector<protocol::Marker>> markers;
+    std::size_t checked = 0, wrong = 0, orphans = 0;
+    auto on_frame = [&](const protocol::DecodedFrame& f) {
+        if (const auto* fm = std::get_if<protocol::FieldMarkers>(&f.message)) {
+            auto& v = markers[{fm->camera_id, fm->field_counter}];
+            for (int i = 0; i < fm->marker_count; ++i) v.push_back(fm->markers[i]);
+        } else if (const auto* bp = std::get_if<protocol::BlobPatch>(&f.message)) {
+            const transport::AssembledPatch* p = assembler->add(*bp);
+            if (p == nullptr) return;
+            // Its marker has arrived before it; the patch is the field's bytes around the marker's box.
+            const auto& v = markers[{p->camera_id, p->field_counter}];
+            if (p->blob_index >= v.size()) {
+                ++orphans;
+                return;
+            }
+            const protocol::Marker& m = v[p->blob_index];
+            wrong += p->camera_id != 1 || m.colour_class < 3 || p->origin_x > m.bbox_x0 || p->origin_y > m.bbox_y0 ||
+                     p->origin_x + p->width_px - 1 < m.bbox_x1 || p->origin_y + p->height_px - 1 < m.bbox_y1;
+            const std::uint8_t* field = rig.streams[1].data() + test::kFieldBytes * p->field_counter;
+            for (int r = 0; r < p->height_px; ++r)
+                wrong += !std::equal(p->samples + 2 * r * p->width_px, p->samples + 2 * (r + 1) * p->width_px,
+                                     field + (p->origin_y + r) * 1440 + 2 * p->origin_x);
+            ++checked;
+        }
+    };
+    core->service();
+    const auto reply = link.wait_reply(w, 1000, on_frame);
+    REQUIRE(reply.has_value());
+    REQUIRE(reply->status == 0);
+    while (core->step_cameras() != firmware::StepStatus::finished) {
+        core->service();
+        link.poll(0, on_frame);
+    }
+    for (int i = 0; i < 100 && !core->tx_idle(); ++i) core->service();
+    link.poll(10, on_frame);
+    REQUIRE(link.stats().errors() == 0);
+    REQUIRE(link.stats().sequence_gaps == 0);
+    REQUIRE(markers == test::reference_output(rig.streams).markers);
+    std::size_t wanted = 0;  // camera 1's blue and yellow markers, all fields
+    for (const auto& [key, v] : markers)
+        for (const auto& m : v) wanted += key.first == 1 && m.colour_class >= 3;
+    CHECK(wanted >= 6);
+    CHECK(checked == wanted);
+    CHECK(core->counters().patches_sent == wanted);
+    CHECK(wrong == 0);
+    CHECK(orphans == 0);
+    CHECK(assembler->stats().incomplete == 0);
 }
