@@ -106,6 +106,7 @@ int run_track(const TrackOptions& opt) {
                     std::to_string(tr::kMaxCameras) + ")");
     cfg.sync.mode = opt.sync == "extrapolate" ? tr::SyncMode::Extrapolate
                     : opt.sync == "nearest"   ? tr::SyncMode::Nearest
+                    : opt.sync == "async"     ? tr::SyncMode::Async
                                               : tr::SyncMode::Interpolate;
     const tr::BodySet body_set = cfg.bodies;
     std::unique_ptr<eyesim::frame::HostRun> run;
@@ -217,8 +218,10 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_option("--instruments", opt->instruments, "instrument kinds to fit, comma separated (default: all)");
-    sub.add_option("--sync", opt->sync, "camera time alignment: interpolate | extrapolate | nearest")
-        ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest"}));
+    sub.add_option("--sync", opt->sync,
+                   "camera time alignment: interpolate | extrapolate | nearest | async (per-body filters updated by "
+                   "each camera field at its own time)")
+        ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest", "async"}));
     sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)")
         ->check(eyesim::app::finite_in(0.0, 1e6));
     sub.add_option("--stall-s", opt->stall_s, "live: end the run when the device sends nothing for this long")

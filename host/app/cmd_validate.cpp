@@ -115,6 +115,7 @@ double us_now() {
 tr::SyncMode parse_sync(const std::string& s) {
     if (s == "interpolate") return tr::SyncMode::Interpolate;
     if (s == "extrapolate") return tr::SyncMode::Extrapolate;
+    if (s == "async") return tr::SyncMode::Async;
     return tr::SyncMode::Nearest;
 }
 

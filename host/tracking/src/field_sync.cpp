@@ -224,6 +224,7 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
             }
             break;
         case SyncMode::Extrapolate:
+        case SyncMode::Async:
             if (a && a0 && a->sample_device_us - a0->sample_device_us <= opt_.max_gap_us &&
                 T - a->sample_device_us <= opt_.max_gap_us) {
                 use_pair(a0, a, CameraSyncState::Extrapolated);

@@ -67,6 +67,14 @@ Tracker::Tracker(TrackerConfig config)
     if (!(config_.centroid_sigma_px > 0.0) || !std::isfinite(config_.centroid_sigma_px))
         throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
     // correspondence_ holds a span over cameras_, which is never resized after construction.
+    const AsyncOptions& ao = config_.async;
+    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, ao.eye_ang_accel_psd_rad2_s3);
+    for (int b = 0; b < config_.bodies.instrument_count; ++b) {
+        const InstrumentModel& m = config_.bodies.instruments[std::size_t(b)];
+        filters_[std::size_t(1 + b)].configure_rigid(m.markers_on_axis() ? Eigen::Vector3d(m.axis_body.normalized())
+                                                                         : Eigen::Vector3d::Zero(),
+                                                     ao.ang_accel_psd_rad2_s3, ao.accel_psd_mm2_s3);
+    }
 }
 
 void Tracker::restart() {
@@ -75,6 +83,9 @@ void Tracker::restart() {
     sync_ = FrameSync(int(cameras_.size()), config_.sync);
     last_eye_ = EyePose{};
     last_instruments_.fill(InstrumentPose{});
+    for (RigidBodyFilter& f : filters_) f.reset();
+    queue_count_ = 0;
+    acquire_measured_.fill(false);
 }
 
 int Tracker::rejected_images() const {
@@ -87,7 +98,15 @@ void Tracker::push(const protocol::FieldMarkers& msg, double received_host_us) {
     if (msg.camera_id >= cameras_.size()) return;
     FieldAssembler& as = assemblers_[msg.camera_id];
     const int done = as.push(msg, received_host_us, config_.timing[msg.camera_id]);
-    for (int i = 0; i < done; ++i) sync_.add(as.completed(i));
+    for (int i = 0; i < done; ++i) {
+        sync_.add(as.completed(i));
+        if (config_.sync.mode != SyncMode::Async) continue;
+        if (queue_count_ == kQueue) {  // consumer too slow: the oldest field is dropped
+            queue_head_ = (queue_head_ + 1) % kQueue;
+            --queue_count_;
+        }
+        queue_[std::size_t((queue_head_ + queue_count_++) % kQueue)] = as.completed(i);
+    }
 }
 
 void Tracker::push(const protocol::PedalState& pedal, double /*received_host_us*/) {
@@ -96,6 +115,7 @@ void Tracker::push(const protocol::PedalState& pedal, double /*received_host_us*
 }
 
 bool Tracker::pop(TrackingFrame& out, double now_host_us) {
+    if (config_.sync.mode == SyncMode::Async) return pop_async(out, now_host_us);
     double T = 0, end_dev = 0, recv_host = 0;
     std::uint32_t ref = 0;
     if (!sync_.pop(T, ref, out.cameras, aligned_, end_dev, recv_host)) return false;
@@ -192,27 +212,6 @@ Tracker::MarkerView Tracker::marker_view(const TrackingFrame& frame, int k, int 
     return v;
 }
 
-namespace {
-
-/// Centroid shift (normalised image units, along the projected half-shaft) of a uniform disk of radius rho from
-/// which a strip of half-width w, starting at t0 from the centre and running to the rim, is hidden.
-double strip_centroid_shift(double rho, double w, double t0) {
-    if (!(t0 < rho) || !(w > 0.0)) return 0.0;
-    constexpr int kSteps = 16;
-    const double dt = (rho - t0) / kSteps;
-    double area = 0.0, moment = 0.0;
-    for (int k = 0; k < kSteps; ++k) {
-        const double t = t0 + (k + 0.5) * dt;
-        const double half = std::min(w, std::sqrt(std::max(0.0, rho * rho - t * t)));
-        area += 2.0 * half * dt;
-        moment += t * 2.0 * half * dt;
-    }
-    const double disk = 3.141592653589793 * rho * rho;
-    return -moment / std::max(disk - area, 1e-3 * disk);
-}
-
-}  // namespace
-
 void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
     const BodySet& bodies = config_.bodies;
     const double R = bodies.marker_radius_mm;
@@ -273,6 +272,373 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
     fit_poses(bodies, out.markers, config_.pose, last_eye_,
               std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
               std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// SyncMode::Async: per-body filters updated by one camera field at a time
+// ---------------------------------------------------------------------------------------------------------------
+
+namespace {
+
+void eye_from_filter(const EyeModel& model, const Eigen::Quaterniond& R, EyePose& eye) {
+    eye.rotation_eye_to_rig = R;
+    eye.centre_rig_mm = model.centre_rig_mm;
+    eye.fit_rms_mm = 0.0;
+    eye.flags = kPoseOk;
+}
+
+void instrument_from_filter(const InstrumentModel& model, const Eigen::Quaterniond& R, const Eigen::Vector3d& t,
+                            bool no_roll, InstrumentPose& pose) {
+    pose.tip_rig_mm = R * model.tip_body_mm + t;
+    pose.axis_rig = (R * model.axis_body).normalized();
+    pose.rotation_body_to_rig = R;
+    pose.fit_rms_mm = 0.0;
+    pose.flags = no_roll ? kPoseNoRoll : kPoseOk;
+}
+
+constexpr double kNever = -1e300;
+
+}  // namespace
+
+bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
+    while (queue_count_ > 0) {
+        const CameraField& f = queue_[std::size_t(queue_head_)];
+        queue_head_ = (queue_head_ + 1) % kQueue;
+        --queue_count_;
+        const double t0 = steady_us();
+        fuse_field(f);
+        // Frames are reported at the reference camera's fields (where the rig's truth is sampled); every other
+        // field has already corrected the filters in between.
+        if (f.camera != config_.sync.reference_camera || !std::isfinite(f.sample_device_us)) continue;
+        acquire(f);
+        build_async_frame(f, out);
+        const double compute = steady_us() - t0;
+        out.timing.sample_host_us = f.sample_device_us - offset_us_;
+        out.timing.field_end_host_us = f.field_end_device_us - offset_us_;
+        out.timing.received_host_us = f.received_host_us;
+        out.timing.compute_us = compute;
+        out.timing.poses_ready_host_us = now_host_us + compute;
+        return true;
+    }
+    return false;
+}
+
+void Tracker::fuse_field(const CameraField& f) {
+    const int c = f.camera;
+    if (c < 0 || c >= int(cameras_.size()) || !std::isfinite(f.sample_device_us)) return;
+    const CameraGeometry& g = cameras_[std::size_t(c)];
+    const AsyncOptions& ao = config_.async;
+    const BodySet& bodies = config_.bodies;
+    const double T = f.sample_device_us;
+    last_field_us_[std::size_t(c)] = T;
+    last_field_counter_[std::size_t(c)] = f.field_counter;
+    const int nb = 1 + bodies.instrument_count;
+    auto body_markers = [&](int b) -> std::pair<const BodyMarker*, int> {
+        if (b == 0) return {bodies.eye.markers.data(), bodies.eye.marker_count};
+        const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
+        return {m.markers.data(), m.marker_count};
+    };
+    // Association: each predicted marker takes the nearest image of its class within the gate unless a second
+    // image is nearly as near; an image wanted by two predicted markers at nearly the same distance (two markers
+    // merged in this view) goes to neither.
+    std::array<std::array<std::int8_t, kMaxBodyMarkers>, kBodies> cand{};
+    std::array<float, kMaxMarkersPerCamera> claim_d{}, claim_d2{};
+    std::array<std::int16_t, kMaxMarkersPerCamera> claim_by{};
+    claim_d.fill(1e30f);
+    claim_d2.fill(1e30f);
+    claim_by.fill(-1);
+    for (int b = 0; b < nb; ++b) {
+        cand[std::size_t(b)].fill(-1);
+        used_last_field_[std::size_t(b)] = 0;
+        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        // A filter that went without images for this long is not trusted to find them again: re-acquire.
+        if (flt.tracking() && T - last_good_us_[std::size_t(b)] > ao.lost_after_us) flt.reset();
+        if (!flt.tracking()) continue;
+        flt.predict_to(T);
+        const auto [ms, mc] = body_markers(b);
+        for (int k = 0; k < mc; ++k) {
+            Eigen::Vector2d px;
+            if (!flt.predict_pixel(g, ms[k].pos_body_mm, px)) continue;
+            double d1 = 1e30, d2 = 1e30;
+            int i1 = -1;
+            for (int i = 0; i < f.count; ++i) {
+                const FieldImage& im = f.images[std::size_t(i)];
+                if (im.colour_class != ms[k].colour_class || !im.frame_px.allFinite()) continue;
+                const double d = (im.frame_px - px).norm();
+                if (d < d1) {
+                    d2 = d1;
+                    d1 = d;
+                    i1 = i;
+                } else if (d < d2) {
+                    d2 = d;
+                }
+            }
+            if (i1 < 0 || d1 > ao.gate_px || (d2 < ao.gate_px && d2 < ao.ambiguity_ratio * d1)) continue;
+            cand[std::size_t(b)][std::size_t(k)] = std::int8_t(i1);
+            const float d = float(d1);
+            if (d < claim_d[std::size_t(i1)]) {
+                claim_d2[std::size_t(i1)] = claim_d[std::size_t(i1)];
+                claim_d[std::size_t(i1)] = d;
+                claim_by[std::size_t(i1)] = std::int16_t(b * kMaxBodyMarkers + k);
+            } else {
+                claim_d2[std::size_t(i1)] = std::min(claim_d2[std::size_t(i1)], d);
+            }
+        }
+    }
+    const double Rm = bodies.marker_radius_mm;
+    const double trocar_sigma_mm =
+        config_.pose.trocar_sigma_mm * std::sqrt(double(cameras_.size()));  // applied once per camera field
+    for (int b = 0; b < nb; ++b) {
+        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        if (!flt.tracking()) continue;
+        const auto [ms, mc] = body_markers(b);
+        const InstrumentModel* model = b > 0 ? &bodies.instruments[std::size_t(b - 1)] : nullptr;
+        int used = 0;
+        for (int k = 0; k < mc; ++k) {
+            const int i = cand[std::size_t(b)][std::size_t(k)];
+            if (i < 0 || claim_by[std::size_t(i)] != b * kMaxBodyMarkers + k ||
+                claim_d2[std::size_t(i)] < float(ao.ambiguity_ratio) * claim_d[std::size_t(i)])
+                continue;
+            const FieldImage& im = f.images[std::size_t(i)];
+            const Eigen::Vector3d X = flt.to_rig(ms[k].pos_body_mm);
+            const double z = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
+            if (Rm > 0.0 && im.area_px > 0.0f && z > 0.0) {
+                // A partly hidden marker (eye edge, another instrument): its centroid is biased, leave it out.
+                const double r = Rm / z;
+                const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
+                if (double(im.area_px) < ao.min_area_ratio * expected) continue;
+            }
+            bool ok = false;
+            if (!model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
+                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
+                                      [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
+                                          return Eigen::Vector2d::Zero().eval();
+                                      });
+            } else {
+                const Eigen::Vector3d axis_body = model->axis_body.normalized();
+                const double shaft_r = model->shaft_radius_mm;
+                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
+                                      [&](const Eigen::Quaterniond& R, const Eigen::Vector3d&, const Eigen::Vector3d& Xr) {
+                                          return shaft_occlusion_shift(g, Xr, R * axis_body, Rm, shaft_r);
+                                      });
+            }
+            if (!ok) continue;
+            ++used;
+            seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c)] = T;
+        }
+        if (model && used > 0 && config_.pose.trocar_constraint && model->has_trocar && filters_[0].tracking()) {
+            const Eigen::Vector3d p = filters_[0].to_rig(model->trocar_eye_mm);
+            const Eigen::Vector3d tip = flt.to_rig(model->tip_body_mm);
+            const Eigen::Vector3d a = (flt.rotation() * model->axis_body).normalized();
+            const Eigen::Vector3d d = p - tip;
+            const double depth = d.dot(a);
+            if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm)
+                flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
+        }
+        used_last_field_[std::size_t(b)] = used;
+        if (used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = T;
+        if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
+            !flt.translation().allFinite() || !flt.rotation().coeffs().allFinite())
+            flt.reset();
+    }
+}
+
+void Tracker::acquire(const CameraField& f) {
+    const int nb = 1 + config_.bodies.instrument_count;
+    acquired_this_field_ = false;
+    bool any_lost = false;
+    for (int b = 0; b < nb; ++b) any_lost = any_lost || !filters_[std::size_t(b)].tracking();
+    if (!any_lost) return;
+    // The synchroniser's frame at this field (other cameras extrapolated to its time).
+    double T = 0, end_dev = 0, recv_host = 0;
+    std::uint32_t ref = 0;
+    bool got = false;
+    while (sync_.pop(T, ref, acquire_cams_, aligned_, end_dev, recv_host)) got = true;
+    if (!got || std::abs(T - f.sample_device_us) > 1.0) return;
+    // History for the fit: bodies being tracked at their filtered pose (they keep their markers), lost ones at
+    // their last acquisition fit if it was the previous frame.
+    const BodySet& bodies = config_.bodies;
+    const double period = config_.sync.field_period_us;
+    if (filters_[0].tracking()) {
+        eye_from_filter(bodies.eye, filters_[0].rotation(), last_eye_);
+        last_eye_.markers_used = used_last_field_[0];
+    } else if (!(acquire_measured_[0] && T - acquire_t_us_[0] < 2.5 * period)) {
+        last_eye_ = EyePose{};
+    }
+    for (int b = 1; b < nb; ++b) {
+        const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
+        InstrumentPose& p = last_instruments_[std::size_t(b - 1)];
+        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        if (flt.tracking()) {
+            instrument_from_filter(m, flt.rotation(), flt.translation(), m.markers_on_axis(), p);
+            instrument_in_eye(m, last_eye_, p);
+        } else if (!(acquire_measured_[std::size_t(b)] && T - acquire_t_us_[std::size_t(b)] < 2.5 * period)) {
+            p = InstrumentPose{};
+        }
+    }
+    std::array<bool, kMaxCameras> present{};
+    for (int c = 0; c < int(cameras_.size()); ++c)
+        present[std::size_t(c)] = acquire_cams_[std::size_t(c)].state != CameraSyncState::Missing;
+    track_images(std::span<const CameraField>(aligned_.data(), cameras_.size()),
+                 std::span<const bool>(present.data(), cameras_.size()), acquire_frame_);
+    acquired_this_field_ = true;
+    for (int b = 0; b < nb; ++b) {
+        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        if (flt.tracking()) continue;
+        Eigen::Quaterniond R;
+        Eigen::Vector3d t;
+        bool measured = false;
+        Eigen::Vector3d roll_axis = Eigen::Vector3d::Zero();
+        if (b == 0) {
+            measured = acquire_frame_.eye.measured();
+            R = acquire_frame_.eye.rotation_eye_to_rig;
+            t = bodies.eye.centre_rig_mm;
+        } else {
+            const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
+            const InstrumentPose& p = acquire_frame_.instruments[std::size_t(b - 1)];
+            measured = p.measured();
+            R = p.rotation_body_to_rig;
+            t = p.tip_rig_mm - R * m.tip_body_mm;
+            if (m.markers_on_axis()) roll_axis = p.axis_rig;
+        }
+        const double dt_us = T - acquire_t_us_[std::size_t(b)];
+        if (measured && acquire_measured_[std::size_t(b)] && dt_us > 1.0 && dt_us < 2.5 * period) {
+            // Two fits in a row: start with their velocity.
+            const double dt = dt_us * 1e-6;
+            const Eigen::AngleAxisd d(R * acquire_R_[std::size_t(b)].conjugate());
+            Eigen::Vector3d w = d.axis() * d.angle() / dt;
+            if (!roll_axis.isZero()) w -= w.dot(roll_axis) * roll_axis;  // no roll rate where roll is not seen
+            const Eigen::Vector3d v = (t - acquire_t_mm_[std::size_t(b)]) / dt;
+            flt.init(T, R, t, w, v, 2e-3, 0.05, 0.3, 10.0);
+            last_good_us_[std::size_t(b)] = T;
+            for (auto& m : seen_us_[std::size_t(b)]) m.fill(kNever);
+        }
+        acquire_measured_[std::size_t(b)] = measured;
+        acquire_t_us_[std::size_t(b)] = T;
+        acquire_R_[std::size_t(b)] = R;
+        acquire_t_mm_[std::size_t(b)] = t;
+    }
+}
+
+void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
+    const BodySet& bodies = config_.bodies;
+    const AsyncOptions& ao = config_.async;
+    const double T = f.sample_device_us;
+    const int ncam = int(cameras_.size());
+    const int nb = 1 + bodies.instrument_count;
+    out.index = async_frames_++;
+    out.reference_field = f.field_counter;
+    out.time_device_us = T;
+    out.flags = kFrameOk;
+    out.camera_count = ncam;
+    out.cameras_used = 0;
+    for (int c = 0; c < kMaxCameras; ++c) {
+        AlignedCamera& ac = out.cameras[std::size_t(c)];
+        ac = AlignedCamera{};
+        if (c >= ncam || !(T - last_field_us_[std::size_t(c)] < 1.5 * config_.sync.field_period_us)) continue;
+        ac.state = CameraSyncState::Direct;
+        ac.dt_us = last_field_us_[std::size_t(c)] - T;
+        ac.field_a = ac.field_b = last_field_counter_[std::size_t(c)];
+        ++out.cameras_used;
+    }
+    if (out.cameras_used < ncam) out.flags |= kFrameTwoView;
+    if (out.cameras_used < 2) out.flags |= kFrameTooFewCameras;
+    out.images_in = f.count;
+    out.images_dropped_sync = 0;
+    out.markers.count = 0;
+    out.markers.unmatched_images = 0;
+    out.markers.rejected_hypotheses = 0;
+    out.assignment.body.fill(-1);
+    out.assignment.marker.fill(-1);
+    out.markers_unassigned = 0;
+    // A tracked body with no image accepted within a field period is coasting on its prediction: held.
+    const auto coasting = [&](int b) { return T - last_good_us_[std::size_t(b)] > config_.sync.field_period_us; };
+    // Eye.
+    if (filters_[0].tracking()) {
+        eye_from_filter(bodies.eye, filters_[0].rotation(), out.eye);
+        out.eye.markers_used = used_last_field_[0];
+        if (coasting(0)) out.eye.flags |= kPoseHeld;
+    } else if (acquired_this_field_ && acquire_frame_.eye.measured()) {
+        out.eye = acquire_frame_.eye;
+    } else {
+        out.eye.centre_rig_mm = bodies.eye.centre_rig_mm;
+        out.eye.flags = kPoseTooFewMarkers | kPoseHeld;
+    }
+    out.instrument_count = bodies.instrument_count;
+    for (int b = 1; b < nb; ++b) {
+        const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
+        InstrumentPose& p = out.instruments[std::size_t(b - 1)];
+        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        if (flt.tracking()) {
+            instrument_from_filter(m, flt.rotation(), flt.translation(), m.markers_on_axis(), p);
+            p.markers_used = used_last_field_[std::size_t(b)];
+            if (coasting(b)) p.flags |= kPoseHeld;
+        } else if (acquired_this_field_ && acquire_frame_.instruments[std::size_t(b - 1)].measured()) {
+            p = acquire_frame_.instruments[std::size_t(b - 1)];
+        } else {
+            p.flags = kPoseTooFewMarkers | kPoseHeld;
+        }
+        p.opening = opening_;
+        instrument_in_eye(m, out.eye, p);
+    }
+    // Markers: those of a tracked body seen by two cameras lately, where the filter puts them; a body acquired
+    // from this frame's triangulation brings its triangulated markers.
+    for (int b = 0; b < nb; ++b) {
+        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        const int mc = b == 0 ? bodies.eye.marker_count : bodies.instruments[std::size_t(b - 1)].marker_count;
+        const BodyMarker* ms = b == 0 ? bodies.eye.markers.data() : bodies.instruments[std::size_t(b - 1)].markers.data();
+        if (flt.tracking()) {
+            for (int k = 0; k < mc && out.markers.count < kMaxMarkersPerFrame; ++k) {
+                int views = 0;
+                for (int c = 0; c < ncam; ++c)
+                    if (T - seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c)] <= ao.marker_recent_us) ++views;
+                if (views < 2) continue;
+                MatchedMarker& mk = out.markers.markers[std::size_t(out.markers.count)];
+                mk = MatchedMarker{};
+                mk.colour_class = ms[k].colour_class;
+                mk.point.X_rig_mm = flt.to_rig(ms[k].pos_body_mm);
+                mk.point.cov_mm2 = flt.covariance().block<3, 3>(3, 3);
+                mk.point.views = views;
+                mk.image_index.fill(-1);
+                out.assignment.body[std::size_t(out.markers.count)] = std::int8_t(b);
+                out.assignment.marker[std::size_t(out.markers.count)] = std::int8_t(k);
+                ++out.markers.count;
+            }
+        } else if (acquired_this_field_) {
+            for (int k = 0; k < acquire_frame_.markers.count && out.markers.count < kMaxMarkersPerFrame; ++k) {
+                if (acquire_frame_.assignment.body[std::size_t(k)] != b) continue;
+                MatchedMarker& mk = out.markers.markers[std::size_t(out.markers.count)];
+                mk = acquire_frame_.markers.markers[std::size_t(k)];
+                mk.image_index.fill(-1);
+                out.assignment.body[std::size_t(out.markers.count)] = std::int8_t(b);
+                out.assignment.marker[std::size_t(out.markers.count)] = acquire_frame_.assignment.marker[std::size_t(k)];
+                ++out.markers.count;
+            }
+        }
+    }
+}
+
+bool Tracker::pose_at(double t_device_us, EyePose& eye, std::span<InstrumentPose> instruments) const {
+    if (config_.sync.mode != SyncMode::Async) return false;
+    const BodySet& bodies = config_.bodies;
+    bool any = false;
+    Eigen::Quaterniond R;
+    Eigen::Vector3d t;
+    if (filters_[0].tracking()) {
+        filters_[0].pose_at(t_device_us, R, t);
+        eye_from_filter(bodies.eye, R, eye);
+        any = true;
+    }
+    for (int b = 0; b < bodies.instrument_count && b < int(instruments.size()); ++b) {
+        const RigidBodyFilter& flt = filters_[std::size_t(1 + b)];
+        if (!flt.tracking()) continue;
+        const InstrumentModel& m = bodies.instruments[std::size_t(b)];
+        flt.pose_at(t_device_us, R, t);
+        instrument_from_filter(m, R, t, m.markers_on_axis(), instruments[std::size_t(b)]);
+        instrument_in_eye(m, eye, instruments[std::size_t(b)]);
+        any = true;
+    }
+    return any;
 }
 
 }  // namespace eyesim::tracking

@@ -49,7 +49,10 @@ struct CameraField {
 };
 
 /// How other cameras are brought to the reference time.
-enum class SyncMode : std::uint8_t { Interpolate, Extrapolate, Nearest };
+/// Async: no common time at all: each body's filter (async_fusion.hpp) is updated by every camera field at its
+/// own exposure time as soon as it is assembled; the frame synchroniser (as Extrapolate) only serves to
+/// (re)acquire a body by triangulation.
+enum class SyncMode : std::uint8_t { Interpolate, Extrapolate, Nearest, Async };
 
 /// Options of the synchroniser.
 struct SyncOptions {

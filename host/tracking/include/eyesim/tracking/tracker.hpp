@@ -14,6 +14,7 @@
 /// \endcode
 /// Everything after construction is allocation-free.
 
+#include "eyesim/tracking/async_fusion.hpp"
 #include "eyesim/tracking/body_model.hpp"
 #include "eyesim/tracking/camera_geometry.hpp"
 #include "eyesim/tracking/correspondence.hpp"
@@ -35,6 +36,7 @@ struct TrackerConfig {
     std::vector<CameraTiming> timing;      ///< one per camera (field end → exposure mid), same order
     BodySet bodies;                        ///< eye and instruments to fit
     SyncOptions sync;                      ///< time alignment
+    AsyncOptions async;                    ///< per-body filters (sync.mode = SyncMode::Async)
     CorrespondenceOptions correspondence;  ///< matching and triangulation
     PoseOptions pose;                      ///< body fits
     UndistortOptions undistort;            ///< inverse distortion
@@ -127,6 +129,11 @@ public:
     /// Camera `c`'s image of marker `k` of `frame`, which must be the frame last built (see MarkerView).
     MarkerView marker_view(const TrackingFrame& frame, int k, int c) const;
 
+    /// SyncMode::Async: the poses of the bodies being tracked predicted to `t_device_us` (a display time; the
+    /// newest observation's time gives the filters' own estimate). Bodies not tracked are left as they are; returns
+    /// false when none is tracked (or in the other modes). Does not change the filters.
+    bool pose_at(double t_device_us, EyePose& eye, std::span<InstrumentPose> instruments) const;
+
     /// Cameras in use.
     std::span<const CameraGeometry> cameras() const { return cameras_; }
     /// The configuration.
@@ -136,6 +143,10 @@ public:
 
 private:
     void correct_shaft_occlusion(TrackingFrame& out);
+    bool pop_async(TrackingFrame& out, double now_host_us);
+    void fuse_field(const CameraField& f);
+    void acquire(const CameraField& f);
+    void build_async_frame(const CameraField& f, TrackingFrame& out);
 
     TrackerConfig config_;
     std::vector<CameraGeometry> cameras_;
@@ -155,6 +166,28 @@ private:
     std::array<std::array<Eigen::Vector2d, kMaxCameras>, kMaxMarkersPerFrame> corrected_xn_{};
     int rejected_non_finite_ = 0;
     int rejected_before_restart_ = 0;
+
+    // --- SyncMode::Async ---
+    static constexpr int kQueue = 8;         ///< assembled fields waiting for pop()
+    static constexpr int kBodies = 1 + kMaxInstruments;  ///< eye, then the instruments
+    std::array<CameraField, kQueue> queue_{};
+    int queue_head_ = 0, queue_count_ = 0;
+    std::array<RigidBodyFilter, kBodies> filters_{};
+    std::array<double, kBodies> last_good_us_{};
+    std::array<int, kBodies> used_last_field_{};
+    // When each body marker was last used in each camera (device µs), for the markers a frame reports.
+    std::array<std::array<std::array<double, kMaxCameras>, kMaxBodyMarkers>, kBodies> seen_us_{};
+    std::array<double, kMaxCameras> last_field_us_{};
+    std::array<std::uint32_t, kMaxCameras> last_field_counter_{};
+    // Acquisition by triangulation: the last fit of each body (velocity from two in a row).
+    TrackingFrame acquire_frame_{};
+    std::array<AlignedCamera, kMaxCameras> acquire_cams_{};
+    std::array<bool, kBodies> acquire_measured_{};
+    std::array<double, kBodies> acquire_t_us_{};
+    std::array<Eigen::Quaterniond, kBodies> acquire_R_{};
+    std::array<Eigen::Vector3d, kBodies> acquire_t_mm_{};
+    bool acquired_this_field_ = false;
+    std::uint64_t async_frames_ = 0;
 };
 
 }  // namespace eyesim::tracking

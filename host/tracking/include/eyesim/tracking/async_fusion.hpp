@@ -1,0 +1,193 @@
+#pragma once
+/// \file
+/// Asynchronous fusion (SCAAT after Welch & Bishop): one extended Kalman filter per body, rigid pose and velocity
+/// under a constant-velocity model with white acceleration, updated on each camera field on its own at that
+/// field's exposure mid-time. Nothing waits for the other cameras: every field corrects the pose as soon as it
+/// is assembled, and the pose can be read at the newest observation's time or predicted to any later time.
+///
+/// State (error-state form, rig frame): orientation R (body→rig) with a rotation error δθ (R = exp(δθ)·R̂),
+/// translation t (X_rig = R·b + t; the instrument body origin is its tip), angular velocity ω and velocity v.
+/// The eye is a rotation about its fixed centre (t = centre, v = 0, no translation noise). Markers on one
+/// line (the instruments) leave the roll about that line unobservable: a pseudo-measurement keeps its variance
+/// bounded. Fixed-size Eigen throughout, no allocation.
+
+#include "eyesim/tracking/body_model.hpp"
+#include "eyesim/tracking/camera_geometry.hpp"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+
+namespace eyesim::tracking {
+
+/// Options of the per-body filters and the association of images to predicted markers.
+struct AsyncOptions {
+    double sigma_x_px = 0.08;         ///< 1σ centroid noise along x (frame pixels)
+    double sigma_y_px = 0.12;         ///< 1σ along y (frame pixels: a field's rows are two frame rows apart)
+    /// White linear-acceleration spectral density q (mm²/s³) of the instruments: the trade between smoothing
+    /// (small q: sweep) and following fast turns (large q: fast); chosen on one 2 s recording of each (seed 1).
+    double accel_psd_mm2_s3 = 4.0e3;
+    double ang_accel_psd_rad2_s3 = 4.0;  ///< white angular-acceleration spectral density (rad²/s³)
+    double eye_ang_accel_psd_rad2_s3 = 1.0;  ///< the same for the eye (a heavier, slower body)
+    double gate_px = 6.0;             ///< an image farther than this from a predicted marker is not its image
+    double ambiguity_ratio = 1.5;     ///< the second-nearest same-class image must be this much farther, else skip
+    double nis_gate = 25.0;           ///< normalised innovation squared (2 dof) above this: outlier, not used
+    /// A field supports a body when it gives at least this many of its markers (one marker and the trocar leave
+    /// an instrument's pose underdetermined, and a filter fed only such fields drifts).
+    int min_markers_good = 2;
+    double lost_after_us = 100000.0;  ///< no supporting field for this long: the body is lost (re-acquired)
+    double max_position_sigma_mm = 1.0;  ///< √trace of the position covariance above this: lost
+    double marker_recent_us = 30000.0;   ///< a marker seen by ≥ 2 cameras within this is reported in a frame
+    double min_area_ratio = 0.6;      ///< an image whose blob area is below this share of the sphere's: occluded
+};
+
+/// SCAAT filter of one rigid body (see the file comment).
+class RigidBodyFilter {
+public:
+    /// 12-dimensional error state: δθ, δt, δω, δv.
+    using State = Eigen::Matrix<double, 12, 1>;
+    /// Its covariance.
+    using Cov = Eigen::Matrix<double, 12, 12>;
+
+    /// An instrument-like rigid body (free rotation and translation). `roll_axis_body`: unit axis of a body whose
+    /// markers are all on that line (roll unobservable), else zero.
+    void configure_rigid(const Eigen::Vector3d& roll_axis_body, double ang_psd_rad2_s3, double lin_psd_mm2_s3);
+    /// A body rotating about `centre_rig_mm`, fixed in the rig (the eye).
+    void configure_rotation(const Eigen::Vector3d& centre_rig_mm, double ang_psd_rad2_s3);
+
+    /// Starts tracking at `t_us` (device clock) with this pose and velocity and 1σ uncertainties.
+    void init(double t_us, const Eigen::Quaterniond& R_body_to_rig, const Eigen::Vector3d& t_mm,
+              const Eigen::Vector3d& omega_rad_s, const Eigen::Vector3d& v_mm_s, double sigma_rot_rad,
+              double sigma_pos_mm, double sigma_omega_rad_s, double sigma_v_mm_s);
+    /// Stops tracking (lost).
+    void reset() { tracking_ = false; }
+    /// True between init() and reset().
+    bool tracking() const { return tracking_; }
+
+    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise). A time
+    /// before the current one (a late field) is predicted back the same way.
+    void predict_to(double t_us);
+    /// Pose at `t_us` without changing the filter (display-time prediction).
+    void pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
+
+    /// Body point `b` in the rig frame at the filter's time.
+    Eigen::Vector3d to_rig(const Eigen::Vector3d& b_body_mm) const { return R_ * b_body_mm + t_; }
+
+    /// One image of body point `b` in camera `cam`: `px` the observed distorted frame pixel, `shift` a function
+    /// (R, t) → normalised-image offset added to the projection (the shaft's occlusion of a marker; may be null).
+    /// Returns false (no update) when the point is behind the camera or the innovation fails `nis_gate`.
+    /// `nis` receives the normalised innovation squared.
+    template <typename Shift>
+    bool update_point(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Eigen::Vector2d& px,
+                      double sigma_x_px, double sigma_y_px, double nis_gate, const Shift& shift, double* nis = nullptr);
+
+    /// Pulls the body's line through `b_body_mm` along `axis_body` through the rig point `p_rig_mm` (a trocar),
+    /// with 1σ `sigma_mm` across the line.
+    void update_line_through(const Eigen::Vector3d& b_body_mm, const Eigen::Vector3d& axis_body,
+                             const Eigen::Vector3d& p_rig_mm, double sigma_mm);
+
+    /// Predicted pixel of body point `b` in `cam` at the filter's time (false behind the camera).
+    bool predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, Eigen::Vector2d& px) const;
+
+    /// Current time (device µs).
+    double time_us() const { return time_us_; }
+    /// Orientation body→rig.
+    const Eigen::Quaterniond& rotation() const { return R_; }
+    /// Translation (mm): the body origin in the rig frame.
+    const Eigen::Vector3d& translation() const { return t_; }
+    /// Angular velocity (rig frame, rad/s).
+    const Eigen::Vector3d& omega() const { return w_; }
+    /// Velocity of the body origin (mm/s).
+    const Eigen::Vector3d& velocity() const { return v_; }
+    /// Covariance of the error state.
+    const Cov& covariance() const { return P_; }
+    /// √trace of the position covariance (mm).
+    double position_sigma_mm() const { return std::sqrt(std::max(0.0, P_.block<3, 3>(3, 3).trace())); }
+
+private:
+    void apply(const State& dx);
+    void roll_pseudo_measurement();
+
+    bool tracking_ = false;
+    bool rotation_only_ = false;
+    Eigen::Vector3d roll_axis_body_ = Eigen::Vector3d::Zero();
+    double q_ang_ = 1.0, q_lin_ = 1.0;
+    double time_us_ = 0.0;
+    Eigen::Quaterniond R_ = Eigen::Quaterniond::Identity();
+    Eigen::Vector3d t_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
+    Cov P_ = Cov::Identity();
+};
+
+/// Centroid shift (normalised image units, along the projected half-shaft) of a uniform disk of radius `rho`
+/// from which a strip of half-width `w`, starting at `t0` from the centre and running to the rim, is hidden (a
+/// shaft running through a marker sphere).
+double strip_centroid_shift(double rho, double w, double t0);
+
+/// Normalised-image shift of the centroid of the marker at `X_rig_mm` (radius `marker_radius_mm`) on a shaft of
+/// radius `shaft_radius_mm` along the unit `axis_rig`, seen by `cam`: what the visible part's centroid moves by.
+Eigen::Vector2d shaft_occlusion_shift(const CameraGeometry& cam, const Eigen::Vector3d& X_rig_mm,
+                                      const Eigen::Vector3d& axis_rig, double marker_radius_mm,
+                                      double shaft_radius_mm);
+
+// ---------------------------------------------------------------------------------------------------------------
+
+namespace detail {
+/// Distorted pixel of the normalised point `xn` in `cam`.
+Eigen::Vector2d to_pixel(const CameraGeometry& cam, const Eigen::Vector2d& xn);
+/// Rotation vector → quaternion.
+Eigen::Quaterniond exp_rotation(const Eigen::Vector3d& theta);
+}  // namespace detail
+
+template <typename Shift>
+bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
+                                   double sx, double sy, double nis_gate, const Shift& shift, double* nis) {
+    // h(δθ, δt): projected pixel (plus the occlusion shift) of the perturbed pose; Jacobian by central differences
+    // (fixed 2×6, cheap next to the rest).
+    auto h = [&](const Eigen::Matrix<double, 6, 1>& d, Eigen::Vector2d& out) {
+        const Eigen::Quaterniond R = detail::exp_rotation(d.head<3>()) * R_;
+        const Eigen::Vector3d t = t_ + d.tail<3>();
+        const Eigen::Vector3d X = R * b + t;
+        const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
+        if (!(Xc.z() > 1e-6)) return false;
+        Eigen::Vector2d xn(Xc.x() / Xc.z(), Xc.y() / Xc.z());
+        xn += shift(R, t, X);
+        out = detail::to_pixel(cam, xn);
+        return out.allFinite();
+    };
+    Eigen::Vector2d z0;
+    Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
+    if (!h(d, z0)) return false;
+    Eigen::Matrix<double, 2, 6> J;
+    for (int i = 0; i < 6; ++i) {
+        const double eps = i < 3 ? 1e-6 : 1e-4;
+        Eigen::Vector2d zp, zm;
+        d.setZero();
+        d[i] = eps;
+        if (!h(d, zp)) return false;
+        d[i] = -eps;
+        if (!h(d, zm)) return false;
+        J.col(i) = (zp - zm) / (2.0 * eps);
+    }
+    const Eigen::Vector2d r = px - z0;
+    Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
+    Rn(0, 0) = sx * sx;
+    Rn(1, 1) = sy * sy;
+    const Eigen::Matrix2d S = J * P_.topLeftCorner<6, 6>() * J.transpose() + Rn;
+    const Eigen::Matrix2d Si = S.inverse();
+    const double q = r.dot(Si * r);
+    if (nis) *nis = q;
+    if (!(q <= nis_gate) || !std::isfinite(q)) return false;
+    const Eigen::Matrix<double, 12, 2> K = P_.leftCols<6>() * J.transpose() * Si;
+    apply(K * r);
+    // Joseph form keeps P symmetric and positive.
+    Eigen::Matrix<double, 12, 12> IKH = Eigen::Matrix<double, 12, 12>::Identity();
+    IKH.leftCols<6>() -= K * J;
+    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
+    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    roll_pseudo_measurement();
+    return true;
+}
+
+}  // namespace eyesim::tracking

@@ -1,0 +1,193 @@
+#include "eyesim/tracking/async_fusion.hpp"
+
+#include "eyesim/tracking/distortion.hpp"
+
+namespace eyesim::tracking {
+
+namespace detail {
+
+Eigen::Vector2d to_pixel(const CameraGeometry& cam, const Eigen::Vector2d& xn) {
+    const Eigen::Vector2d xd = distort_normalized(cam, xn);
+    return {cam.fx * xd.x() + cam.cx, cam.fy * xd.y() + cam.cy};
+}
+
+Eigen::Quaterniond exp_rotation(const Eigen::Vector3d& theta) {
+    const double a = theta.norm();
+    if (a < 1e-12) return Eigen::Quaterniond(1.0, 0.5 * theta.x(), 0.5 * theta.y(), 0.5 * theta.z()).normalized();
+    return Eigen::Quaterniond(Eigen::AngleAxisd(a, theta / a));
+}
+
+}  // namespace detail
+
+double strip_centroid_shift(double rho, double w, double t0) {
+    if (!(t0 < rho) || !(w > 0.0)) return 0.0;
+    constexpr int kSteps = 16;
+    const double dt = (rho - t0) / kSteps;
+    double area = 0.0, moment = 0.0;
+    for (int k = 0; k < kSteps; ++k) {
+        const double t = t0 + (k + 0.5) * dt;
+        const double half = std::min(w, std::sqrt(std::max(0.0, rho * rho - t * t)));
+        area += 2.0 * half * dt;
+        moment += t * 2.0 * half * dt;
+    }
+    const double disk = 3.141592653589793 * rho * rho;
+    return -moment / std::max(disk - area, 1e-3 * disk);
+}
+
+Eigen::Vector2d shaft_occlusion_shift(const CameraGeometry& g, const Eigen::Vector3d& X, const Eigen::Vector3d& a,
+                                      double marker_radius_mm, double shaft_radius_mm) {
+    if (!(marker_radius_mm > 0.0) || !(shaft_radius_mm > 0.0)) return Eigen::Vector2d::Zero();
+    const Eigen::Vector3d Xc = g.R_cam_rig * X + g.t_cam_rig_mm;
+    const Eigen::Vector3d v = (g.centre_rig_mm() - X).normalized();           // towards the camera
+    const Eigen::Vector3d e = a.dot(v) > 0.0 ? a : Eigen::Vector3d(-a);       // the half-shaft in front
+    const double sin_t = (e - e.dot(v) * v).norm();
+    if (!(sin_t > 1e-3) || !(Xc.z() > 0.0)) return Eigen::Vector2d::Zero();
+    const Eigen::Vector3d Xe = g.R_cam_rig * (X + e) + g.t_cam_rig_mm;
+    const Eigen::Vector2d u =
+        (Eigen::Vector2d(Xe.x() / Xe.z(), Xe.y() / Xe.z()) - Eigen::Vector2d(Xc.x() / Xc.z(), Xc.y() / Xc.z()))
+            .normalized();
+    if (!u.allFinite()) return Eigen::Vector2d::Zero();
+    const double rho = marker_radius_mm / Xc.z();
+    return strip_centroid_shift(rho, shaft_radius_mm / Xc.z(), rho * sin_t) * u;
+}
+
+void RigidBodyFilter::configure_rigid(const Eigen::Vector3d& roll_axis_body, double ang_psd, double lin_psd) {
+    rotation_only_ = false;
+    roll_axis_body_ = roll_axis_body.norm() > 0.0 ? Eigen::Vector3d(roll_axis_body.normalized()) : Eigen::Vector3d::Zero();
+    q_ang_ = ang_psd;
+    q_lin_ = lin_psd;
+    tracking_ = false;
+}
+
+void RigidBodyFilter::configure_rotation(const Eigen::Vector3d& centre_rig_mm, double ang_psd) {
+    rotation_only_ = true;
+    roll_axis_body_.setZero();
+    t_ = centre_rig_mm;
+    q_ang_ = ang_psd;
+    q_lin_ = 0.0;
+    tracking_ = false;
+}
+
+void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen::Vector3d& t,
+                           const Eigen::Vector3d& omega, const Eigen::Vector3d& v, double s_rot, double s_pos,
+                           double s_omega, double s_v) {
+    time_us_ = t_us;
+    R_ = R.normalized();
+    w_ = omega;
+    P_.setZero();
+    P_.block<3, 3>(0, 0).diagonal().setConstant(s_rot * s_rot);
+    P_.block<3, 3>(6, 6).diagonal().setConstant(s_omega * s_omega);
+    if (!rotation_only_) {
+        t_ = t;
+        v_ = v;
+        P_.block<3, 3>(3, 3).diagonal().setConstant(s_pos * s_pos);
+        P_.block<3, 3>(9, 9).diagonal().setConstant(s_v * s_v);
+    } else {
+        v_.setZero();
+    }
+    tracking_ = true;
+    roll_pseudo_measurement();
+}
+
+void RigidBodyFilter::pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
+    const double dt = (t_us - time_us_) * 1e-6;
+    R = (detail::exp_rotation(w_ * dt) * R_).normalized();
+    t = t_ + v_ * dt;
+}
+
+void RigidBodyFilter::predict_to(double t_us) {
+    const double dt = (t_us - time_us_) * 1e-6;
+    if (dt == 0.0) return;
+    pose_at(t_us, R_, t_);
+    time_us_ = t_us;
+    // δθ' = δθ + dt·δω, δt' = δt + dt·δv; white acceleration noise (its magnitude whichever way time runs).
+    Cov F = Cov::Identity();
+    F.block<3, 3>(0, 6).diagonal().setConstant(dt);
+    if (!rotation_only_) F.block<3, 3>(3, 9).diagonal().setConstant(dt);
+    P_ = F * P_ * F.transpose();
+    const double a = std::abs(dt);
+    const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
+    for (int i = 0; i < 3; ++i) {
+        P_(i, i) += q_ang_ * q11;
+        P_(i, 6 + i) += q_ang_ * q12;
+        P_(6 + i, i) += q_ang_ * q12;
+        P_(6 + i, 6 + i) += q_ang_ * q22;
+        if (rotation_only_) continue;
+        P_(3 + i, 3 + i) += q_lin_ * q11;
+        P_(3 + i, 9 + i) += q_lin_ * q12;
+        P_(9 + i, 3 + i) += q_lin_ * q12;
+        P_(9 + i, 9 + i) += q_lin_ * q22;
+    }
+    roll_pseudo_measurement();
+}
+
+void RigidBodyFilter::apply(const State& dx) {
+    R_ = (detail::exp_rotation(dx.segment<3>(0)) * R_).normalized();
+    w_ += dx.segment<3>(6);
+    if (!rotation_only_) {
+        t_ += dx.segment<3>(3);
+        v_ += dx.segment<3>(9);
+    }
+}
+
+void RigidBodyFilter::roll_pseudo_measurement() {
+    // The roll about a line of markers is unobservable: observe "no roll error, no roll rate" with a small σ so
+    // that its variance stays bounded (the roll itself stays what initialisation gave).
+    if (roll_axis_body_.isZero()) return;
+    const Eigen::Vector3d a = R_ * roll_axis_body_;
+    constexpr double kSigma = 1e-3;
+    for (int block : {0, 6}) {
+        State H = State::Zero();
+        H.segment<3>(block) = a;
+        const Eigen::Matrix<double, 12, 1> PH = P_ * H;
+        const double s = H.dot(PH) + kSigma * kSigma;
+        const Eigen::Matrix<double, 12, 1> K = PH / s;
+        P_ -= K * PH.transpose();
+    }
+    P_ = 0.5 * (P_ + P_.transpose()).eval();
+}
+
+void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen::Vector3d& axis_body,
+                                          const Eigen::Vector3d& p, double sigma_mm) {
+    if (rotation_only_) return;
+    const Eigen::Vector3d a0 = (R_ * axis_body).normalized();
+    // Two fixed directions across the current line; residual = offset of p from the line along them.
+    const Eigen::Vector3d e1 = a0.unitOrthogonal(), e2 = a0.cross(e1);
+    auto h = [&](const Eigen::Matrix<double, 6, 1>& d) {
+        const Eigen::Quaterniond R = detail::exp_rotation(d.head<3>()) * R_;
+        const Eigen::Vector3d o = R * b + t_ + d.tail<3>();
+        const Eigen::Vector3d a = (R * axis_body).normalized();
+        const Eigen::Vector3d off = (p - o) - (p - o).dot(a) * a;
+        return Eigen::Vector2d(e1.dot(off), e2.dot(off));
+    };
+    Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
+    const Eigen::Vector2d z0 = h(d);
+    Eigen::Matrix<double, 2, 6> J;
+    for (int i = 0; i < 6; ++i) {
+        const double eps = i < 3 ? 1e-6 : 1e-4;
+        d.setZero();
+        d[i] = eps;
+        const Eigen::Vector2d zp = h(d);
+        d[i] = -eps;
+        J.col(i) = (zp - h(d)) / (2.0 * eps);
+    }
+    const Eigen::Vector2d r = -z0;  // the line should pass through p: offset 0
+    const Eigen::Matrix2d Rn = Eigen::Matrix2d::Identity() * (sigma_mm * sigma_mm);
+    const Eigen::Matrix2d S = J * P_.topLeftCorner<6, 6>() * J.transpose() + Rn;
+    const Eigen::Matrix<double, 12, 2> K = P_.leftCols<6>() * J.transpose() * S.inverse();
+    apply(K * r);
+    Eigen::Matrix<double, 12, 12> IKH = Eigen::Matrix<double, 12, 12>::Identity();
+    IKH.leftCols<6>() -= K * J;
+    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
+    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    roll_pseudo_measurement();
+}
+
+bool RigidBodyFilter::predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b, Eigen::Vector2d& px) const {
+    const Eigen::Vector3d Xc = cam.R_cam_rig * to_rig(b) + cam.t_cam_rig_mm;
+    if (!(Xc.z() > 1e-6)) return false;
+    px = detail::to_pixel(cam, Eigen::Vector2d(Xc.x() / Xc.z(), Xc.y() / Xc.z()));
+    return px.allFinite();
+}
+
+}  // namespace eyesim::tracking
