@@ -8,7 +8,8 @@
 // ones included), error is the RMS over matched markers of the fit's centroid where it accepts and the pipeline's
 // where it refuses.
 //
-// Usage: bench_refine [--seeds N=6] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20] [--json]
+// Usage: bench_refine [--seeds N=6] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20] [--no-reference]
+//                     [--json]
 #include "field_gen.hpp"
 
 #include "eyesim/fpga/pipeline.hpp"
@@ -123,10 +124,11 @@ int main(int argc, char** argv) {
     int seeds = 6, disc_fields = 20;
     double seconds = 0.4;
     std::string scenario = "sweep";
-    bool json = false;
+    bool json = false, reference = true;
     for (int i = 1; i < argc; ++i) {
         const bool has = i + 1 < argc;
         if (!std::strcmp(argv[i], "--json")) json = true;
+        else if (!std::strcmp(argv[i], "--no-reference")) reference = false;
         else if (!std::strcmp(argv[i], "--seeds") && has) seeds = std::max(1, std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--seconds") && has) seconds = std::atof(argv[++i]);
         else if (!std::strcmp(argv[i], "--scenario") && has) scenario = argv[++i];
@@ -156,13 +158,13 @@ int main(int argc, char** argv) {
     disc_cfg.shade_diffuse = 0.0;
     disc_cfg.shot_gain = 0.0;
     disc_cfg.aperture_lines_px = 2.0;
-    auto methods_for = [](const tracking::SphereFitConfig& base, double noise) {
+    auto methods_for = [reference](const tracking::SphereFitConfig& base, double noise) {
         std::vector<Method> ms;
         ms.push_back({"pipeline", false, base});
         tracking::SphereFitConfig ref = base;
         ref.noise_dn = noise;
         ref.model = tracking::SphereFitModel::kSupersampled;
-        ms.push_back({"sphere fit, 4x4 supersampled (reference)", true, ref});
+        if (reference) ms.push_back({"sphere fit, 4x4 supersampled (reference)", true, ref});
         tracking::SphereFitConfig fast = base;
         fast.noise_dn = noise;
         ms.push_back({"sphere fit, analytic coverage (default)", true, fast});

@@ -43,7 +43,7 @@ using Mat = std::array<double, kMaxPar * kMaxPar>;
 
 // Solves (A + λ·diag A)·x = g for the first n unknowns by Cholesky; false when not positive definite.
 bool solve_damped(const Mat& a, const Vec& g, int n, double lambda, Vec& x) {
-    Mat l{};
+    Mat l;  // only the lower triangle of the first n rows is written and read
     for (int i = 0; i < n; ++i)
         for (int j = 0; j <= i; ++j) {
             double s = a[i * kMaxPar + j] + (i == j ? lambda * a[i * kMaxPar + i] + 1e-9 : 0.0);
@@ -217,7 +217,9 @@ public:
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
                 double c = 0, sh = 0, gc[kShapePar] = {}, gs[kShapePar] = {};
-                if (dx * dx + dv * dv < reach * reach) {
+                const bool near = dx * dx + dv * dv < reach * reach;
+                if constexpr (kDeriv) w_.touch[k] = near;
+                if (near) {
                     for (int sy = 0; sy < ss; ++sy) {
                         const double yy = dv + ap * (-0.5 + (sy + 0.5) * h);
                         for (int sxi = 0; sxi < ss; ++sxi) {
@@ -303,6 +305,7 @@ public:
             for (int i = 0; i < p_.cols; ++i) {
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
+                if constexpr (kDeriv) w_.touch[k] = 0;
                 if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) {
                     cov[k] = shade[k] = 0.0;
                     if constexpr (kDeriv)
@@ -312,6 +315,7 @@ public:
                 cov[k] = pi.cov;
                 shade[k] = amb * pi.cov + dif * pi.q;
                 if constexpr (kDeriv) {
+                    w_.touch[k] = 1;
                     if (pi.inside) {
                         for (int m = 0; m < kShapePar; ++m) {
                             dc[m * n + k] = 0.0;
@@ -393,44 +397,69 @@ public:
         return chi2(w_.val.data());
     }
 
-    // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise()).
-    void normal_equations(const Vec& t, Mat& a, Vec& g) const {
-        if (p_.outline)
-            normal_equations_n<kRow>(t, a, g);
-        else
-            normal_equations_n<kRow - 5>(t, a, g);  // the outline's 5 are last
+    // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise());
+    // returns Σ (r/σ)² at t.
+    double normal_equations(const Vec& t, Mat& a, Vec& g) const {
+        if (p_.outline) return normal_equations_n<kRow>(t, a, g);
+        return normal_equations_n<kRow - 5>(t, a, g);  // the outline's 5 are last
     }
 
     // normal_equations over the first nr compact parameters (a compile-time count, so the loops unroll).
     template <int nr>
-    void normal_equations_n(const Vec& t, Mat& a, Vec& g) const {
+    double normal_equations_n(const Vec& t, Mat& a, Vec& g) const {
         const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
         double* val = w_.val.data();
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
-        double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {};
+        double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {}, chi2 = 0;
         auto add = [&](int ch, const double* row, double r, double wgt) {
             double* am = acc[ch];
+            chi2 += wgt * r * r;
             for (int q = 0; q < nr; ++q) {
                 const double wq = wgt * row[q];
                 acc_g[ch][q] += wq * r;
                 for (int s = 0; s <= q; ++s) am[q * kRow + s] += wq * row[s];
             }
         };
+        // A pixel the marker does not reach, without an outline: only the background's level and slopes (compact
+        // 6..8) have derivatives, 1, x, v.
+        auto add_bg = [&](int ch, double x, double v, double r, double wgt) {
+            double* am = acc[ch];
+            chi2 += wgt * r * r;
+            const double b[3] = {1.0, x, v};
+            for (int q = 0; q < 3; ++q) {
+                const double wq = wgt * b[q];
+                acc_g[ch][6 + q] += wq * r;
+                for (int s = 0; s <= q; ++s) am[(6 + q) * kRow + 6 + s] += wq * b[s];
+            }
+        };
+        const uint8_t* touch = w_.touch.data();
         double row[kRow] = {}, r0[kRow] = {}, r1[kRow] = {}, r2[kRow] = {};
         for (int j = 0; j < p_.lines; ++j) {
+            const double vj = vrel_[static_cast<size_t>(j)];
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x, k = j * p_.cols + x + 1;
                 if (!w_.keep_y[o]) continue;
+                if (!p_.outline && !touch[k]) {
+                    add_bg(0, xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                    continue;
+                }
                 pixel_row(t, 0, x + 1, j, row);
                 add(0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
             }
             int s = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
-                const int i = x - p_.x0 + 1, o = j * nx + s;
+                const int i = x - p_.x0 + 1, o = j * nx + s, k = j * p_.cols + i;
+                const bool bg_only = !p_.outline && !touch[k - 1] && !touch[k] && !touch[k + 1];
                 for (int ch = 1; ch <= 2; ++ch) {
                     if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
+                    if (bg_only) {
+                        // The [1 2 1] filter of 1, x, v is 1, x, v.
+                        const double mod = filtered(val + ch * n + j * p_.cols, i);
+                        add_bg(ch, xrel_[static_cast<size_t>(i)], vj, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
+                        continue;
+                    }
                     pixel_row(t, ch, i - 1, j, r0);
                     pixel_row(t, ch, i, j, r1);
                     pixel_row(t, ch, i + 1, j, r2);
@@ -453,6 +482,7 @@ public:
         for (int q = 0; q < np(); ++q)
             for (int s = q + 1; s < np(); ++s)
                 a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
+        return chi2;
     }
 
     // Base render with its derivatives by the shape parameters, in one pass.
@@ -800,20 +830,22 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     const int np = f.np();
     double chi2 = 0;
     int it = 0;
+    // An accepted Gauss–Newton step this small leaves an error of the order of its square: far below the noise.
     auto small_step = [](const Vec& d) {
-        return std::fabs(d[kX0]) < 1e-3 && std::fabs(d[kV0]) < 2e-3 && std::fabs(d[kR]) < 1e-3;
+        return std::fabs(d[kX0]) < 2e-3 && std::fabs(d[kV0]) < 4e-3 && std::fabs(d[kR]) < 2e-3;
     };
     // Levenberg–Marquardt from t; with give_up, stops early on a fit that stays hopeless (another object in the
     // patch).
+    // Each trial point is linearised at once: its χ² comes with its normal equations, which an accepted step
+    // needs next (no separate cost render).
+    Mat a, a1;
+    Vec g, g1;
     auto solve = [&](int max_it, bool give_up) {
-        chi2 = f.cost(t);
+        f.linearise(t);
+        chi2 = f.normal_equations(t, a, g);
         double lambda = 1e-3;
         const int dof = std::max(1, f.observations() - np);
         for (int k = 0; k < max_it; ++k, ++it) {
-            f.linearise(t);
-            Mat a;
-            Vec g;
-            f.normal_equations(t, a, g);
             bool improved = false, converged = false;
             double gain = 0;
             for (int tries = 0; tries < 8 && !improved; ++tries) {
@@ -821,8 +853,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                 if (solve_damped(a, g, np, lambda, d)) {
                     Vec tt = t;
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
-                    const double c1 = f.cost(tt);
+                    f.linearise(tt);
+                    const double c1 = f.normal_equations(tt, a1, g1);
                     if (c1 < chi2) {
+                        a = a1;
+                        g = g1;
                         // Centre and radius settled far below the noise's reach (≈ 0.01 px): another step buys nothing.
                         converged = small_step(d);
                         gain = chi2 - c1;

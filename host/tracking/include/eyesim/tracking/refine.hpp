@@ -101,6 +101,7 @@ struct SphereFitWorkspace {
     std::array<double, kPx> edge_p{}, edge_dp{};   // limb profile P(s) and dP/ds
     std::array<double, kPx> edge_dphi{}, edge_dkappa{};  // ∂dist/∂φ, ∂dist/∂κ
     std::array<uint8_t, kPx> keep_y{}, keep_cb{}, keep_cr{};  // 1: the observation is in the fit
+    std::array<uint8_t, kPx> touch{};              // 1: the marker (or its derivatives) reaches the model pixel
     std::array<double, kPx> obs_y{}, var_y{};
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
 };
