@@ -5,6 +5,8 @@
 # that holds the true K and distortion on other poses with zero clock offsets (so no pose or clock can leak),
 # --truth-rig scoring the result; then a `sweep` recording of the same rig is validated with the true rig.yaml
 # and with the calibrated one (`validate --rig`). Prints one Markdown row per seed, then the median and worst.
+# `calibrate` runs with its defaults (wand centroids from the refinement stage); --calibrate-options "--no-refine"
+# gives the FPGA model's centroids alone.
 # --board: the intrinsics calibrated too, from a `checkerboard` recording of the same rig (--board-seconds, 34 s:
 # 16 holds per camera), instead of the file.
 #

@@ -4,10 +4,11 @@
 # `eyesim fpga --json` (centroid error and signed bias against the rendered centroids, wall time),
 # `eyesim validate --json` (3D marker, tip and eye errors) and bench_recording (what opening costs, reading speed).
 # Each figure is the worst over the seeds (largest error, largest |bias|, slowest). Prints the Markdown table on
-# stdout.
+# stdout. --refine: `fpga` and `validate` with --refine (each blob's centroid from the refinement stage's
+# shaded-sphere fit on Y, Cb, Cr instead of the pipeline's chroma-only centroid).
 #
 #   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"]
-#                          [--build DIR] [--work DIR]
+#                          [--refine] [--build DIR] [--eyesim PATH] [--work DIR]
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")/.." && pwd)
@@ -16,17 +17,21 @@ seeds="1 2"
 seconds=10
 formats="uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"
 work=""
+refine=()
+eyesim=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds="$2"; shift 2 ;;
     --seconds) seconds="$2"; shift 2 ;;
     --formats) formats="$2"; shift 2 ;;
     --build) build="$2"; shift 2 ;;
+    --eyesim) eyesim="$2"; shift 2 ;;
+    --refine) refine=(--refine); shift ;;
     --work) work="$2"; shift 2 ;;
     *) echo "codec_table.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
-eyesim="$build/host/app/eyesim"
+[ -n "$eyesim" ] || eyesim="$build/host/app/eyesim"
 bench="$build/bench/rig/bench_recording"
 for p in "$eyesim" "$bench"; do [ -x "$p" ] || { echo "codec_table.sh: $p: not built" >&2; exit 1; }; done
 if [ -z "$work" ]; then
@@ -48,19 +53,20 @@ for seed in $seeds; do
       fi
     fi
     t0=$(now)
-    "$eyesim" fpga --recording "$d" --json >"$d.fpga.json" 2>"$d.fpga.err"
+    "$eyesim" fpga --recording "$d" "${refine[@]}" --json >"$d.fpga.json" 2>"$d.fpga.err"
     t1=$(now)
     echo "$t0 $t1" >"$d.fpga.wall"
-    "$eyesim" validate --recording "$d" --json >"$d.validate.json" 2>"$d.validate.err" || true
+    "$eyesim" validate --recording "$d" "${refine[@]}" --json >"$d.validate.json" 2>"$d.validate.err" || true
     "$bench" "$d" >"$d.bench.json"
     du -sb "$d"/cam0.* | cut -f1 >"$d.bytes"
     echo "codec_table.sh: seed $seed $f done" >&2
   done
 done
 
-python3 - "$work" "$seeds" "$formats" "$seconds" <<'EOF'
+python3 - "$work" "$seeds" "$formats" "$seconds" "${#refine[@]}" <<'EOF'
 import json, math, os, sys
 work, seeds, formats, seconds = sys.argv[1], sys.argv[2].split(), sys.argv[3].split(), float(sys.argv[4])
+refined = sys.argv[5] != "0"
 names = {"uyvy": "raw UYVY fields", "ffv1": "FFV1 4:2:2 .mkv (lossless)",
          "ffv1-420": "FFV1 of 4:2:0 planes (lossless; subsampling alone)",
          "ffv1-411": "FFV1 of 4:1:1 planes (lossless; subsampling alone)", "dv": "DV 4:2:0 .avi (25 Mbit/s)",
@@ -107,5 +113,6 @@ for f in formats:
           f"| {fmt(w('tip'), '.1f')} | {fmt(w('eye'), '.4f')} | {w('wall'):.1f} | {w('open'):.0f} ({w('dec')}) "
           f"| {min(r['fps'] for r in rows):.0f} | {w('mbit'):.1f} | {w('lost')} |")
 print()
-print(f"`sweep`, {seconds:g} s, seeds {', '.join(seeds)}; each figure the worst over the seeds.")
+print(f"`sweep`, {seconds:g} s, seeds {', '.join(seeds)}; each figure the worst over the seeds"
+      + ("; centroids from the refinement stage (`--refine`)." if refined else "."))
 EOF

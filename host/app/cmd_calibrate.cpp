@@ -31,7 +31,7 @@ struct CalibrateOptions {
     std::string board, wand, out, intrinsics, report, bodies, truth_rig;
     bool json = false;
     bool refine_intrinsics = false;
-    bool refine = false;
+    bool refine = true;  // the refinement stage on the wand's blobs (--no-refine: the FPGA model's centroids)
     bool synchronised = false;
     int64_t max_fields = -1;
     int64_t min_samples = 30;
@@ -281,7 +281,9 @@ eyesim::app::Registrar reg{"calibrate", "Calibrate the rig from recordings: a ch
     sub.add_flag("--json", opt->json, "print one JSON summary object on stdout");
     sub.add_flag("--refine-intrinsics", opt->refine_intrinsics,
                  "also refine K and distortion in the wand bundle adjustment");
-    sub.add_flag("--refine", opt->refine, "refine blob centroids with the refinement stage's sphere fit");
+    sub.add_flag("--refine,!--no-refine", opt->refine,
+                 "wand blob centroids from the refinement stage's shaded-sphere fit (the default; calibration is "
+                 "offline), or with --no-refine the FPGA model's centroids alone");
     sub.add_flag("--synchronised", opt->synchronised,
                  "the cameras share one field clock (default: solve each camera's time offset)");
     sub.add_option("--fields", opt->max_fields, "use at most this many wand fields per camera")
