@@ -29,7 +29,7 @@ struct AsyncOptions {
     /// White linear-acceleration spectral density q (mm²/s³) of the instruments: the trade between smoothing
     /// (small q: sweep) and following fast turns (large q: fast); chosen on one 2 s recording of each (seed 1).
     double accel_psd_mm2_s3 = 4.0e3;
-    double ang_accel_psd_rad2_s3 = 4.0;  ///< white angular-acceleration spectral density (rad²/s³)
+    double ang_accel_psd_rad2_s3 = 16.0;  ///< white angular-acceleration spectral density (rad²/s³)
     double eye_ang_accel_psd_rad2_s3 = 1.0;  ///< the same for the eye (a heavier, slower body)
     double gate_px = 6.0;             ///< an image farther than this from a predicted marker is not its image
     double ambiguity_ratio = 1.5;     ///< the second-nearest same-class image must be this much farther, else skip
