@@ -82,6 +82,14 @@ void HostRun::set_clock_offset_us(double offset) {
     clock_fixed_ = clock_known_ = true;
 }
 
+void HostRun::enable_precision(const tr::SphereFitConfig& config, uint8_t class_mask) {
+    precision_ = std::make_unique<PatchRefiner>(config, class_mask,
+                                                [this](const proto::FieldMarkers& part) { push_markers(part); });
+    stats_.precision = true;
+}
+
+void HostRun::push_markers(const proto::FieldMarkers& part) { tracker_->push(part, push_rx_us_); }
+
 void HostRun::set_parser_stats(const proto::ParserStats& s) {
     loss_.set_parser(s);
     stats_.parser = s;
@@ -90,6 +98,7 @@ void HostRun::set_parser_stats(const proto::ParserStats& s) {
 }
 
 void HostRun::link_dropped() {
+    if (precision_) precision_->flush();  // the parts' patches will not come now
     loss_.link_dropped();
     stats_.loss = loss_.counts();
 }
@@ -117,6 +126,7 @@ void HostRun::on_pong(const proto::Reply& r, double rx_host_us) {
 void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
     ++stats_.messages;
     last_rx_us_ = rx_host_us;
+    push_rx_us_ = rx_host_us;
     loss_.observe(f);
     if (const auto* fm = std::get_if<proto::FieldMarkers>(&f.message)) {
         ++stats_.field_markers;
@@ -128,6 +138,7 @@ void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
         if (t_us > 0.0 && newest_device_us_ >= 0.0 && t_us + kTimeJumpUs < newest_device_us_) {
             // Time went back by more than kTimeJumpUs: a new segment (device restarted, captures joined). The old
             // segment's frames are built with what it had; the new one starts afresh, clock offset included.
+            if (precision_) precision_->flush();
             tracker_->finish();
             drain(run_clock_ == RunClock::kHost ? host_now_us() : rx_host_us);
             tracker_->restart();
@@ -139,7 +150,10 @@ void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
             }
         }
         if (t_us > 0.0) newest_device_us_ = std::max(newest_device_us_, t_us);
-        tracker_->push(*fm, rx_host_us);
+        if (precision_) precision_->on_markers(*fm);
+        else tracker_->push(*fm, rx_host_us);
+    } else if (const auto* bp = std::get_if<proto::BlobPatch>(&f.message)) {
+        if (precision_) precision_->on_patch(*bp);
     } else if (const auto* ped = std::get_if<proto::PedalState>(&f.message)) {
         tracker_->push(*ped, rx_host_us);
     } else if (const auto* r = std::get_if<proto::Reply>(&f.message)) {
@@ -147,10 +161,15 @@ void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
             on_pong(*r, rx_host_us);
     }
     stats_.loss = loss_.counts();
+    if (precision_) stats_.patches = precision_->stats();
     drain(run_clock_ == RunClock::kHost ? host_now_us() : rx_host_us);
 }
 
 void HostRun::finish() {
+    if (precision_) {
+        precision_->flush();
+        stats_.patches = precision_->stats();
+    }
     tracker_->finish();
     drain(run_clock_ == RunClock::kHost ? host_now_us() : last_rx_us_);
     stats_.loss = loss_.counts();
@@ -308,15 +327,21 @@ void run_capture(const std::string& path, HostRun& run, std::vector<std::string>
 
 namespace {
 
-bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint16_t& seq, uint64_t host_us = 0) {
+bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint16_t& seq, uint64_t host_us = 0,
+                  uint32_t address = 0, uint32_t value = 0) {
     proto::Command c;
     c.command_id = id++;
     c.opcode = uint8_t(op);
     c.host_us = host_us;
+    c.address = address;
+    c.value = value;
     std::array<uint8_t, proto::kMaxFrameBytes> bytes{};
     const size_t len = proto::encode_frame(proto::Message{c}, seq++, bytes);
     return len > 0 && t.write(std::span<const uint8_t>(bytes.data(), len), 1000).status == transport::IoStatus::ok;
 }
+
+/// PATCH_ENABLE's address in the broadcast window: written to every camera (docs/protocol.md, register map).
+constexpr uint32_t kPatchEnableAllCameras = 0x03C;
 
 std::string seconds_text(double s) { return fmt::format("{:.1f} s", s); }
 
@@ -340,7 +365,15 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
         res.end = std::move(why);
         res.clean = clean;
     };
-    bool streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+    // Precision mode: PATCH_ENABLE (0x03C: every camera's window) before each stream_start, since a device
+    // that comes back after an unplug starts from its reset values.
+    auto start_stream = [&] {
+        if (opt.patch_enable != 0 &&
+            !send_command(link, proto::Opcode::RegisterWrite, id, seq, 0, kPatchEnableAllCameras, opt.patch_enable))
+            return false;
+        return send_command(link, proto::Opcode::StreamStart, id, seq);
+    };
+    bool streaming = start_stream();
     if (!streaming && !link.reconnects()) {
         end("cannot send stream_start: " + (link.last_error().empty() ? std::string("link closed") : link.last_error()), false);
     }
@@ -364,7 +397,7 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
             break;
         }
         if (!away && link.connected()) {
-            if (!streaming) streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+            if (!streaming) streaming = start_stream();
             // Pings for the clock offset: every 50 ms for the first half second, then every 200 ms.
             if (now - last_ping > (now - t0 < 500000.0 ? 50000.0 : 200000.0)) {
                 send_command(link, proto::Opcode::Ping, id, seq, uint64_t(now));
@@ -403,7 +436,7 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
                 run.link_dropped();
             }
         } else if (away && link.connected() && !streaming) {
-            streaming = send_command(link, proto::Opcode::StreamStart, id, seq);
+            streaming = start_stream();
         }
         if (opt.progress && int64_t(run.stats().frames) / 50 != last_progress) {
             last_progress = int64_t(run.stats().frames) / 50;

@@ -6,6 +6,7 @@
 
 #include "eyesim/frame/loss.hpp"
 #include "eyesim/frame/pose_source.hpp"
+#include "eyesim/frame/precision.hpp"
 #include "eyesim/frame/simulator.hpp"
 #include "eyesim/protocol/frame.hpp"
 #include "eyesim/rig/bodies.hpp"
@@ -75,6 +76,8 @@ struct RunStats {
     std::string latency_note;         ///< why latency_us is empty, when it is
     double device_clock_rate = 0.0;   ///< device µs per host µs, first to last pong of the segment (≥ 1 s apart;
                                       ///< 0: unknown)
+    bool precision = false;           ///< precision mode: markers refined on their patches (HostRun::enable_precision)
+    PrecisionStats patches;           ///< precision mode's counters
 };
 
 /// Where a run's receive times come from, which decides what "poses ready" is measured against.
@@ -103,6 +106,10 @@ public:
     /// modelled link: 0). Without it the offset comes from the ping replies in the stream, and until the first
     /// one frames are not counted in the latency figures.
     void set_clock_offset_us(double offset);
+    /// Precision mode: FieldMarkers parts wait for their BlobPatch messages and each marker's centroid becomes
+    /// the sphere fit on its patch where the fit accepts (PatchRefiner). `class_mask`: the PATCH_ENABLE bits the
+    /// device was given; `config`: the fit (see patch_fit_config).
+    void enable_precision(const tracking::SphereFitConfig& config, uint8_t class_mask);
     /// One decoded message received at `rx_host_us`.
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
     /// End of stream: frames still waiting are built (and simulated); the latency figures are settled.
@@ -125,7 +132,10 @@ public:
 private:
     void drain(double now_us);
     void on_pong(const protocol::Reply& r, double rx_host_us);
+    void push_markers(const protocol::FieldMarkers& part);
     std::unique_ptr<tracking::Tracker> tracker_;
+    std::unique_ptr<PatchRefiner> precision_;
+    double push_rx_us_ = 0.0;  // receive time of the message being handled (a held part's push time)
     Simulator* sim_ = nullptr;
     RunClock run_clock_ = RunClock::kHost;
     TrackingPoseAdapter adapter_;
@@ -174,6 +184,8 @@ struct LiveOptions {
     double stall_seconds = kDefaultStallSeconds;  ///< end the run after this long without a byte
     int64_t max_frames = 0;                     ///< stop after this many tracking frames (0: no limit)
     bool progress = false;                      ///< a progress line on stderr
+    /// Precision mode: PATCH_ENABLE (bit c-1: class c) written to every camera before stream_start (0: off).
+    uint8_t patch_enable = 0;
     /// When set, every chunk received is also written to this capture file with its receive time on the host
     /// clock (docs/protocol.md section 6), as it arrived, damage and all.
     std::string capture_out;
