@@ -322,12 +322,13 @@ int main(int argc, char** argv) {
                                  {"markers", c.n},
                                  {"refined", c.refined},
                                  {"rms_px", num(rms)},
-                                 {"iterations_mean", num(c.iterations / c.n)},
+                                 {"iterations_mean", c.us.empty() ? nlohmann::json(nullptr) : num(c.iterations / c.n)},
                                  {"us_per_blob", {{"p50", num(p50)}, {"p99", num(p99)}}}});
             if (!json) {
                 auto us = [](double v) { return std::isfinite(v) ? std::to_string(v).substr(0, std::to_string(v).find('.') + 2) : std::string("–"); };
-                std::printf("| %s | %.0f | %s | %s | %d | %d | %.4f | %.1f | %s | %s |\n", r.data.c_str(), r.noise,
-                            r.method.c_str(), kBinName[b], c.n, c.refined, rms, c.iterations / c.n, us(p50).c_str(),
+                const std::string it = c.us.empty() ? "–" : us(c.iterations / c.n);
+                std::printf("| %s | %.0f | %s | %s | %d | %d | %.4f | %s | %s | %s |\n", r.data.c_str(), r.noise,
+                            r.method.c_str(), kBinName[b], c.n, c.refined, rms, it.c_str(), us(p50).c_str(),
                             us(p99).c_str());
             }
         }

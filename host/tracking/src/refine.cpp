@@ -853,6 +853,13 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                 if (solve_damped(a, g, np, lambda, d)) {
                     Vec tt = t;
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
+                    if (k > 0 && tries == 0 && small_step(d)) {
+                        // The step after an accepted one is already below the noise's reach: take it unverified
+                        // (its χ² change is far below one) instead of rendering once more to confirm it.
+                        t = tt;
+                        converged = true;
+                        break;
+                    }
                     f.linearise(tt);
                     const double c1 = f.normal_equations(tt, a1, g1);
                     if (c1 < chi2) {
