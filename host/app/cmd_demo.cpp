@@ -33,6 +33,7 @@ struct DemoOptions {
     double seconds = 0.0;
     uint64_t seed = 1;
     bool json = false;
+    bool precision = false;
     std::string device;
 };
 
@@ -147,6 +148,7 @@ int run_demo(const DemoOptions& opt) {
     req.report_dir = report_dir;
     req.snapshots = 3;
     req.json = opt.json;
+    req.precision = opt.precision;
     req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgeon '" +
                 scenario + "')";
     return eyesim::app::run_scene(req);
@@ -167,6 +169,8 @@ eyesim::app::Registrar reg{
             ->check(eyesim::app::unsigned_integer())
             ->capture_default_str();
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");
+        sub.add_flag("--precision", opt->precision,
+                     "precision mode: the device sends every marker's pixel patch, the host refines each centroid on it");
         sub.add_flag("--json", opt->json, "one JSON object on stdout");
         return [opt]() -> int { return run_demo(*opt); };
     }};

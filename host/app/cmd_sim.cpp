@@ -30,6 +30,9 @@ eyesim::app::Registrar reg{
         sub.add_option("--snapshots", req->snapshots, "stereo snapshots in the report")
             ->check(CLI::Range(0, 100))
             ->capture_default_str();
+        sub.add_flag("--precision", req->precision,
+                     "--connect/--capture: precision mode (every camera's marker patches, each centroid refined on its "
+                     "patch where the fit accepts)");
         sub.add_flag("--json", req->json, "one JSON object on stdout");
         return [req]() -> int { return eyesim::app::run_scene(*req); };
     }};

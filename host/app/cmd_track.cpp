@@ -1,6 +1,7 @@
 // `eyesim track`: FieldMarkers from a device (TCP or USB) or a capture file → tracking frames → poses.jsonl.
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/frame_loop.hpp"
+#include "eyesim/app/refine.hpp"
 #include "eyesim/app/report.hpp"
 
 #include "eyesim/protocol/capture.hpp"
@@ -49,6 +50,7 @@ struct TrackOptions {
     double seconds = 0.0;
     double stall_s = eyesim::app::kDefaultStallSeconds;
     long max_frames = 0;
+    bool precision = false;
 };
 
 
@@ -115,6 +117,10 @@ int run_track(const TrackOptions& opt) {
     } catch (const eyesim::frame::SourceError& e) {
         throw Error(opt.rig + ": " + e.what());
     }
+    // Precision mode: every class's patches from every camera (live: PATCH_ENABLE written before stream_start; a
+    // capture: the patches it holds), each marker refined on its patch.
+    constexpr uint8_t kAllClasses = 0xF;
+    if (opt.precision) run->enable_precision(eyesim::frame::patch_fit_config(eyesim::app::rig_sphere_fit_config()), kAllClasses);
     std::ofstream out;
     if (!opt.out.empty()) {
         out.open(opt.out);
@@ -146,6 +152,7 @@ int run_track(const TrackOptions& opt) {
             lo.max_frames = opt.max_frames;
             lo.progress = eyesim::app::show_progress(opt.json);
             lo.capture_out = opt.capture_out;
+            if (opt.precision) lo.patch_enable = kAllClasses;
             const eyesim::frame::LiveResult live =
                 eyesim::frame::run_live(opt.usb ? std::string("usb") : opt.connect, *run, lo);
             source = live.source;
@@ -172,6 +179,7 @@ int run_track(const TrackOptions& opt) {
     j["frames"] = st.frames;
     j["fields"] = st.fields;
     j.update(eyesim::app::latency_json(st));
+    j["precision"] = eyesim::app::precision_json(st);
     if (!st.compute_us.empty()) {
         std::vector<double> compute = st.compute_us.v;  // summarise sorts
         const tr::ErrorSummary s = tr::summarise(compute);
@@ -198,6 +206,7 @@ int run_track(const TrackOptions& opt) {
     } else {
         const std::string lat = eyesim::app::latency_line(st);
         const std::string lost = eyesim::frame::loss_summary(st.loss);
+        if (const std::string p = eyesim::app::precision_line(st); !p.empty()) std::printf("%s\n", p.c_str());
         std::printf("%s: %llu frames from %llu fields; eye measured in %ld frames; %s\n%s\nLink: %s; ended: %s\n",
                     source.c_str(), static_cast<unsigned long long>(st.frames), static_cast<unsigned long long>(st.fields),
                     eye_measured, inst.dump().c_str(), lat.empty() ? "Latency: no frames" : lat.c_str(),
@@ -227,6 +236,9 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
     sub.add_option("--stall-s", opt->stall_s, "live: end the run when the device sends nothing for this long")
         ->check(eyesim::app::finite_in(0.1, 3600.0))
         ->capture_default_str();
+    sub.add_flag("--precision", opt->precision,
+                 "precision mode: the device sends every marker's pixel patch (PATCH_ENABLE, all cameras and classes) "
+                 "and each marker's centroid becomes the sphere fit on it where the fit accepts");
     sub.add_option("--max-frames", opt->max_frames, "stop after this many tracking frames (0: no limit)")
         ->check(eyesim::app::finite_in(0.0, 1e9));
     return [opt]() -> int { return run_track(*opt); };

@@ -83,6 +83,37 @@ std::string latency_line(const RunStats& s) {
     return line;
 }
 
+nlohmann::json precision_json(const RunStats& s) {
+    if (!s.precision) return nullptr;
+    const frame::PrecisionStats& p = s.patches;
+    nlohmann::json why = nlohmann::json::object();
+    for (int r = 1; r < tracking::kFitRefusalCount; ++r)
+        why[tracking::to_string(static_cast<tracking::FitRefusal>(r))] = p.refused[static_cast<size_t>(r)];
+    const uint64_t tried = p.refined + p.refused_total() + p.missing_patch;
+    return {{"patches", p.patches},
+            {"refined", p.refined},
+            {"refused", why},
+            {"refused_total", p.refused_total()},
+            {"missing_patch", p.missing_patch},
+            {"unmatched_patches", p.unmatched},
+            {"incomplete_patches", p.incomplete},
+            {"refined_fraction", tried ? nlohmann::json(double(p.refined) / double(tried)) : nlohmann::json(nullptr)}};
+}
+
+std::string precision_line(const RunStats& s) {
+    if (!s.precision) return "";
+    const frame::PrecisionStats& p = s.patches;
+    std::string why;
+    for (int r = 1; r < tracking::kFitRefusalCount; ++r)
+        if (p.refused[static_cast<size_t>(r)] > 0)
+            why += fmt::format("{}{} {}", why.empty() ? "" : ", ", tracking::to_string(static_cast<tracking::FitRefusal>(r)),
+                               p.refused[static_cast<size_t>(r)]);
+    return fmt::format("Precision: {} patches; {} markers refined, {} refused ({}), {} missing a patch; {} patches "
+                       "unmatched, {} incomplete",
+                       p.patches, p.refined, p.refused_total(), why.empty() ? "none" : why, p.missing_patch,
+                       p.unmatched, p.incomplete);
+}
+
 namespace {
 
 std::string html_escape(const std::string& s) {
@@ -334,6 +365,7 @@ void print_report(std::FILE* out, const RunReport& r) {
                      r.accuracy.tip_p95_um, r.accuracy.eye_rot_rms_deg);
     if (r.stats) {
         if (const std::string l = latency_line(*r.stats); !l.empty()) std::fprintf(out, "%s\n", l.c_str());
+        if (const std::string l = precision_line(*r.stats); !l.empty()) std::fprintf(out, "%s\n", l.c_str());
         const std::string lost = loss_summary(r.stats->loss);
         std::fprintf(out, "Link: %s%s%s\n", lost.empty() ? "nothing lost" : lost.c_str(),
                      r.link_end.empty() ? "" : "; ended: ", r.link_end.c_str());
@@ -394,6 +426,7 @@ nlohmann::json report_json(const RunReport& r) {
     }
     if (r.stats) {
         j.update(latency_json(*r.stats));
+        j["precision"] = precision_json(*r.stats);
         j["errors"] = r.stats->parse_errors;
         j["loss"] = loss_json(r.stats->loss);
     }

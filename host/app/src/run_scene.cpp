@@ -2,6 +2,7 @@
 
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/frame_loop.hpp"
+#include "eyesim/app/refine.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/scenario.hpp"
 #include "eyesim/rig/truth.hpp"
@@ -68,6 +69,8 @@ int run_scene(const SceneRunRequest& req) {
             throw Error(std::string("--connect: ") + e.what(), 2);
         }
     }
+    if (req.precision && req.source.connect.empty() && req.source.capture.empty())
+        throw Error("--precision refines markers on a device's patches: it needs --connect or --capture", 2);
     sim::scenes::Scene scene;
     try {
         scene = sim::scenes::load_scene(req.scene_path);
@@ -174,6 +177,8 @@ int run_scene(const SceneRunRequest& req) {
             acc.bodies = &tracked_bodies;
         }
         HostRun run(std::move(cfg), sim);
+        constexpr uint8_t kAllClasses = 0xF;  // precision mode: every camera's patches of every class
+        if (req.precision) run.enable_precision(frame::patch_fit_config(rig_sphere_fit_config()), kAllClasses);
         run.set_hook([&](const tr::TrackingFrame& f, const FramePoses& p) {
             acc.add(f);
             maybe_snap(p.time_s);
@@ -190,6 +195,7 @@ int run_scene(const SceneRunRequest& req) {
             frame::LiveOptions lo;
             lo.max_seconds = req.seconds;
             lo.stall_seconds = req.stall_seconds;
+            if (req.precision) lo.patch_enable = kAllClasses;
             const frame::LiveResult live = run_live(req.source.connect, run, lo);
             report.link_end = live.end;
             for (const std::string& w : live.warnings) report.warnings.push_back(w);

@@ -97,6 +97,8 @@ TEST_CASE("sim and demo: a malformed address or an unknown scenario is a usage e
     usage_error("sim --scene /no/such/scene.json --connect tcp://127.0.0.1:99999", "out of range 1..65535");
     usage_error("sim --scene " + scene() + " --scenario nope", "--scenario: nope not in");
     usage_error("sim --scene " + scene() + " --scenario static --seed -1", "--seed: Value -1 not a whole number");
+    // Precision mode refines on a device's patches: a scenario (or a recording) has none to send.
+    usage_error("sim --scene " + scene() + " --scenario static --precision", "--precision refines markers on a device");
     const std::string demo = (scratch() / "demo").string();
     usage_error("demo --out " + demo + " --scenario nope", "--scenario: nope not in");
     usage_error("demo --out " + demo + " --seed -5", "--seed: Value -5 not a whole number");

@@ -116,6 +116,13 @@ nlohmann::json latency_json(const RunStats& s);
 /// One text line of the latency figures (or why they are missing).
 std::string latency_line(const RunStats& s);
 
+/// Precision mode's counters (`--precision`): {patches, refined, refused {chi2, shift, …}, refused_total,
+/// missing_patch, unmatched_patches, incomplete_patches, refined_fraction}, or null when precision mode was off.
+nlohmann::json precision_json(const RunStats& s);
+
+/// One text line of precision mode's counters ("" when it was off).
+std::string precision_line(const RunStats& s);
+
 /// Prints the Table-4 breakdown (this machine beside the paper), accuracy, latency, scores and events.
 void print_report(std::FILE* out, const RunReport& r);
 
