@@ -136,7 +136,7 @@ TEST_CASE("async filter: centroid noise averages down, pose prediction to a late
         f.init(0.0, m.R0, m.t0, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 2e-3, 0.05, 1.0, 50.0);
         const RunResult r = run_filter(f, kRigidBody, m, false, 0.05, 1.0, 0.4, seed);
         INFO("seed " << seed << ": marker RMS " << r.rms_marker_um << " um, max " << r.max_marker_um << " um");
-        // Seeds 3-5 measured 12-14 um RMS, 30-37 um max; limits about twice that.
+        // Seeds 3-5 measured 12.9-14.4 um RMS, 31-37 um max; limits about twice that.
         CHECK(r.rms_marker_um < 30.0);
         CHECK(r.max_marker_um < 80.0);
         // Display-time prediction 10 ms ahead: the model's motion, so the prediction stays as good.
