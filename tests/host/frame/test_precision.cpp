@@ -1,7 +1,8 @@
 // Precision mode in the live path, device → protocol → host: a synthetic sweep recording played by the firmware
 // core over the in-process link; run_live writes PATCH_ENABLE and the host refines each marker on its patch.
 // Reference: the same fit run offline on the recording's whole field at the marker's box (what the patch must
-// reproduce), and the pipeline's centroid where that fit refuses.
+// reproduce), and the pipeline's centroid where that fit refuses; and the rendered truth centroids, which the
+// refined markers must be closer to than the pipeline's.
 #include "eyesim/firmware/device_core.hpp"
 #include "eyesim/firmware/pc/field_source.hpp"
 #include "eyesim/firmware/pc/modelled_clock.hpp"
@@ -10,10 +11,12 @@
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
 #include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/match.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/transport/inproc.hpp"
 
+#include <Eigen/Core>
 #include <catch2/catch.hpp>
 
 #include <unistd.h>
@@ -196,5 +199,41 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     // offline; what is accepted moves (a fit landing on the pipeline's Q16 value exactly is not expected).
     CHECK(refined_n * 10 >= expected * 4);
     CHECK(moved * 10 >= refined_n * 9);
+
+    // Against the rendered truth: over the wholly visible markers matched to a truth marker, the refined centroids
+    // (the fit's where it accepted) are closer to the truth centroids than the pipeline's.
+    REQUIRE(std::int64_t(truth.size()) >= nfields);
+    double se_pipe = 0, se_ref = 0, se_pipe_all = 0, se_ref_all = 0;
+    std::size_t n_ref = 0, n_all = 0;
+    std::vector<bool> used;
+    for (const auto& [field_key, count] : raw_count) {
+        const auto [cam, fc] = field_key;
+        std::vector<rig::DetectedMarker> det;
+        for (int i = 0; i < count; ++i) {
+            const proto::Marker& m = raw.at({cam, fc, i});
+            det.push_back({m.colour_class, {double(m.x_q16) / 65536.0, double(m.y_q16) / 65536.0}});
+        }
+        rig::match_markers(
+            truth[fc], cam, std::span<const rig::DetectedMarker>(det), 1.5,
+            [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction == 0.0; },
+            [&](const rig::MarkerMatch& mm) {
+                if (mm.detection < 0) return;
+                const proto::Marker& a = raw.at({cam, fc, mm.detection});
+                const proto::Marker& b = refined.at({cam, fc, mm.detection});
+                const Eigen::Vector2d t = mm.view->centroid_px;
+                const double ep = (Eigen::Vector2d(a.x_q16 / 65536.0, a.y_q16 / 65536.0) - t).squaredNorm();
+                const double er = (Eigen::Vector2d(b.x_q16 / 65536.0, b.y_q16 / 65536.0) - t).squaredNorm();
+                se_pipe_all += ep, se_ref_all += er, ++n_all;
+                if (a.x_q16 != b.x_q16 || a.y_q16 != b.y_q16) se_pipe += ep, se_ref += er, ++n_ref;
+            },
+            used);
+    }
+    const double rms_pipe = std::sqrt(se_pipe / double(n_ref)), rms_ref = std::sqrt(se_ref / double(n_ref));
+    const double rms_pipe_all = std::sqrt(se_pipe_all / double(n_all)), rms_ref_all = std::sqrt(se_ref_all / double(n_all));
+    INFO("refined markers " << n_ref << ": pipeline " << rms_pipe << " px, refined " << rms_ref << " px; all " << n_all
+                            << ": " << rms_pipe_all << " -> " << rms_ref_all << " px");
+    REQUIRE(n_ref * 10 >= n_all * 4);
+    CHECK(rms_ref < rms_pipe);
+    CHECK(rms_ref_all < rms_pipe_all);
     std::filesystem::remove_all(tmp);
 }
