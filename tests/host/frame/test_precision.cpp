@@ -237,3 +237,94 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     CHECK(rms_ref_all < rms_pipe_all);
     std::filesystem::remove_all(tmp);
 }
+
+namespace {
+
+proto::FieldMarkers part_of(std::uint8_t cam, std::uint32_t field, std::initializer_list<proto::Marker> markers) {
+    proto::FieldMarkers p;
+    p.camera_id = cam;
+    p.field_counter = field;
+    p.field_end_us = 20000ull * (field + 1);
+    for (const proto::Marker& m : markers) p.markers[p.marker_count++] = m;
+    return p;
+}
+
+proto::Marker marker(std::uint8_t cls, int x0, int y0, int x1, int y1) {
+    proto::Marker m;
+    m.colour_class = cls;
+    m.bbox_x0 = std::uint16_t(x0), m.bbox_y0 = std::uint16_t(y0), m.bbox_x1 = std::uint16_t(x1), m.bbox_y1 = std::uint16_t(y1);
+    m.x_q16 = std::uint32_t((x0 + x1) * 32768), m.y_q16 = std::uint32_t((y0 + y1) * 32768);
+    m.area_px = 40;
+    return m;
+}
+
+/// The patch the device cuts for `m` (box + 2-px halo, whole UYVY pairs), one fragment, flat grey samples.
+proto::BlobPatch patch_for(const proto::FieldMarkers& p, int k) {
+    const proto::Marker& m = p.markers[std::size_t(k)];
+    proto::BlobPatch b;
+    b.camera_id = p.camera_id;
+    b.field_parity = p.field_parity;
+    b.colour_class = m.colour_class;
+    b.field_counter = p.field_counter;
+    b.blob_index = std::uint16_t(k);
+    b.origin_x = std::uint16_t((m.bbox_x0 - 2) & ~1);
+    b.origin_y = std::uint16_t(m.bbox_y0 - 2);
+    b.width_px = std::uint16_t(((m.bbox_x1 + 2) | 1) - b.origin_x + 1);
+    b.height_px = std::uint16_t(m.bbox_y1 + 2 - b.origin_y + 1);
+    b.fragment_count = 1;
+    b.fragment_index = 0;
+    for (std::size_t i = 0; i < b.sample_bytes(); ++i) b.samples[i] = i % 2 ? 120 : 128;
+    REQUIRE(proto::valid_message(b));
+    return b;
+}
+
+}  // namespace
+
+TEST_CASE("PatchRefiner: parts wait for their patches, in order; a missing patch releases at the next field",
+          "[host][precision]") {
+    // Which markers get a patch: enabled classes whose patch fits 64 × 32 px.
+    CHECK(frame::patch_expected(marker(1, 100, 50, 108, 56), 0x1));
+    CHECK_FALSE(frame::patch_expected(marker(2, 100, 50, 108, 56), 0x1));
+    CHECK(frame::patch_expected(marker(1, 100, 50, 159, 56), 0x1));       // 64 columns with the halo
+    CHECK_FALSE(frame::patch_expected(marker(1, 100, 50, 161, 56), 0x1));  // 66
+    CHECK_FALSE(frame::patch_expected(marker(1, 100, 50, 108, 78), 0x1));  // 33 lines
+
+    std::vector<std::pair<int, std::uint32_t>> out;  // (camera, field) of each part emitted
+    frame::PatchRefiner r(rig_fit_config(), 0x1,
+                          [&](const proto::FieldMarkers& p) { out.emplace_back(p.camera_id, p.field_counter); });
+    const proto::FieldMarkers f1 = part_of(0, 1, {marker(1, 100, 50, 108, 56), marker(1, 200, 80, 207, 85)});
+    r.on_markers(f1);
+    CHECK(out.empty());
+    r.on_patch(patch_for(f1, 1));
+    CHECK(out.empty());  // blob 0 still waits
+    r.on_patch(patch_for(f1, 0));
+    REQUIRE(out.size() == 1);
+    CHECK(r.stats().refined + r.stats().refused_total() == 2);
+    CHECK(r.stats().patches == 2);
+
+    // Field 2: blob 1's patch never comes; field 3's first part releases field 2 and waits itself.
+    const proto::FieldMarkers f2 = part_of(0, 2, {marker(1, 100, 50, 108, 56), marker(1, 300, 80, 307, 85)});
+    r.on_markers(f2);
+    r.on_patch(patch_for(f2, 0));
+    CHECK(out.size() == 1);
+    const proto::FieldMarkers f3 = part_of(0, 3, {marker(1, 100, 50, 108, 56), marker(2, 300, 80, 307, 85)});
+    r.on_markers(f3);
+    REQUIRE(out.size() == 2);
+    CHECK(out[1] == std::make_pair(0, std::uint32_t(2)));
+    CHECK(r.stats().missing_patch == 1);
+    // Another camera without an enabled class: not held.
+    r.on_markers(part_of(1, 3, {marker(2, 10, 10, 15, 15)}));
+    REQUIRE(out.size() == 3);
+    CHECK(out[2] == std::make_pair(1, std::uint32_t(3)));
+    // A patch for field 2 (already released) or for a marker field 3 does not ask one for: unmatched.
+    r.on_patch(patch_for(f2, 1));
+    r.on_patch(patch_for(f3, 1));
+    CHECK(r.stats().unmatched == 2);
+    CHECK(out.size() == 3);
+    // The end of the stream releases field 3 with its one missing patch.
+    r.flush();
+    REQUIRE(out.size() == 4);
+    CHECK(out[3] == std::make_pair(0, std::uint32_t(3)));
+    CHECK(r.stats().missing_patch == 2);
+    CHECK(r.stats().refined + r.stats().refused_total() == 3);
+}
