@@ -50,6 +50,7 @@ namespace {
 namespace tr = eyesim::tracking;
 namespace rig = eyesim::rig;
 namespace proto = eyesim::protocol;
+using eyesim::app::html_escape;
 using eyesim::app::Error;
 
 struct ValidateOptions {
@@ -694,17 +695,6 @@ std::vector<std::pair<std::string, std::string>> plot_truth_free(const std::stri
 // ------------------------------------------------------------------------------------------------------------
 // HTML report (the style of `demo` and `sim`: index.html with tables and PNG plots)
 // ------------------------------------------------------------------------------------------------------------
-
-std::string html_escape(const std::string& s) {
-    std::string o;
-    for (char c : s) {
-        if (c == '<') o += "&lt;";
-        else if (c == '>') o += "&gt;";
-        else if (c == '&') o += "&amp;";
-        else o += c;
-    }
-    return o;
-}
 
 /// A table: header cells (with units), then rows of already formatted cells.
 std::string html_table(const std::vector<std::string>& head, const std::vector<std::vector<std::string>>& rows) {

@@ -114,8 +114,6 @@ std::string precision_line(const RunStats& s) {
                        p.unmatched, p.incomplete);
 }
 
-namespace {
-
 std::string html_escape(const std::string& s) {
     std::string o;
     for (char c : s) {
@@ -126,6 +124,8 @@ std::string html_escape(const std::string& s) {
     }
     return o;
 }
+
+namespace {
 
 /// Minimal line plot (OpenCV), for the report. Text must be ASCII (OpenCV's Hershey fonts have no µ or →).
 /// putText with the micro sign: Hershey fonts have no "µ", so it is drawn as a "u" with a descender.

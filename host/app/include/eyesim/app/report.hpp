@@ -126,6 +126,9 @@ std::string precision_line(const RunStats& s);
 /// Prints the Table-4 breakdown (this machine beside the paper), accuracy, latency, scores and events.
 void print_report(std::FILE* out, const RunReport& r);
 
+/// `s` with <, > and & escaped for HTML text.
+std::string html_escape(const std::string& s);
+
 /// The run as one JSON object (keys as in docs: `_us`, `_um`, `_deg`, `latency_us` {p50,p99,max}, …).
 nlohmann::json report_json(const RunReport& r);
 
