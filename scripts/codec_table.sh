@@ -3,8 +3,8 @@
 # video format `eyesim synth --format` writes (interlaced PAL as cameras record it), then per recording
 # `eyesim fpga --json` (centroid error and signed bias against the rendered centroids, wall time),
 # `eyesim validate --json` (3D marker, tip and eye errors) and bench_recording (what opening costs, reading speed).
-# Each figure is the worst over the seeds (largest error, largest |bias|, slowest). Prints the Markdown table on
-# stdout. --refine: `fpga` and `validate` with --refine (each blob's centroid from the refinement stage's
+# Each figure is the worst over the seeds (largest error, largest |bias|, slowest; fewest blobs refined). Prints
+# the Markdown table on stdout. --refine: `fpga` and `validate` with --refine (each blob's centroid from the refinement stage's
 # shaded-sphere fit on Y, Cb, Cr instead of the pipeline's chroma-only centroid).
 #
 #   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"]
@@ -86,8 +86,9 @@ def worst(vals, key=lambda v: v):
 def fmt(v, spec):
     return "n/a" if v is None else format(v, spec)
 print("| recording | centroid RMS px | bias x / y px | y bias top / bottom px | 3D µm | tip µm | eye ° "
-      "| `fpga` wall s | open ms (frames decoded) | read fields/s | Mbit/s per camera | lost fields |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+      "| `fpga` wall s | open ms (frames decoded) | read fields/s | Mbit/s per camera | lost fields |"
+      + (" blobs refined % |" if refined else ""))
+print("|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if refined else ""))
 for f in formats:
     rows = []
     for s in seeds:
@@ -103,15 +104,18 @@ for f in formats:
             "m3d": num(va.get("marker3d_rms_um")) if va else None, "tip": num(va.get("tip_rms_um")) if va else None,
             "eye": num(va.get("eye_rot_rms_deg")) if va else None, "wall": t1 - t0,
             "open": be["open_ms"], "dec": be["decoded_frames_at_open"], "fps": be["fields_per_s"],
-            "mbit": int(open(d + ".bytes").read()) * 8 / 1e6 / seconds, "lost": fp.get("lost_fields", 0)})
+            "mbit": int(open(d + ".bytes").read()) * 8 / 1e6 / seconds, "lost": fp.get("lost_fields", 0),
+            "refined": 100.0 * fp["refined"] / fp["blobs"] if refined and fp.get("blobs") else None})
     if not rows:
-        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * 10)
+        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * (11 if refined else 10))
         continue
     w = lambda k, absval=False: worst([r[k] for r in rows], key=(abs if absval else (lambda v: v)))
     print(f"| {names.get(f, f)} | {fmt(w('rms'), '.4f')} | {fmt(w('bx', True), '+.4f')} / {fmt(w('by', True), '+.4f')} "
           f"| {fmt(w('byt', True), '+.4f')} / {fmt(w('byb', True), '+.4f')} | {fmt(w('m3d'), '.1f')} "
           f"| {fmt(w('tip'), '.1f')} | {fmt(w('eye'), '.4f')} | {w('wall'):.1f} | {w('open'):.0f} ({w('dec')}) "
-          f"| {min(r['fps'] for r in rows):.0f} | {w('mbit'):.1f} | {w('lost')} |")
+          f"| {min(r['fps'] for r in rows):.0f} | {w('mbit'):.1f} | {w('lost')} |"
+          + (f" {fmt(min((r['refined'] for r in rows if r['refined'] is not None), default=None), '.0f')} |"
+             if refined else ""))
 print()
 print(f"`sweep`, {seconds:g} s, seeds {', '.join(seeds)}; each figure the worst over the seeds"
       + ("; centroids from the refinement stage (`--refine`)." if refined else "."))
