@@ -165,7 +165,7 @@ int run(const CalibrateOptions& opt) {
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     cal::BlobRefine refine;
     if (opt.refine) {
-        refiner = std::make_unique<eyesim::app::BlobRefiner>();
+        refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(wand_rec));
         refine = [&](const uint8_t* field, std::vector<eyesim::fpga::Blob>& blobs) {
             refiner->refine(field, rig::kFieldHeight, blobs);
         };
@@ -184,7 +184,7 @@ int run(const CalibrateOptions& opt) {
     sum.views = cal::find_wand_views(blobs, bodies.wand, cams);
     // The eye's markers fix the rig frame: their images from the refinement stage's sphere fit (less biased than
     // the pipeline's centroids), on --eye-fields fields spread over the recording (they keep still).
-    eyesim::app::BlobRefiner eye_refiner;
+    eyesim::app::BlobRefiner eye_refiner(eyesim::app::recording_sphere_fit_config(wand_rec));
     line.show(fmt::format("calibrate: the eye's marker images on {} fields (rig frame)", opt.eye_fields));
     const cal::EyeImages eye = cal::eye_images(
         wand_rec, bodies.eye.markers.front().colour_class, opt.eye_fields, opt.max_fields,

@@ -183,7 +183,7 @@ int run(const FpgaOptions& opt) {
     double refine_s = 0;
     // Refinement stage: a model fit on each blob's patch with the rig's marker colours (tracking/refine.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
-    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
     const bool progress = eyesim::app::show_progress(opt.json);
 
     // The pedal, as eyesim-device sends it: one PedalState per field period from the truth (when there is one).

@@ -1195,7 +1195,7 @@ int run_validate(const ValidateOptions& opt) {
     double fpga_us = 0, refine_us = 0;
     // Refinement stage on each blob's patch (eyesim/app/refine.hpp); the modelled link timing does not include it.
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
-    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>();
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
     long refined = 0;
     Progress pr(progress, "validate", "fields");
 

@@ -1,6 +1,7 @@
 #include "eyesim/app/refine.hpp"
 
 #include "eyesim/rig/bodies.hpp"
+#include "eyesim/rig/video.hpp"
 
 #include <cmath>
 
@@ -15,7 +16,20 @@ tracking::SphereFitConfig rig_sphere_fit_config() {
     return cfg;
 }
 
-BlobRefiner::BlobRefiner() : config_(rig_sphere_fit_config()), work_(std::make_unique<tracking::SphereFitWorkspace>()) {}
+tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec) {
+    tracking::SphereFitConfig cfg = rig_sphere_fit_config();
+    if (rec.camera_count() < 1 || rec.format(0) != rig::StreamFormat::kVideo) return cfg;
+    // Opening reads the header and one frame: what the decoder gives (codec, pixel format).
+    const rig::VideoInfo info = rig::VideoReader(rec.stream_path(0)).info();
+    const bool lossless = info.codec == "ffv1" || info.codec == "rawvideo" || info.codec == "huffyuv" ||
+                          info.codec == "ffvhuff" || info.codec == "utvideo";
+    return tracking::sphere_fit_config_for_source(cfg, info.chroma.c_str(), lossless);
+}
+
+BlobRefiner::BlobRefiner() : BlobRefiner(rig_sphere_fit_config()) {}
+
+BlobRefiner::BlobRefiner(const tracking::SphereFitConfig& config)
+    : config_(config), work_(std::make_unique<tracking::SphereFitWorkspace>()) {}
 
 int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs) {
     int refined = 0;

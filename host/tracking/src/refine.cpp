@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string_view>
 
 namespace eyesim::tracking {
 
@@ -24,6 +25,16 @@ const char* to_string(FitRefusal r) {
         case FitRefusal::kShift: return "shift";
     }
     return "?";
+}
+
+SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless) {
+    const std::string_view c = chroma ? chroma : "4:2:2";
+    // Subsampled chroma, interpolated back, smooths the marker's colour edge over two to four pixels; lossy coding
+    // adds blocking of several DN. Either misfit the model's 4:2:2 chroma far beyond the sensor's σ.
+    if (c != "4:2:2" || !lossless) config.chroma_noise_dn = 8.0;
+    // Lossy luma: the codec's quantisation error near the marker's edge (DCT ringing), a few DN.
+    if (!lossless) config.luma_noise_floor_dn = 2.0;
+    return config;
 }
 
 namespace {
@@ -494,7 +505,10 @@ public:
     }
 
     int np() const { return p_.outline ? kMaxPar : kPhi; }
-    double var_c() const { return cfg_.noise_dn * cfg_.noise_dn + 1.0 / 12.0; }
+    double var_c() const {
+        const double sc = cfg_.chroma_noise_dn > 0 ? cfg_.chroma_noise_dn : cfg_.noise_dn;
+        return sc * sc + 1.0 / 12.0;
+    }
     // Observations still in the fit.
     int observations() const {
         const int nx = p_.x1 - p_.x0 + 1, nc = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
@@ -736,7 +750,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     std::fill(w.keep_cb.begin(), w.keep_cb.end(), uint8_t{1});
     std::fill(w.keep_cr.begin(), w.keep_cr.end(), uint8_t{1});
     const int nx = p.x1 - p.x0 + 1;
-    const double shot = cfg.shot_gain, n2 = cfg.noise_dn * cfg.noise_dn;
+    const double shot = cfg.shot_gain,
+                 n2 = cfg.noise_dn * cfg.noise_dn + cfg.luma_noise_floor_dn * cfg.luma_noise_floor_dn;
     for (int j = 0; j < p.lines; ++j) {
         const uint8_t* line = field + static_cast<size_t>(p.j0 + j) * kStride;
         for (int x = 0; x < nx; ++x) {

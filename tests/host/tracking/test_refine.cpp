@@ -221,3 +221,95 @@ TEST_CASE("sphere fit: refuses what is not one shaded sphere and patches beyond 
         CHECK_FALSE(fit_sphere(f.bytes.data(), f.height, b, cfg, *work).ok);
     }
 }
+
+TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma's y bias", "[tracking][rig][refine]") {
+    // Lossless FFV1 of 4:2:0 planes, written as cameras record (synth --format ffv1-420): the subsampling alone.
+    // The pipeline's chroma-only centroid carries the subsampled chroma's y bias; the fit, told the source's
+    // chroma (sphere_fit_config_for_source), stands on the full-resolution luma.
+    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fit_420_test").string();
+    std::filesystem::remove_all(dir);
+    rig::SynthRequest req;
+    req.out_dir = dir;
+    req.scenario = "surgery";
+    req.seconds = 0.2;  // 10 fields
+    req.format = "ffv1-420";
+    rig::write_recording(req);
+    struct Cleanup {
+        std::string d;
+        ~Cleanup() {
+            std::error_code ec;
+            std::filesystem::remove_all(d, ec);
+        }
+    } cleanup{dir};
+    rig::Recording rec = rig::Recording::open(dir);
+    REQUIRE(rec.format(0) == rig::StreamFormat::kVideo);
+    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    REQUIRE(truth.size() == 10);
+
+    const SphereFitConfig plain = rig_config();
+    const SphereFitConfig aware = sphere_fit_config_for_source(plain, "4:2:0", true);
+    CHECK(aware.chroma_noise_dn > plain.noise_dn);
+    CHECK(aware.luma_noise_floor_dn == 0.0);  // lossless: the luma is the camera's
+    const SphereFitConfig raw = sphere_fit_config_for_source(plain, "4:2:2", true);
+    CHECK(raw.chroma_noise_dn == plain.chroma_noise_dn);  // raw or lossless 4:2:2: the camera's own fit
+    CHECK(raw.luma_noise_floor_dn == plain.luma_noise_floor_dn);
+
+    auto work = std::make_unique<SphereFitWorkspace>();
+    Pipeline p{RegisterMap{}};
+    Field f(rig::kFieldHeight);
+    double se_model = 0, se_fit = 0, se_model_on = 0, se_fit_on = 0, sum_dy_model = 0, sum_dy_fit = 0;
+    double sum_dy_model_on = 0;
+    int matched = 0, refined = 0, refined_plain = 0;
+    for (int64_t i = 0; i < 10; ++i)
+        for (int cam = 0; cam < rec.camera_count(); ++cam) {
+            rec.read_field(cam, i, f.bytes.data());
+            const std::vector<Blob> blobs = run_field(p, f);
+            std::vector<rig::DetectedMarker> det;
+            std::vector<SphereFitResult> fits;
+            std::vector<bool> plain_ok;
+            for (const Blob& b : blobs) {
+                det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+                fits.push_back(fit_sphere(f.bytes.data(), f.height, blob_box(b), aware, *work));
+                plain_ok.push_back(fit_sphere(f.bytes.data(), f.height, blob_box(b), plain, *work).ok);
+            }
+            std::vector<bool> used;
+            rig::match_markers(
+                truth[static_cast<size_t>(i)], cam, det, 3.0,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+                    return v.visible && !(v.area_px < 2.0) && !(v.occluded_fraction > 0.0);
+                },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) return;
+                    const Blob& b = blobs[static_cast<size_t>(m.detection)];
+                    const SphereFitResult& r = fits[static_cast<size_t>(m.detection)];
+                    const Eigen::Vector2d t = m.view->centroid_px, model(b.cx_px(), b.cy_px());
+                    const Eigen::Vector2d fit = r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : model;
+                    se_model += (model - t).squaredNorm();
+                    se_fit += (fit - t).squaredNorm();
+                    sum_dy_model += model.y() - t.y();
+                    sum_dy_fit += fit.y() - t.y();
+                    if (r.ok) {
+                        ++refined;
+                        se_model_on += (model - t).squaredNorm();
+                        se_fit_on += (fit - t).squaredNorm();
+                        sum_dy_model_on += model.y() - t.y();
+                    }
+                    refined_plain += plain_ok[static_cast<size_t>(m.detection)];
+                    ++matched;
+                },
+                used);
+        }
+    REQUIRE(matched > 80);
+    REQUIRE(refined > 0);
+    const double rms_model = std::sqrt(se_model / matched), rms_fit = std::sqrt(se_fit / matched);
+    INFO("matched " << matched << ", refined " << refined << " (with the camera's chroma model " << refined_plain
+                    << "); RMS pipeline " << rms_model << " with fit " << rms_fit << "; on refined markers pipeline "
+                    << std::sqrt(se_model_on / refined) << " fit " << std::sqrt(se_fit_on / refined)
+                    << "; mean y error pipeline " << sum_dy_model / matched << " with fit " << sum_dy_fit / matched
+                    << ", on refined markers pipeline " << sum_dy_model_on / refined);
+    CHECK(refined > refined_plain);    // the chroma the model cannot follow no longer refuses the fit
+    CHECK(refined * 2 > matched);
+    CHECK(std::sqrt(se_fit_on / refined) < 0.7 * std::sqrt(se_model_on / refined));
+    CHECK(rms_fit < rms_model);
+    CHECK(std::abs(sum_dy_fit / matched) <= 0.01);
+}

@@ -4,6 +4,7 @@
 /// `eyesim fpga --refine` and `eyesim validate --refine` run it.
 
 #include "eyesim/fpga/blob.hpp"
+#include "eyesim/rig/recording.hpp"
 #include "eyesim/tracking/refine.hpp"
 
 #include <array>
@@ -17,10 +18,17 @@ namespace eyesim::app {
 /// The fit's configuration with the rig's default marker colours (classes 1..4, sRGB as lit on the rig).
 tracking::SphereFitConfig rig_sphere_fit_config();
 
+/// rig_sphere_fit_config() for the streams of `rec`: subsampled or lossy video (its codec and chroma format, as
+/// the decoder reports them) models the chroma with a larger σ (tracking::sphere_fit_config_for_source). Camera 0's
+/// stream stands for all (the rig's cameras record alike).
+tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec);
+
 /// Replaces blob centroids by the refinement stage's where it accepts the fit; counts refusals by reason.
 class BlobRefiner {
 public:
     BlobRefiner();
+    /// With a given fit configuration (recording_sphere_fit_config()).
+    explicit BlobRefiner(const tracking::SphereFitConfig& config);
 
     /// Refines `blobs` of `field` (UYVY, 720 × `height`) in place: centroids only, the blob set is unchanged.
     /// Returns how many were refined.

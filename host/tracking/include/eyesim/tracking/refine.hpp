@@ -51,7 +51,17 @@ struct SphereFitConfig {
     double outlier_sigma = 4.0;            ///< residual (in σ) beyond which an observation is left out
     double max_shift_outliers_px = 0.06;   ///< max_shift_px for a fit that left observations out
     double aperture_lines_px = 1.0;        ///< a pixel's height in frame px (1: one frame row; 2: a whole field line)
+    /// Chroma σ (DN) when > 0, instead of noise_dn: for sources whose chroma is not the sensor's 4:2:2 (subsampled
+    /// to 4:2:0 or 4:1:1 and upsampled again, or quantised by a lossy codec), which the model's full-resolution
+    /// chroma does not follow; a large σ leaves the position to the luma, full resolution in every format.
+    double chroma_noise_dn = 0.0;
+    /// Luma σ floor (DN) added in quadrature to the sensor's: a lossy codec's quantisation error.
+    double luma_noise_floor_dn = 0.0;
 };
+
+/// Chroma and luma σ of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1" (video.hpp VideoInfo), a
+/// `lossless` codec or not. Raw or lossless 4:2:2 leaves `config` unchanged.
+SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
 /// Why a fit was refused (the pipeline's centroid then stands).
 enum class FitRefusal : uint8_t {
