@@ -5,24 +5,13 @@
 #include "eyesim/firmware/registers.hpp"
 #include "eyesim/transport/device_link.hpp"
 #include "eyesim/transport/inproc.hpp"
+#include "transport_port.hpp"
 
 #include <catch2/catch.hpp>
 
 using namespace eyesim;
 
 namespace {
-
-/// Device-side adapter: the core's ByteSink/ByteSource over one end of a transport (never waiting).
-struct TransportPort final : firmware::ByteSink, firmware::ByteSource {
-    transport::Transport* t = nullptr;
-    std::size_t write_some(const std::uint8_t* d, std::size_t n) noexcept override {
-        return t->write(std::span<const std::uint8_t>(d, n), 0).bytes;
-    }
-    bool connected() const noexcept override { return t->connected(); }
-    std::size_t read_some(std::uint8_t* out, std::size_t cap) noexcept override {
-        return t->read(std::span<std::uint8_t>(out, cap), 0).bytes;
-    }
-};
 
 struct FakePedal final : firmware::PedalInput {
     std::uint16_t pos = 0;
@@ -40,7 +29,7 @@ struct FakePedal final : firmware::PedalInput {
 TEST_CASE("host session over the in-process pair: commands, ping offset, low-latency markers", "[firmware][session]") {
     test::CoreRig rig(4, 10);
     auto [host_end, device_end] = transport::make_inproc_pair(1u << 20);
-    TransportPort port;
+    test::TransportPort port;
     port.t = device_end.get();
     firmware::DeviceHal hal;
     for (int c = 0; c < 3; ++c) hal.cameras[c] = rig.cams[c].get();

@@ -7,6 +7,7 @@
 #include "eyesim/transport/device_link.hpp"
 #include "eyesim/transport/inproc.hpp"
 #include "eyesim/transport/patch_assembler.hpp"
+#include "transport_port.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -236,27 +237,12 @@ TEST_CASE("PatchAssembler: fragments of three cameras interleaved, a lost fragme
     CHECK(a->stats().fragments == 13);
 }
 
-namespace {
-
-/// Device side of the in-process link: the core's ByteSink/ByteSource over one end (never waiting).
-struct LinkPort final : firmware::ByteSink, firmware::ByteSource {
-    transport::Transport* t = nullptr;
-    std::size_t write_some(const std::uint8_t* d, std::size_t n) noexcept override {
-        return t->write(std::span<const std::uint8_t>(d, n), 0).bytes;
-    }
-    bool connected() const noexcept override { return t->connected(); }
-    std::size_t read_some(std::uint8_t* out, std::size_t cap) noexcept override {
-        return t->read(std::span<std::uint8_t>(out, cap), 0).bytes;
-    }
-};
-
-}  // namespace
 
 TEST_CASE("precision mode through the host API: DeviceLink enables patches, the host assembles them equal to the field",
           "[firmware][patch][session]") {
     test::CoreRig rig(3, 12);
     auto [host_end, device_end] = transport::make_inproc_pair(1u << 20);
-    LinkPort port;
+    test::TransportPort port;
     port.t = device_end.get();
     firmware::DeviceHal hal;
     for (int c = 0; c < 3; ++c) hal.cameras[c] = rig.cams[c].get();

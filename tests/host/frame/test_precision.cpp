@@ -15,6 +15,7 @@
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/transport/inproc.hpp"
+#include "../../firmware/transport_port.hpp"
 
 #include <Eigen/Core>
 #include <catch2/catch.hpp>
@@ -32,18 +33,6 @@ using namespace eyesim;
 namespace proto = eyesim::protocol;
 
 namespace {
-
-/// Device side of the in-process link: the core's ByteSink/ByteSource over one end (never waiting).
-struct LinkPort final : firmware::ByteSink, firmware::ByteSource {
-    transport::Transport* t = nullptr;
-    std::size_t write_some(const std::uint8_t* d, std::size_t n) noexcept override {
-        return t->write(std::span<const std::uint8_t>(d, n), 0).bytes;
-    }
-    bool connected() const noexcept override { return t->connected(); }
-    std::size_t read_some(std::uint8_t* out, std::size_t cap) noexcept override {
-        return t->read(std::span<std::uint8_t>(out, cap), 0).bytes;
-    }
-};
 
 tracking::SphereFitConfig rig_fit_config() {
     tracking::SphereFitConfig cfg;
@@ -89,7 +78,7 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
         hal.cameras[std::size_t(c)] = sources.back().get();
     }
     auto [host_end, device_end] = transport::make_inproc_pair(1u << 22);
-    LinkPort port;
+    test::TransportPort port;
     port.t = device_end.get();
     hal.sink = &port;
     hal.source = &port;
