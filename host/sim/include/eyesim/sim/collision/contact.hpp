@@ -1,0 +1,146 @@
+#pragma once
+/// \file
+/// Exact instrument–membrane contact with deformation vectors: the colliding membrane triangles (those that
+/// touch an instrument triangle or lie inside one of the instrument's closed parts — the exact set), and per
+/// colliding triangle ZCOLL's deformation value ZI − ZM along a direction π, from which Eq. 1 node push vectors
+/// follow as in ZcollEngine::push.
+///
+/// The instrument is rigid per articulation: its acceleration structure (a uniform grid over its triangles,
+/// triangle planes, part bounds) is built in the instrument frame once and rebuilt only when the articulated
+/// vertices change (forceps opening). Per query the membrane vertices are moved into the instrument frame
+/// (one affine transform each) and culled by outcodes against the instrument's bounds; the few remaining
+/// membrane triangles are tested against the grid's instrument triangles (float plane filter with a
+/// conservative margin, then the double-precision predicates of `triangles_intersect`). Containment is grown
+/// from the intersecting triangles over the membrane's adjacency (ray parity, one test per inside/outside
+/// region of non-intersecting triangles). Deformation: the instrument's triangles over the contact are binned
+/// in the plane ⊥ π; each sample point looks up the front-most instrument surface on its line along π.
+
+#include "eyesim/sim/collision/instrument.hpp"
+#include "eyesim/sim/collision/raster_backend.hpp"
+#include "eyesim/sim/collision/view.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace eyesim::sim::collision {
+
+/// Options of one contact query.
+struct ContactOptions {
+    bool include_contained = true;        ///< also report membrane triangles inside a closed instrument part
+    bool deformation = true;              ///< per-triangle ZI − ZM along π and Eq. 1 node push vectors
+    const OrientedBox* within = nullptr;  ///< only membrane triangles whose bounds overlap this box (e.g. V)
+    /// Grab rule (forceps closed on tissue, paper §3.3.1): bind the nodes of the colliding triangles and every
+    /// node within `grab_radius_mm` of `grab_tip_eye_mm`; no push vectors are produced then.
+    bool grab = false;
+    Vec3f grab_tip_eye_mm{0, 0, 0};  ///< see grab
+    float grab_radius_mm = 0.3f;     ///< see grab
+};
+
+/// One colliding membrane triangle and its deformation value.
+struct TriangleContact {
+    uint32_t triangle = 0;        ///< membrane triangle index
+    /// ZI − ZM at `point_eye_mm` (mm, ≤ 0): the front-most instrument surface on the line through the point
+    /// along π, minus the point's own depth, clamped to 0 (ZCOLL's convention: depth grows along π). The
+    /// deformation vector is π · depth_delta_mm (towards −π, out of the instrument). 0 when the triangle only
+    /// touches the instrument between its sample points.
+    float depth_delta_mm = 0.0f;
+    /// The membrane point the value was taken at: the deepest of the triangle's three corners and centroid.
+    Vec3f point_eye_mm{0, 0, 0};
+};
+
+/// Result of a contact query: views into the engine's buffers, valid until its next query.
+struct ContactResult {
+    bool invalid_input = false;  ///< vertex span size ≠ the engine's membrane, or no instrument (nothing done)
+    bool colliding = false;      ///< any colliding triangle
+    bool grabbed = false;        ///< the grab rule fired (grabbed_nodes set, no push vectors)
+    std::span<const uint32_t> colliding_triangles;  ///< the exact set, ascending
+    std::span<const TriangleContact> contacts;      ///< per colliding triangle, same order (when deformation)
+    std::span<const uint32_t> pushed_nodes;         ///< nodes with an Eq. 1 push vector, ascending
+    std::span<const Vec3f> node_push_eye_mm;        ///< v_i for pushed_nodes[k], eye frame, mm
+    std::span<const uint32_t> grabbed_nodes;        ///< nodes bound to the tip (grab rule), ascending
+    size_t candidate_triangles = 0;  ///< membrane triangles that reached the grid (diagnostics)
+    size_t pair_tests = 0;           ///< triangle pairs that reached the double-precision test
+    size_t inside_tests = 0;         ///< point-in-part ray parity tests
+    bool rebuilt = false;            ///< the instrument structure was (re)built in this query
+};
+
+/// The exact contact engine for one membrane topology (any number of instruments; the structure of the last
+/// one is kept). Buffers grow to the largest instrument and contact seen; a query on a known instrument
+/// allocates nothing.
+class ExactContact {
+public:
+    /// Copies `membrane`'s topology (adjacency built if missing). `max_instrument_triangles` reserves.
+    explicit ExactContact(const TriangleMesh& membrane, size_t max_instrument_triangles = 4096);
+
+    /// Contact of a posed instrument (its articulated vertices and pose) with the membrane at
+    /// `membrane_vertices_eye_mm` (exactly the topology's vertex count). `pi_eye` (unit) is the deformation
+    /// direction (ZCOLL's view direction, e.g. `ZcollView::direction_eye()`).
+    const ContactResult& query(std::span<const Vec3f> membrane_vertices_eye_mm, const PosedInstrument& instrument,
+                               const Vec3f& pi_eye, const ContactOptions& options = {});
+
+    /// The same for any instrument mesh: vertices in its own frame, pose `instrument.to_eye`, closed parts split
+    /// at `part_triangle_begin` (empty: one part).
+    const ContactResult& query(std::span<const Vec3f> membrane_vertices_eye_mm, const MeshRef& instrument,
+                               std::span<const uint32_t> part_triangle_begin, const Vec3f& pi_eye,
+                               const ContactOptions& options = {});
+
+    /// Membrane triangle count of the topology.
+    size_t triangle_count() const { return triangles_.size(); }
+
+private:
+    struct InstTri {
+        Vec3f a, b, c;   // instrument frame
+        Vec3f n;         // unit normal
+        float d;         // n · a
+        Vec3f lo, hi;    // bounds
+    };
+    bool instrument_changed(const MeshRef& instrument, std::span<const uint32_t> parts) const;
+    void build_instrument(const MeshRef& instrument, std::span<const uint32_t> parts);
+    bool intersects_any(uint32_t mt);
+    bool inside_any_part(const Vec3f& p_local);
+    void compute_deformation(std::span<const Vec3f> membrane_vertices_eye_mm, const Eigen::Isometry3f& to_eye,
+                             const Vec3f& pi_eye);
+    float front_depth(float u, float w, float s) const;
+    void reset_result();
+
+    // Membrane topology.
+    std::vector<std::array<uint32_t, 3>> triangles_;
+    std::vector<uint32_t> vt_begin_, vt_items_;
+    size_t vertex_count_ = 0;
+    // Instrument structure (instrument frame).
+    std::vector<Vec3f> inst_vertices_;
+    std::vector<std::array<uint32_t, 3>> inst_triangles_;
+    std::vector<uint32_t> parts_;
+    std::vector<InstTri> tris_;
+    std::vector<uint32_t> tri_part_;
+    std::vector<Vec3f> part_lo_, part_hi_;
+    Vec3f lo_{0, 0, 0}, hi_{0, 0, 0}, inv_cell_{1, 1, 1};
+    int dims_[3] = {1, 1, 1};
+    std::vector<uint32_t> cell_begin_, cell_items_, cell_fill_;
+    bool built_ = false;
+    // Per query: membrane in the instrument frame, outcodes, stamps.
+    std::vector<Vec3f> local_;
+    std::vector<uint8_t> code_;
+    std::vector<uint32_t> inst_stamp_, tri_stamp_, vert_stamp_;
+    std::vector<uint8_t> tri_state_, vert_inside_;
+    uint32_t inst_query_ = 0, query_ = 0;
+    std::vector<uint32_t> out_, queue_;
+    // Deformation: instrument vertices in (u, w, s) coordinates, binned triangles, per-vertex depths.
+    std::vector<float> iu_, iw_, is_;
+    std::vector<uint32_t> rel_, bin_begin_, bin_items_, bin_fill_;
+    float bu0_ = 0, bw0_ = 0, binv_u_ = 1, binv_w_ = 1;
+    int bins_ = 1;
+    Vec3f pu_{1, 0, 0}, pw_{0, 1, 0}, ps_{0, 0, 1};  // u, w, π in the instrument frame
+    std::vector<float> vdepth_;
+    std::vector<uint32_t> vdepth_stamp_;
+    std::vector<TriangleContact> contacts_;
+    std::vector<uint32_t> nodes_, grabbed_;
+    std::vector<Vec3f> push_, node_sum_;
+    std::vector<float> node_max_;
+    std::vector<uint32_t> node_stamp_;
+    ContactResult result_;
+};
+
+}  // namespace eyesim::sim::collision
