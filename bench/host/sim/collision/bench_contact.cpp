@@ -4,7 +4,7 @@
 // seeded random poses around each scene's contact. Thread-CPU time per query (median, p99); the sets of the
 // two methods are compared pose by pose.
 //
-// Usage: bench_contact [--poses N] [--seed S] [--json]
+// Usage: bench_contact [--poses N] [--seed S] [--json] [--no-grid]
 
 #include "eyesim/sim/collision/contact.hpp"
 #include "eyesim/sim/collision/exact.hpp"
@@ -100,13 +100,14 @@ Stats stats(std::vector<double> v) {
 int main(int argc, char** argv) {
     int poses = 1000;
     unsigned seed = 1;
-    bool json = false;
+    bool json = false, grid_too = true;
     for (int i = 1; i < argc; ++i) {
         if (!std::strcmp(argv[i], "--poses") && i + 1 < argc) poses = std::max(1, std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--seed") && i + 1 < argc) seed = unsigned(std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--json")) json = true;
+        else if (!std::strcmp(argv[i], "--no-grid")) grid_too = false;  // profile the contact query alone
         else {
-            std::fprintf(stderr, "eyesim: error: usage: %s [--poses N] [--seed S] [--json]\n", argv[0]);
+            std::fprintf(stderr, "eyesim: error: usage: %s [--poses N] [--seed S] [--json] [--no-grid]\n", argv[0]);
             return 2;
         }
     }
@@ -121,8 +122,9 @@ int main(int argc, char** argv) {
                              {"3k membrane, ~200 colliding (dense)", kPatch3k, 200}};
     nlohmann::json out = nlohmann::json::array();
     if (!json)
-        std::printf("| scene | colliding (median) | exact contact p50 µs | p99 µs | grid narrow phase p50 µs | p99 µs "
-                    "| poses with equal sets |\n|---|---|---|---|---|---|---|\n");
+        std::printf("| scene | colliding (median) | exact contact p50 µs | p99 µs | set only p50 µs | p99 µs "
+                    "| grid narrow phase p50 µs | p99 µs | poses with equal sets | candidates | pair tests | parity tests "
+                    "| front triangles |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for (const SceneDef& d : defs) {
         const TriangleMesh m = make_membrane_patch(4.0f, 4.0f, d.patch.nx, d.patch.ny);
         float tilt = 0;
@@ -132,8 +134,8 @@ int main(int argc, char** argv) {
         std::mt19937 rng(seed);
         std::uniform_real_distribution<float> lat(-0.05f, 0.05f), dep(-0.03f, 0.03f), ang(-3.0f, 3.0f),
             spin(-kPi, kPi);
-        std::vector<double> t_contact, t_grid;
-        std::vector<size_t> sizes;
+        std::vector<double> t_contact, t_grid, t_set;
+        std::vector<size_t> sizes, cands, pairs, insides, fronts;
         size_t equal = 0;
         for (int i = 0; i < poses; ++i) {
             // Around the contact: tip ±50 µm laterally, ±30 µm in depth, axis tilted ±3°, any roll.
@@ -148,31 +150,49 @@ int main(int argc, char** argv) {
             forceps.set_state(30.0f, pose);
             const Vec3f pi(0, 0, 1);
             contact.query(m.vertices_mm, forceps, pi);  // warm (the first pose builds the instrument grid)
+            ContactOptions set_only;
+            set_only.deformation = false;
+            const double s0 = thread_cpu_us();
+            contact.query(m.vertices_mm, forceps, pi, set_only);
+            t_set.push_back(thread_cpu_us() - s0);
             const double c0 = thread_cpu_us();
             const ContactResult& r = contact.query(m.vertices_mm, forceps, pi);
             const double c1 = thread_cpu_us();
             const std::vector<uint32_t> a(r.colliding_triangles.begin(), r.colliding_triangles.end());
+            cands.push_back(r.candidate_triangles);
+            pairs.push_back(r.pair_tests);
+            insides.push_back(r.inside_tests);
+            fronts.push_back(r.front_triangles);
             const double g0 = thread_cpu_us();
-            const std::vector<uint32_t> b = grid_set(grid, m, m.vertices_mm, forceps);
+            const std::vector<uint32_t> b = grid_too ? grid_set(grid, m, m.vertices_mm, forceps) : a;
             const double g1 = thread_cpu_us();
             t_contact.push_back(c1 - c0);
             t_grid.push_back(g1 - g0);
             sizes.push_back(a.size());
             equal += a == b;
         }
-        std::sort(sizes.begin(), sizes.end());
-        const Stats sc = stats(t_contact), sg = stats(t_grid);
+        auto median = [](std::vector<size_t> v) {
+            std::sort(v.begin(), v.end());
+            return v[v.size() / 2];
+        };
+        const Stats sc = stats(t_contact), sg = stats(t_grid), ss = stats(t_set);
         if (json) {
             out.push_back({{"name", d.name},
                            {"approach_deg", tilt},
-                           {"colliding_median", sizes[sizes.size() / 2]},
+                           {"colliding_median", median(sizes)},
+                           {"candidates_median", median(cands)},
+                           {"pair_tests_median", median(pairs)},
+                           {"inside_tests_median", median(insides)},
+                           {"front_triangles_median", median(fronts)},
+                           {"set_only_us", {{"p50", ss.p50}, {"p99", ss.p99}}},
                            {"exact_contact_us", {{"p50", sc.p50}, {"p99", sc.p99}}},
                            {"grid_narrow_phase_us", {{"p50", sg.p50}, {"p99", sg.p99}}},
                            {"poses", poses},
                            {"equal_sets", equal}});
         } else {
-            std::printf("| %s | %zu | %.1f | %.1f | %.1f | %.1f | %zu / %d |\n", d.name, sizes[sizes.size() / 2],
-                        sc.p50, sc.p99, sg.p50, sg.p99, equal, poses);
+            std::printf("| %s | %zu | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %zu / %d | %zu | %zu | %zu | %zu |\n", d.name,
+                        median(sizes), sc.p50, sc.p99, ss.p50, ss.p99, sg.p50, sg.p99, equal, poses, median(cands),
+                        median(pairs), median(insides), median(fronts));
             std::fflush(stdout);
         }
     }

@@ -9,12 +9,6 @@
 #include <cstring>
 #include <limits>
 
-// The transform and outcode loops compare floats per vertex; without trapping-math semantics GCC turns the
-// comparisons into vector selects (no FP exception flags are used here).
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC optimize("no-trapping-math")
-#endif
-
 namespace eyesim::sim::collision {
 
 namespace {
@@ -26,6 +20,9 @@ constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr int kMaxCells = 96;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
+
+inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
+inline float max3(float a, float b, float c) { return std::max(std::max(a, b), c); }
 
 /// Advances a stamp counter; on wrap-around clears the stamped arrays.
 template <typename... Vs>
@@ -76,10 +73,9 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     tri_part_.reserve(ni);
     inst_stamp_.reserve(ni);
     cell_items_.reserve(ni * 8);
-    iu_.reserve(ni);
-    iw_.reserve(ni);
-    is_.reserve(ni);
-    rel_.reserve(ni);
+    for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
+    keep_.reserve(ni);
+    front_.reserve(ni);
     bin_items_.reserve(ni * 4);
     bin_begin_.reserve(kMaxBins * kMaxBins + 1);
     bin_fill_.reserve(kMaxBins * kMaxBins);
@@ -168,21 +164,47 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
         for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { cell_items_[cell_fill_[c]++] = uint32_t(t); });
     inst_stamp_.assign(nt, 0);
     inst_query_ = 0;
+    tcx_.resize(nt);
+    tcy_.resize(nt);
+    tcz_.resize(nt);
+    trad_.resize(nt);
+    tnx_.resize(nt);
+    tny_.resize(nt);
+    tnz_.resize(nt);
+    keep_.resize(nt);
+    for (size_t t = 0; t < nt; ++t) {
+        const InstTri& T = tris_[t];
+        const Vec3f c = (T.a + T.b + T.c) / 3.0f;
+        tcx_[t] = c.x();
+        tcy_[t] = c.y();
+        tcz_[t] = c.z();
+        trad_[t] = std::max({(T.a - c).norm(), (T.b - c).norm(), (T.c - c).norm()}) * (1.0f + 1e-5f) + kEps_mm;
+        tnx_[t] = T.n.x();
+        tny_[t] = T.n.y();
+        tnz_[t] = T.n.z();
+    }
     built_ = true;
 }
 
 bool ExactContact::intersects_any(uint32_t mt) {
     const auto& tr = triangles_[mt];
     const Vec3f &a = local_[tr[0]], &b = local_[tr[1]], &c = local_[tr[2]];
-    const Vec3f m = Vec3f::Constant(kEps_mm);
-    const Vec3f tlo = a.cwiseMin(b).cwiseMin(c) - m, thi = a.cwiseMax(b).cwiseMax(c) + m;
+    // Plain float arithmetic in this loop: GCC at -O2 does not inline Eigen's small reductions.
+    const float ax = a.x(), ay = a.y(), az = a.z(), bx = b.x(), by = b.y(), bz = b.z(), cx = c.x(), cy = c.y(),
+                cz = c.z();
+    const float lox = min3(ax, bx, cx) - kEps_mm, loy = min3(ay, by, cy) - kEps_mm,
+                loz = min3(az, bz, cz) - kEps_mm;
+    const float hix = max3(ax, bx, cx) + kEps_mm, hiy = max3(ay, by, cy) + kEps_mm,
+                hiz = max3(az, bz, cz) + kEps_mm;
     auto cell_of = [&](float x, int k) { return std::clamp(int((x - lo_[k]) * inv_cell_[k]), 0, dims_[k] - 1); };
-    const int x0 = cell_of(tlo.x(), 0), x1 = cell_of(thi.x(), 0), y0 = cell_of(tlo.y(), 1), y1 = cell_of(thi.y(), 1),
-              z0 = cell_of(tlo.z(), 2), z1 = cell_of(thi.z(), 2);
+    const int x0 = cell_of(lox, 0), x1 = cell_of(hix, 0), y0 = cell_of(loy, 1), y1 = cell_of(hiy, 1),
+              z0 = cell_of(loz, 2), z1 = cell_of(hiz, 2);
     const uint32_t q = bump(inst_query_, inst_stamp_);
     // The membrane triangle's plane (unnormalised) for the second filter.
-    const Vec3f nm = (b - a).cross(c - a);
-    const float dm = nm.dot(a), epsm = kEps_mm * nm.norm();
+    const float e1x = bx - ax, e1y = by - ay, e1z = bz - az, e2x = cx - ax, e2y = cy - ay, e2z = cz - az;
+    const float nmx = e1y * e2z - e1z * e2y, nmy = e1z * e2x - e1x * e2z, nmz = e1x * e2y - e1y * e2x;
+    const float dm = nmx * ax + nmy * ay + nmz * az;
+    const float epsm = kEps_mm * std::sqrt(nmx * nmx + nmy * nmy + nmz * nmz);
     for (int z = z0; z <= z1; ++z)
         for (int y = y0; y <= y1; ++y)
             for (int x = x0; x <= x1; ++x) {
@@ -192,13 +214,19 @@ bool ExactContact::intersects_any(uint32_t mt) {
                     if (inst_stamp_[it] == q) continue;
                     inst_stamp_[it] = q;
                     const InstTri& T = tris_[it];
-                    if ((thi.array() < T.lo.array()).any() || (tlo.array() > T.hi.array()).any()) continue;
+                    if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() ||
+                        loz > T.hi.z())
+                        continue;
                     // Plane filters (float, conservative margin): all of one triangle strictly on one side of
                     // the other's plane → disjoint.
-                    const float da = T.n.dot(a) - T.d, db = T.n.dot(b) - T.d, dc = T.n.dot(c) - T.d;
+                    const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
+                    const float da = nx * ax + ny * ay + nz * az - T.d, db = nx * bx + ny * by + nz * bz - T.d,
+                                dc = nx * cx + ny * cy + nz * cz - T.d;
                     if ((da > kEps_mm && db > kEps_mm && dc > kEps_mm) || (da < -kEps_mm && db < -kEps_mm && dc < -kEps_mm))
                         continue;
-                    const float ea = nm.dot(T.a) - dm, eb = nm.dot(T.b) - dm, ec = nm.dot(T.c) - dm;
+                    const float ea = nmx * T.a.x() + nmy * T.a.y() + nmz * T.a.z() - dm,
+                                eb = nmx * T.b.x() + nmy * T.b.y() + nmz * T.b.z() - dm,
+                                ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
                     if ((ea > epsm && eb > epsm && ec > epsm) || (ea < -epsm && eb < -epsm && ec < -epsm)) continue;
                     ++result_.pair_tests;
                     if (triangles_intersect(a, b, c, T.a, T.b, T.c)) return true;
@@ -253,23 +281,19 @@ bool ExactContact::inside_any_part(const Vec3f& p) {
     return false;
 }
 
-float ExactContact::front_depth(float u, float w, float s) const {
-    // Smallest depth s of the instrument surface on the line through (u, w) along π; +inf when none.
+float ExactContact::front_depth(float u, float w) const {
+    // Smallest depth along π of the instrument surface on the line through (u, w); +inf when none.
     const int bu = int((u - bu0_) * binv_u_), bw = int((w - bw0_) * binv_w_);
     if (bu < 0 || bw < 0 || bu >= bins_ || bw >= bins_) return kInf;
     const size_t b = size_t(bw) * size_t(bins_) + size_t(bu);
     float best = kInf;
-    (void)s;
+    constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
     for (uint32_t k = bin_begin_[b]; k < bin_begin_[b + 1]; ++k) {
-        const auto& tr = inst_triangles_[bin_items_[k]];
-        const float u0 = iu_[tr[0]], w0 = iw_[tr[0]], u1 = iu_[tr[1]], w1 = iw_[tr[1]], u2 = iu_[tr[2]], w2 = iw_[tr[2]];
-        const float area = (u1 - u0) * (w2 - w0) - (w1 - w0) * (u2 - u0);
-        const float l1 = ((u - u0) * (w2 - w0) - (w - w0) * (u2 - u0)) / area;
-        const float l2 = ((u1 - u0) * (w - w0) - (w1 - w0) * (u - u0)) / area;
-        const float l0 = 1.0f - l1 - l2;
-        constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
-        if (l0 < kTol || l1 < kTol || l2 < kTol) continue;
-        best = std::min(best, l0 * is_[tr[0]] + l1 * is_[tr[1]] + l2 * is_[tr[2]]);
+        const FrontTri& f = front_[bin_items_[k]];
+        const float du = u - f.u0, dw = w - f.w0;
+        const float l1 = f.a11 * du + f.a12 * dw, l2 = f.a21 * du + f.a22 * dw;
+        if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
+        best = std::min(best, f.s0 + l1 * f.ds1 + l2 * f.ds2);
     }
     return best;
 }
@@ -285,37 +309,75 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     float u_lo = kInf, u_hi = -kInf, w_lo = kInf, w_hi = -kInf, s_hi = -kInf;
     for (uint32_t t : out_)
         for (uint32_t v : triangles_[t]) {
-            const float u = pu_.dot(local_[v]), w = pw_.dot(local_[v]), s = ps_.dot(local_[v]);
+            const Vec3f& p = local_[v];
+            const float u = pu_.x() * p.x() + pu_.y() * p.y() + pu_.z() * p.z();
+            const float w = pw_.x() * p.x() + pw_.y() * p.y() + pw_.z() * p.z();
+            const float s = ps_.x() * p.x() + ps_.y() * p.y() + ps_.z() * p.z();
             u_lo = std::min(u_lo, u);
             u_hi = std::max(u_hi, u);
             w_lo = std::min(w_lo, w);
             w_hi = std::max(w_hi, w);
             s_hi = std::max(s_hi, s);
         }
-    // Instrument vertices in (u, w, s); triangles over the region that reach in front of the membrane.
-    const size_t niv = inst_vertices_.size();
-    iu_.resize(niv);
-    iw_.resize(niv);
-    is_.resize(niv);
-    for (size_t i = 0; i < niv; ++i) {
-        const Vec3f& v = inst_vertices_[i];
-        iu_[i] = pu_.dot(v);
-        iw_[i] = pw_.dot(v);
-        is_[i] = ps_.dot(v);
+    // Cull by bounding spheres: only triangles facing the camera (−π; the first surface a line along π meets on
+    // a closed part with outward normals faces it) over the region and reaching in front of the deepest sample.
+    const size_t nit = tris_.size();
+    {
+        const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
+        const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
+        const float* __restrict cx = tcx_.data();
+        const float* __restrict cy = tcy_.data();
+        const float* __restrict cz = tcz_.data();
+        const float* __restrict rad = trad_.data();
+        const float* __restrict nx = tnx_.data();
+        const float* __restrict ny = tny_.data();
+        const float* __restrict nz = tnz_.data();
+        uint8_t* __restrict keep = keep_.data();
+        for (size_t t = 0; t < nit; ++t) {
+            const float u = ux * cx[t] + uy * cy[t] + uz * cz[t], w = wx * cx[t] + wy * cy[t] + wz * cz[t];
+            const float s = sx * cx[t] + sy * cy[t] + sz * cz[t], r = rad[t];
+            const float facing = sx * nx[t] + sy * ny[t] + sz * nz[t];
+            keep[t] = uint8_t((facing < 0.0f) & (u + r >= u_lo) & (u - r <= u_hi) & (w + r >= w_lo) & (w - r <= w_hi) &
+                              (s - r <= s_hi));
+        }
     }
-    rel_.clear();
-    for (uint32_t t = 0; t < inst_triangles_.size(); ++t) {
-        const auto& tr = inst_triangles_[t];
-        const float a0 = iu_[tr[0]], a1 = iu_[tr[1]], a2 = iu_[tr[2]];
-        if (std::max({a0, a1, a2}) < u_lo || std::min({a0, a1, a2}) > u_hi) continue;
-        const float b0 = iw_[tr[0]], b1 = iw_[tr[1]], b2 = iw_[tr[2]];
-        if (std::max({b0, b1, b2}) < w_lo || std::min({b0, b1, b2}) > w_hi) continue;
-        if (std::min({is_[tr[0]], is_[tr[1]], is_[tr[2]]}) > s_hi) continue;
-        const float area = (a1 - a0) * (b2 - b0) - (b1 - b0) * (a2 - a0);
-        if (std::fabs(area) < 1e-12f) continue;  // seen edge-on: its neighbours cover the line
-        rel_.push_back(t);
+    front_.clear();
+    const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
+    const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
+    for (size_t t = 0; t < nit; ++t) {
+        if (!keep_[t]) continue;
+        const InstTri& T = tris_[t];
+        const float a0 = T.a.x(), a1 = T.a.y(), a2 = T.a.z(), b0 = T.b.x(), b1 = T.b.y(), b2 = T.b.z();
+        const float c0 = T.c.x(), c1 = T.c.y(), c2 = T.c.z();
+        const float u0 = ux * a0 + uy * a1 + uz * a2, w0 = wx * a0 + wy * a1 + wz * a2;
+        const float u1 = ux * b0 + uy * b1 + uz * b2, w1 = wx * b0 + wy * b1 + wz * b2;
+        const float u2 = ux * c0 + uy * c1 + uz * c2, w2 = wx * c0 + wy * c1 + wz * c2;
+        const float s0 = sx * a0 + sy * a1 + sz * a2, s1 = sx * b0 + sy * b1 + sz * b2, s2 = sx * c0 + sy * c1 + sz * c2;
+        if (min3(s0, s1, s2) > s_hi || max3(u0, u1, u2) < u_lo || min3(u0, u1, u2) > u_hi || max3(w0, w1, w2) < w_lo ||
+            min3(w0, w1, w2) > w_hi)
+            continue;  // the exact bounds (the sphere test above is coarser)
+        const float m00 = u1 - u0, m01 = u2 - u0, m10 = w1 - w0, m11 = w2 - w0;
+        const float det = m00 * m11 - m01 * m10;
+        if (std::fabs(det) < 1e-12f) continue;  // seen edge-on: its neighbours cover the line
+        const float inv = 1.0f / det;
+        FrontTri f;
+        f.u0 = u0;
+        f.w0 = w0;
+        f.a11 = m11 * inv;
+        f.a12 = -m01 * inv;
+        f.a21 = -m10 * inv;
+        f.a22 = m00 * inv;
+        f.s0 = s0;
+        f.ds1 = s1 - s0;
+        f.ds2 = s2 - s0;
+        f.ulo = min3(u0, u1, u2);
+        f.uhi = max3(u0, u1, u2);
+        f.wlo = min3(w0, w1, w2);
+        f.whi = max3(w0, w1, w2);
+        front_.push_back(f);
     }
-    bins_ = std::clamp(int(std::sqrt(double(rel_.size()) / 2.0)), 1, kMaxBins);
+    result_.front_triangles = front_.size();
+    bins_ = std::clamp(int(std::sqrt(double(front_.size()) / 2.0)), 1, kMaxBins);
     const float eu = std::max(u_hi - u_lo, 1e-6f), ew = std::max(w_hi - w_lo, 1e-6f);
     bu0_ = u_lo;
     bw0_ = w_lo;
@@ -323,35 +385,32 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     binv_w_ = float(bins_) / ew * (1.0f - 1e-6f);
     const size_t nb = size_t(bins_) * size_t(bins_);
     bin_begin_.assign(nb + 1, 0);
-    auto bin_range = [&](uint32_t t, int& x0, int& x1, int& y0, int& y1) {
-        const auto& tr = inst_triangles_[t];
-        const float ulo = std::min({iu_[tr[0]], iu_[tr[1]], iu_[tr[2]]}), uhi = std::max({iu_[tr[0]], iu_[tr[1]], iu_[tr[2]]});
-        const float wlo = std::min({iw_[tr[0]], iw_[tr[1]], iw_[tr[2]]}), whi = std::max({iw_[tr[0]], iw_[tr[1]], iw_[tr[2]]});
-        x0 = std::clamp(int((ulo - bu0_) * binv_u_), 0, bins_ - 1);
-        x1 = std::clamp(int((uhi - bu0_) * binv_u_), 0, bins_ - 1);
-        y0 = std::clamp(int((wlo - bw0_) * binv_w_), 0, bins_ - 1);
-        y1 = std::clamp(int((whi - bw0_) * binv_w_), 0, bins_ - 1);
+    auto bin_range = [&](const FrontTri& f, int& x0, int& x1, int& y0, int& y1) {
+        x0 = std::clamp(int((f.ulo - bu0_) * binv_u_), 0, bins_ - 1);
+        x1 = std::clamp(int((f.uhi - bu0_) * binv_u_), 0, bins_ - 1);
+        y0 = std::clamp(int((f.wlo - bw0_) * binv_w_), 0, bins_ - 1);
+        y1 = std::clamp(int((f.whi - bw0_) * binv_w_), 0, bins_ - 1);
     };
-    for (uint32_t t : rel_) {
+    for (const FrontTri& f : front_) {
         int x0, x1, y0, y1;
-        bin_range(t, x0, x1, y0, y1);
+        bin_range(f, x0, x1, y0, y1);
         for (int y = y0; y <= y1; ++y)
             for (int x = x0; x <= x1; ++x) ++bin_begin_[size_t(y) * size_t(bins_) + size_t(x) + 1];
     }
     for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] += bin_begin_[b];
     bin_items_.resize(bin_begin_[nb]);
     bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
-    for (uint32_t t : rel_) {
+    for (uint32_t i = 0; i < front_.size(); ++i) {
         int x0, x1, y0, y1;
-        bin_range(t, x0, x1, y0, y1);
+        bin_range(front_[i], x0, x1, y0, y1);
         for (int y = y0; y <= y1; ++y)
-            for (int x = x0; x <= x1; ++x) bin_items_[bin_fill_[size_t(y) * size_t(bins_) + size_t(x)]++] = t;
+            for (int x = x0; x <= x1; ++x) bin_items_[bin_fill_[size_t(y) * size_t(bins_) + size_t(x)]++] = i;
     }
     // ZI − ZM at a membrane point: the front-most instrument surface on its line minus its own depth, ≤ 0.
-    auto delta_at = [&](const Vec3f& p_local) {
-        const float s = ps_.dot(p_local);
-        const float front = front_depth(pu_.dot(p_local), pw_.dot(p_local), s);
-        return std::min(0.0f, front - s);
+    auto delta_at = [&](const Vec3f& p) {
+        const float u = ux * p.x() + uy * p.y() + uz * p.z(), w = wx * p.x() + wy * p.y() + wz * p.z();
+        const float s = sx * p.x() + sy * p.y() + sz * p.z();
+        return std::min(0.0f, front_depth(u, w) - s);
     };
     for (uint32_t t : out_) {
         const auto& tr = triangles_[t];

@@ -63,6 +63,7 @@ struct ContactResult {
     size_t candidate_triangles = 0;  ///< membrane triangles that reached the grid (diagnostics)
     size_t pair_tests = 0;           ///< triangle pairs that reached the double-precision test
     size_t inside_tests = 0;         ///< point-in-part ray parity tests
+    size_t front_triangles = 0;      ///< instrument triangles binned for the deformation values
     bool rebuilt = false;            ///< the instrument structure was (re)built in this query
 };
 
@@ -102,7 +103,7 @@ private:
     bool inside_any_part(const Vec3f& p_local);
     void compute_deformation(std::span<const Vec3f> membrane_vertices_eye_mm, const Eigen::Isometry3f& to_eye,
                              const Vec3f& pi_eye);
-    float front_depth(float u, float w, float s) const;
+    float front_depth(float u, float w) const;
     void reset_result();
 
     // Membrane topology.
@@ -127,9 +128,17 @@ private:
     std::vector<uint8_t> tri_state_, vert_inside_;
     uint32_t inst_query_ = 0, query_ = 0;
     std::vector<uint32_t> out_, queue_;
-    // Deformation: instrument vertices in (u, w, s) coordinates, binned triangles, per-vertex depths.
-    std::vector<float> iu_, iw_, is_;
-    std::vector<uint32_t> rel_, bin_begin_, bin_items_, bin_fill_;
+    // Deformation: bounding spheres and normals of the instrument triangles (structure of arrays, built with
+    // the grid), the front-facing triangles over the contact as planes over (u, w) ⊥ π, binned.
+    std::vector<float> tcx_, tcy_, tcz_, trad_, tnx_, tny_, tnz_;
+    std::vector<uint8_t> keep_;
+    struct FrontTri {
+        float u0, w0, a11, a12, a21, a22;  // (u, w) → barycentric (l1, l2)
+        float s0, ds1, ds2;                // depth along π at the corners
+        float ulo, uhi, wlo, whi;          // bounds ⊥ π
+    };
+    std::vector<FrontTri> front_;
+    std::vector<uint32_t> bin_begin_, bin_items_, bin_fill_;
     float bu0_ = 0, bw0_ = 0, binv_u_ = 1, binv_w_ = 1;
     int bins_ = 1;
     Vec3f pu_{1, 0, 0}, pw_{0, 1, 0}, ps_{0, 0, 1};  // u, w, π in the instrument frame
