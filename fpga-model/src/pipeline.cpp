@@ -8,6 +8,10 @@
 #include <emmintrin.h>
 #include <xmmintrin.h>
 #endif
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#define EYESIM_FPGA_AVX2 1
+#endif
 
 namespace eyesim::fpga {
 namespace {
@@ -51,6 +55,195 @@ CellLerp cell_lerp(int x) {
     return {i, f != 0 ? i + 2 : i, f};
 }
 
+// Line scans (Pipeline::LineScan): per 8-px cell the sums of its four Cb and four Cr samples and whether any of
+// them lies outside the grey box |C - 128| <= T. Three implementations with identical results.
+constexpr int kCellBytes = 2 * kBgCellPixels;
+
+void scan_cells_scalar(const uint8_t* line, int T, uint32_t* sums, uint64_t* out, int j0) {
+    for (int j = j0; j < kBgCells; ++j) {
+        const uint8_t* q = line + kCellBytes * j;
+        uint32_t cb = 0, cr = 0;
+        bool outside = false;
+        for (int k = 0; k < kBgCellPairs; ++k) {
+            cb += q[4 * k];
+            cr += q[4 * k + 2];
+            outside = outside || std::abs(q[4 * k] - 128) > T || std::abs(q[4 * k + 2] - 128) > T;
+        }
+        sums[j] = cb | cr << 16;
+        if (outside) out[j >> 6] |= 1ull << (j & 63);
+    }
+}
+
+void scan_line_scalar(const uint8_t* line, int T, uint32_t* sums, uint64_t* out) {
+    out[0] = out[1] = 0;
+    scan_cells_scalar(line, T, sums, out, 0);
+}
+
+#if defined(__SSE2__)
+// Four cells (64 bytes) per step. Box test per byte: (c - lo) mod 256 <= range; chroma bytes lo = 128 - T,
+// range 2T; luma bytes always pass. Sums: the chroma bytes as 16-bit lanes (Cb, Cr of a pair), added across the
+// cell's four pairs, so each cell's 32-bit result is Cb | Cr << 16.
+void scan_line_sse2(const uint8_t* line, int T, uint32_t* sums, uint64_t* out) {
+    const __m128i lo = _mm_set1_epi16(static_cast<short>(128 - T));
+    const __m128i range = _mm_set1_epi16(static_cast<short>(0xFF00 | (2 * T)));
+    const __m128i zero = _mm_setzero_si128();
+    const __m128i low_bytes = _mm_set1_epi16(0x00FF);
+    out[0] = out[1] = 0;
+    // Steps of four cells; the last one starts at kBgCells - 4 (repeating cells 86, 87 of a 90-cell line).
+    static_assert(kBgCells > 4 && (kBgCells - 4) / 64 == (kBgCells - 1) / 64);
+    for (int j = 0; j < kBgCells; j = std::min(j + 4, kBgCells - 4)) {
+        const __m128i* p = reinterpret_cast<const __m128i*>(line + kCellBytes * j);
+        const __m128i v0 = _mm_loadu_si128(p), v1 = _mm_loadu_si128(p + 1), v2 = _mm_loadu_si128(p + 2),
+                      v3 = _mm_loadu_si128(p + 3);
+        const __m128i e0 = _mm_subs_epu8(_mm_sub_epi8(v0, lo), range), e1 = _mm_subs_epu8(_mm_sub_epi8(v1, lo), range),
+                      e2 = _mm_subs_epu8(_mm_sub_epi8(v2, lo), range), e3 = _mm_subs_epu8(_mm_sub_epi8(v3, lo), range);
+        const __m128i e = _mm_or_si128(_mm_or_si128(e0, e1), _mm_or_si128(e2, e3));
+        if (_mm_movemask_epi8(_mm_cmpeq_epi8(e, zero)) != 0xFFFF) {  // some cell of the four is out of the box
+            auto out_of_box = [&](__m128i ei) {
+                return static_cast<uint64_t>(_mm_movemask_epi8(_mm_cmpeq_epi8(ei, zero)) != 0xFFFF);
+            };
+            const uint64_t bits =
+                out_of_box(e0) | out_of_box(e1) << 1 | out_of_box(e2) << 2 | out_of_box(e3) << 3;
+            out[j >> 6] |= bits << (j & 63);
+        }
+        const __m128i a0 = _mm_and_si128(v0, low_bytes), a1 = _mm_and_si128(v1, low_bytes),
+                      a2 = _mm_and_si128(v2, low_bytes), a3 = _mm_and_si128(v3, low_bytes);
+        const __m128i u = _mm_add_epi16(_mm_unpacklo_epi64(a0, a1), _mm_unpackhi_epi64(a0, a1));
+        const __m128i w = _mm_add_epi16(_mm_unpacklo_epi64(a2, a3), _mm_unpackhi_epi64(a2, a3));
+        const __m128 uf = _mm_castsi128_ps(u), wf = _mm_castsi128_ps(w);
+        const __m128i s4 = _mm_add_epi16(_mm_castps_si128(_mm_shuffle_ps(uf, wf, _MM_SHUFFLE(2, 0, 2, 0))),
+                                         _mm_castps_si128(_mm_shuffle_ps(uf, wf, _MM_SHUFFLE(3, 1, 3, 1))));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(sums + j), s4);
+        if (j == kBgCells - 4) break;
+    }
+}
+#endif
+
+#if defined(EYESIM_FPGA_AVX2)
+// Two cells per vector of box-test results (nonzero bytes: out of the box): bit 0 for the low 16 bytes, bit 1 for
+// the high 16.
+__attribute__((target("avx2"))) inline uint64_t outside2_avx2(__m256i e, __m256i zero) {
+    const uint32_t m = static_cast<uint32_t>(~_mm256_movemask_epi8(_mm256_cmpeq_epi8(e, zero)));
+    return static_cast<uint64_t>((m & 0xFFFFu) != 0) | static_cast<uint64_t>((m >> 16) != 0) << 1;
+}
+
+// Eight cells (128 bytes) per step, the same arithmetic as the SSE2 scan in 32-byte vectors (two cells each).
+__attribute__((target("avx2"))) void scan_line_avx2(const uint8_t* line, int T, uint32_t* sums, uint64_t* out) {
+    const __m256i lo = _mm256_set1_epi16(static_cast<short>(128 - T));
+    const __m256i range = _mm256_set1_epi16(static_cast<short>(0xFF00 | (2 * T)));
+    const __m256i zero = _mm256_setzero_si256();
+    const __m256i low_bytes = _mm256_set1_epi16(0x00FF);
+    const __m256i order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
+    out[0] = out[1] = 0;
+    // Steps of eight cells; the last one starts at kBgCells - 8 and repeats a few cells (same sums, same bits).
+    static_assert(kBgCells % 8 != 0 && kBgCells > 8 && (kBgCells - 8) / 64 == (kBgCells - 1) / 64);
+    for (int j = 0; j < kBgCells; j = std::min(j + 8, kBgCells - 8)) {
+        const __m256i* p = reinterpret_cast<const __m256i*>(line + kCellBytes * j);
+        const __m256i v0 = _mm256_loadu_si256(p), v1 = _mm256_loadu_si256(p + 1), v2 = _mm256_loadu_si256(p + 2),
+                      v3 = _mm256_loadu_si256(p + 3);
+        const __m256i e0 = _mm256_subs_epu8(_mm256_sub_epi8(v0, lo), range);
+        const __m256i e1 = _mm256_subs_epu8(_mm256_sub_epi8(v1, lo), range);
+        const __m256i e2 = _mm256_subs_epu8(_mm256_sub_epi8(v2, lo), range);
+        const __m256i e3 = _mm256_subs_epu8(_mm256_sub_epi8(v3, lo), range);
+        const __m256i e = _mm256_or_si256(_mm256_or_si256(e0, e1), _mm256_or_si256(e2, e3));
+        if (!_mm256_testz_si256(e, e)) {  // some cell of the eight is out of the box (rare): which ones
+            const uint64_t bits = outside2_avx2(e0, zero) | outside2_avx2(e1, zero) << 2 |
+                                  outside2_avx2(e2, zero) << 4 | outside2_avx2(e3, zero) << 6;
+            out[j >> 6] |= bits << (j & 63);
+        }
+        const __m256i a0 = _mm256_and_si256(v0, low_bytes), a1 = _mm256_and_si256(v1, low_bytes),
+                      a2 = _mm256_and_si256(v2, low_bytes), a3 = _mm256_and_si256(v3, low_bytes);
+        // Within each 128-bit lane as in the SSE2 scan: lane 0 gives cells 0, 2, 4, 6; lane 1 cells 1, 3, 5, 7.
+        const __m256i u = _mm256_add_epi16(_mm256_unpacklo_epi64(a0, a1), _mm256_unpackhi_epi64(a0, a1));
+        const __m256i w = _mm256_add_epi16(_mm256_unpacklo_epi64(a2, a3), _mm256_unpackhi_epi64(a2, a3));
+        const __m256 uf = _mm256_castsi256_ps(u), wf = _mm256_castsi256_ps(w);
+        const __m256i s8 =
+            _mm256_add_epi16(_mm256_castps_si256(_mm256_shuffle_ps(uf, wf, _MM_SHUFFLE(2, 0, 2, 0))),
+                             _mm256_castps_si256(_mm256_shuffle_ps(uf, wf, _MM_SHUFFLE(3, 1, 3, 1))));
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(sums + j), _mm256_permutevar8x32_epi32(s8, order));
+        if (j == kBgCells - 8) break;
+    }
+    // Clean upper halves before returning to SSE code (dirty upper halves slow every later SSE instruction).
+    _mm256_zeroupper();
+}
+#endif
+
+// Background step of every cell (Pipeline::update_background's arithmetic, 16-bit lanes: Cb, Cr interleaved as in
+// the cell sums): bg += (4 · sum − bg + 2^(n−1)) >> n.
+void bg_step_scalar(int16_t* bg, const uint32_t* sums, int n) {
+    const int half = 1 << (n - 1);
+    for (int j = 0; j < kBgCells; ++j) {
+        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);
+        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
+        bg[2 * j] = static_cast<int16_t>(bg[2 * j] + ((mcb - bg[2 * j] + half) >> n));
+        bg[2 * j + 1] = static_cast<int16_t>(bg[2 * j + 1] + ((mcr - bg[2 * j + 1] + half) >> n));
+    }
+}
+
+#if defined(__SSE2__)
+void bg_step_sse2(int16_t* bg, const uint32_t* sums, int n) {
+    static_assert(kBgCells % 2 == 0);
+    const __m128i v_half = _mm_set1_epi16(static_cast<short>(1 << (n - 1)));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    auto step = [&](__m128i s, __m128i b) {
+        return _mm_add_epi16(b, _mm_sra_epi16(_mm_add_epi16(_mm_sub_epi16(_mm_slli_epi16(s, 4 - kBgCellLog2), b), v_half), v_shift));
+    };
+    int j = 0;
+    for (; j + 4 <= kBgCells; j += 4) {
+        __m128i* bp = reinterpret_cast<__m128i*>(bg + 2 * j);
+        _mm_storeu_si128(bp, step(_mm_loadu_si128(reinterpret_cast<const __m128i*>(sums + j)), _mm_loadu_si128(bp)));
+    }
+    for (; j < kBgCells; j += 2) {  // two cells in the low 64 bits
+        __m128i* bp = reinterpret_cast<__m128i*>(bg + 2 * j);
+        _mm_storel_epi64(bp, step(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(sums + j)), _mm_loadl_epi64(bp)));
+    }
+}
+#endif
+
+#if defined(EYESIM_FPGA_AVX2)
+__attribute__((target("avx2"))) void bg_step_avx2(int16_t* bg, const uint32_t* sums, int n) {
+    static_assert(kBgCells % 2 == 0);
+    const __m256i v_half = _mm256_set1_epi16(static_cast<short>(1 << (n - 1)));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    int j = 0;
+    for (; j + 8 <= kBgCells; j += 8) {
+        __m256i* bp = reinterpret_cast<__m256i*>(bg + 2 * j);
+        const __m256i b = _mm256_loadu_si256(bp);
+        const __m256i m = _mm256_slli_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)), 4 - kBgCellLog2);
+        _mm256_storeu_si256(bp, _mm256_add_epi16(b, _mm256_sra_epi16(_mm256_add_epi16(_mm256_sub_epi16(m, b), v_half), v_shift)));
+    }
+    _mm256_zeroupper();
+    for (; j < kBgCells; j += 2) {  // two cells in the low 64 bits
+        __m128i* bp = reinterpret_cast<__m128i*>(bg + 2 * j);
+        const __m128i b = _mm_loadl_epi64(bp);
+        const __m128i m = _mm_slli_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(sums + j)), 4 - kBgCellLog2);
+        _mm_storel_epi64(bp, _mm_add_epi16(b, _mm_sra_epi16(_mm_add_epi16(_mm_sub_epi16(m, b), _mm256_castsi256_si128(v_half)), v_shift)));
+    }
+}
+#endif
+
+// The scan for a requested instruction set, falling back to what this build and CPU have.
+Pipeline::LineScan select_scan(ScanIsa want, ScanIsa& got, Pipeline::BgStep& bg_step) {
+#if defined(EYESIM_FPGA_AVX2)
+    if ((want == ScanIsa::kAuto || want == ScanIsa::kAvx2) && __builtin_cpu_supports("avx2")) {
+        got = ScanIsa::kAvx2;
+        bg_step = bg_step_avx2;
+        return scan_line_avx2;
+    }
+#endif
+#if defined(__SSE2__)
+    if (want != ScanIsa::kScalar) {
+        got = ScanIsa::kSse2;
+        bg_step = bg_step_sse2;
+        return scan_line_sse2;
+    }
+#endif
+    (void)want;
+    got = ScanIsa::kScalar;
+    bg_step = bg_step_scalar;
+    return scan_line_scalar;
+}
+
 }  // namespace
 
 Pipeline::Pipeline(const RegisterMap& snapshot, const PipelineConfig& config) : own_(snapshot) { init(config); }
@@ -62,6 +255,7 @@ void Pipeline::init(const PipelineConfig& config) {
     config_.blob_table_capacity = std::clamp(config_.blob_table_capacity, 1, kMaxBlobSlots);
     n_free_ = 0;
     for (int i = config_.blob_table_capacity - 1; i >= 0; --i) free_list_[n_free_++] = static_cast<uint16_t>(i);
+    scan_ = select_scan(config_.scan_isa, scan_isa_, bg_step_);
     compile();
 }
 
@@ -216,6 +410,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     bg_all_seeded_ = false;
     occupied_older_ = {};
     occupied_ = {};  // the first line's "line above" masks are empty, not the previous field's
+    cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     return PipelineStatus::kOk;
 }
 
@@ -243,15 +438,21 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
     occupied_older_ = occupied_[cur_buf_];
     occupied_[cur_buf_] = {};
     claimed_[cur_buf_] = {};
-    if (config_.float_reference)
+    if (cells_path_)
+        classify_line_cells(uyvy_line);
+    else if (config_.float_reference)
         classify_line<true>(uyvy_line, y);
     else
         classify_line<false>(uyvy_line, y);
     label_line(y, false, uyvy_line);
     // The background learns from the previous line once this line has shown which of its pixels are next to a
     // blob; this line's weights were computed from lines up to y - 2.
-    if (params_.bg_track_shift != 0 && params_.weight_mode == 1 && prev_line_ != nullptr && last_line_ == y - 1)
-        update_background(prev_line_, y - 1);
+    if (params_.bg_track_shift != 0 && params_.weight_mode == 1 && prev_line_ != nullptr && last_line_ == y - 1) {
+        if (cells_path_)
+            update_background_cells();
+        else
+            update_background(prev_line_, y - 1);
+    }
     // The hardware keeps the previous line in a line buffer for the ring above new blobs; callers of push_line
     // may reuse their buffer, so it is copied unless the whole field is in memory (process_field).
     if ((params_.edge_ring || params_.bg_track_shift != 0) && !stable) {
@@ -290,6 +491,11 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
         return PipelineStatus::kNullLine;
     }
     for (int y = 0; y < lines; ++y) {
+        // The field is in memory: ask for line y + 2 while this one is processed (a model speed-up only).
+        if (y + 2 < lines) {
+            const uint8_t* ahead = uyvy_field + static_cast<size_t>(y + 2) * stride_bytes;
+            for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(ahead + b);
+        }
         s = push_line_impl(uyvy_field + static_cast<size_t>(y) * stride_bytes, y, true);
         if (s != PipelineStatus::kOk) {
             end_field();
@@ -297,6 +503,69 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
         }
     }
     return end_field();
+}
+
+// Ends the open run (if any) at x_end: appends it to the line's runs and marks its pixels occupied.
+inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
+    if (o.cls != 0) {
+        Run& r = runs[n++];
+        r.x0 = static_cast<uint16_t>(o.x0);
+        r.x1 = static_cast<uint16_t>(x_end);
+        r.label = kNoLabel;
+        r.cls = o.cls;
+        r.sum_w = o.sw;
+        r.sum_wx = o.swx;
+        r.sum_wxx = o.swxx;
+        r.ref_w = o.rw;
+        r.ref_wx = o.rwx;
+        r.ref_wxx = o.rwxx;
+        uint64_t* occ = occupied_[cur_buf_].data();
+        for (int xx = o.x0; xx <= x_end;) {  // mark [x0, x_end] word by word
+            const int wi = xx >> 6, b0 = xx & 63, b1 = std::min(63, b0 + (x_end - xx));
+            const uint64_t bits = (b1 - b0 == 63) ? ~0ull : (((1ull << (b1 - b0 + 1)) - 1) << b0);
+            occ[wi] |= bits;
+            xx += b1 - b0 + 1;
+        }
+    }
+    o.cls = 0;
+}
+
+// The datapath for pixel px: classify (LUT + luma band), extend, close or open the run, add the weight.
+template <bool kRef>
+inline void Pipeline::classify_pixel(const uint8_t* line, int px, OpenRun& o, Run* runs, int& n) {
+    const int k = px >> 1;
+    const uint8_t* q = line + 4 * k;
+    int cb = q[0], cr = q[2];
+    const int luma = q[1 + 2 * (px & 1)];
+    int cb2 = 2 * cb, cr2 = 2 * cr;  // chroma ×2: exact for the interpolated odd pixels
+    if ((px & 1) && k < kPairs - 1) {  // odd pixel: chroma interpolated between co-sited neighbours
+        cb2 = cb + q[4];
+        cr2 = cr + q[6];
+        cb = (cb2 + 1) >> 1;
+        cr = (cr2 + 1) >> 1;
+    }
+    uint8_t c = lut_[static_cast<size_t>((cb >> 2) << kLutChromaBits | (cr >> 2))];
+    if (c != 0 && (luma < luma_min_[c] || luma > luma_max_[c])) c = 0;
+    if (c != o.cls) {
+        close_run(o, px - 1, runs, n);
+        if (c != 0) {
+            o = OpenRun{};
+            o.cls = c;
+            o.x0 = px;
+        }
+    }
+    if (c != 0) {
+        const uint32_t w = weight_at(c, luma, cb2, cr2, px);
+        o.sw += w;
+        o.swx += w * static_cast<uint32_t>(px);
+        o.swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
+        if constexpr (kRef) {
+            const double wr = weight_reference_at(c, luma, 0.5 * cb2, 0.5 * cr2, px);
+            o.rw += wr;
+            o.rwx += wr * px;
+            o.rwxx += wr * px * px;
+        }
+    }
 }
 
 template <bool kRef>
@@ -340,76 +609,12 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
     };
 #endif
 
-    const int last_pair = kPairs - 1;
     for (int s = 0; s < n_spans; ++s) {
         const int xe = span_x1[s];
         int x = span_x0[s];
-        // Open run state.
-        uint8_t cls_open = 0;
-        int x_open = 0;
-        uint32_t sw = 0, swx = 0;
-        uint64_t swxx = 0;
-        double rw = 0, rwx = 0, rwxx = 0;
-        auto close = [&](int x_end) {
-            if (cls_open != 0) {
-                Run& r = runs[n++];
-                r.x0 = static_cast<uint16_t>(x_open);
-                r.x1 = static_cast<uint16_t>(x_end);
-                r.label = kNoLabel;
-                r.cls = cls_open;
-                r.sum_w = sw;
-                r.sum_wx = swx;
-                r.sum_wxx = swxx;
-                r.ref_w = rw;
-                r.ref_wx = rwx;
-                r.ref_wxx = rwxx;
-                uint64_t* occ = occupied_[cur_buf_].data();
-                for (int xx = x_open; xx <= x_end;) {  // mark [x_open, x_end] word by word
-                    const int wi = xx >> 6, b0 = xx & 63, b1 = std::min(63, b0 + (x_end - xx));
-                    const uint64_t bits = (b1 - b0 == 63) ? ~0ull : (((1ull << (b1 - b0 + 1)) - 1) << b0);
-                    occ[wi] |= bits;
-                    xx += b1 - b0 + 1;
-                }
-            }
-            cls_open = 0;
-        };
-        auto pixel = [&](int px) {
-            const int k = px >> 1;
-            const uint8_t* q = line + 4 * k;
-            int cb = q[0], cr = q[2];
-            const int luma = q[1 + 2 * (px & 1)];
-            int cb2 = 2 * cb, cr2 = 2 * cr;  // chroma ×2: exact for the interpolated odd pixels
-            if ((px & 1) && k < last_pair) {  // odd pixel: chroma interpolated between co-sited neighbours
-                cb2 = cb + q[4];
-                cr2 = cr + q[6];
-                cb = (cb2 + 1) >> 1;
-                cr = (cr2 + 1) >> 1;
-            }
-            uint8_t c = lut_[static_cast<size_t>((cb >> 2) << kLutChromaBits | (cr >> 2))];
-            if (c != 0 && (luma < luma_min_[c] || luma > luma_max_[c])) c = 0;
-            if (c != cls_open) {
-                close(px - 1);
-                if (c != 0) {
-                    cls_open = c;
-                    x_open = px;
-                    sw = swx = 0;
-                    swxx = 0;
-                    rw = rwx = rwxx = 0;
-                }
-            }
-            if (c != 0) {
-                const uint32_t w = weight_at(c, luma, cb2, cr2, px);
-                sw += w;
-                swx += w * static_cast<uint32_t>(px);
-                swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
-                if constexpr (kRef) {
-                    const double wr = weight_reference_at(c, luma, 0.5 * cb2, 0.5 * cr2, px);
-                    rw += wr;
-                    rwx += wr * px;
-                    rwxx += wr * px * px;
-                }
-            }
-        };
+        OpenRun o;
+        auto pixel = [&](int px) { classify_pixel<kRef>(line, px, o, runs, n); };
+        auto close = [&](int x_end) { close_run(o, x_end, runs, n); };
 
         // Scalar head up to an even pixel.
         if (x & 1) pixel(x++);
@@ -432,6 +637,43 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
         }
         close(xe);
     }
+    n_runs_[cur_buf_] = n;
+    stats_.runs += static_cast<uint32_t>(n);
+    stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
+}
+
+// The fast line path (whole field, fast path on): one scan gives every 8-px cell's chroma sums and whether any of
+// its samples lies outside the grey box. A cell inside the box holds only background pixels, except possibly its
+// last (odd) pixel, whose chroma is interpolated with the next cell's first pair. So only the pixels of out-of-box
+// cells and the last pixel before each are classified, one by one; everything else is background by construction.
+void Pipeline::classify_line_cells(const uint8_t* line) {
+    Run* runs = runs_[cur_buf_].data();
+    int n = 0;
+    uint64_t out[2];
+    scan_(line, fast_half_width_, cell_sums_[cur_buf_].data(), out);
+    uint32_t examined = 0;
+    auto classify_span = [&](int x0, int x1) {
+        OpenRun o;
+        for (int x = x0; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
+        close_run(o, x1, runs, n);
+        examined += static_cast<uint32_t>(x1 - x0 + 1);
+    };
+    int s0 = -1, s1 = -1;  // span being collected
+    for (int w = 0; w < 2; ++w) {
+        for (uint64_t bits = out[w]; bits != 0; bits &= bits - 1) {
+            const int j = 64 * w + __builtin_ctzll(bits);
+            const int x0 = std::max(0, kBgCellPixels * j - 1), x1 = kBgCellPixels * j + kBgCellPixels - 1;
+            if (s0 >= 0 && x0 <= s1 + 1) {
+                s1 = x1;
+                continue;
+            }
+            if (s0 >= 0) classify_span(s0, s1);
+            s0 = x0;
+            s1 = x1;
+        }
+    }
+    if (s0 >= 0) classify_span(s0, s1);
+    stats_.fast_path_pixels += static_cast<uint32_t>(kActivePixelsPerLine) - examined;
     n_runs_[cur_buf_] = n;
     stats_.runs += static_cast<uint32_t>(n);
     stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
@@ -473,19 +715,13 @@ int Pipeline::processed_spans(int y, uint16_t* x0, uint16_t* x1) const {
     return n_spans;
 }
 
-// Tracks the background chroma per 8-pixel cell from line y (called once line y + 1 is labelled): a cell with a
-// pixel within kBgHoldColumns of a classified pixel on line y - 1, y or y + 1 holds its value; the others move
-// towards the mean chroma of their four pairs by 2^-n of the difference (the first sample of a field seeds the
-// cell). Only cells wholly inside a processed span (ROI) learn.
-void Pipeline::update_background(const uint8_t* line, int y) {
-    uint16_t sx0[kNumRoiWindows + 1], sx1[kNumRoiWindows + 1];
-    const int n_spans = processed_spans(y, sx0, sx1);
-    if (n_spans == 0) return;  // outside every ROI window
-    std::array<uint64_t, kMaskWords> near;
+// Pixels of the line the background learns from (the previous one) within kBgHoldColumns of a classified pixel on
+// it or the lines above and below; `any` is nonzero when there is one.
+void Pipeline::background_hold_mask(std::array<uint64_t, kMaskWords>& near, uint64_t& any) const {
     const std::array<uint64_t, kMaskWords>& a = occupied_[cur_buf_];
     const std::array<uint64_t, kMaskWords>& b = occupied_[cur_buf_ ^ 1];
     std::array<uint64_t, kMaskWords> m;
-    uint64_t any = 0;
+    any = 0;
     for (size_t i = 0; i < static_cast<size_t>(kMaskWords); ++i) {
         m[i] = a[i] | b[i] | occupied_older_[i];
         any |= m[i];
@@ -500,6 +736,80 @@ void Pipeline::update_background(const uint8_t* line, int y) {
         }
         near[u] = v;
     }
+}
+
+// The background update of update_background on the fast line path: the same arithmetic on the previous line's
+// cell sums kept from its line scan (whole field, no floating reference), so the line is not read again. Every
+// cell steps at once in 16-bit lanes; held cells are then put back and unseeded ones seeded, one by one.
+void Pipeline::update_background_cells() {
+    std::array<uint64_t, kMaskWords> near;
+    uint64_t any = 0;
+    background_hold_mask(near, any);
+    const uint32_t* sums = cell_sums_[cur_buf_ ^ 1].data();  // the previous line's
+    int16_t* bg = bg_q4_.data();
+    const int n = params_.bg_track_shift;
+    const int half = 1 << (n - 1);
+    constexpr int kCellPx = 2 * kBgCellPairs;
+    auto held = [&](int j) {
+        const int x = kCellPx * j;
+        return ((near[static_cast<size_t>(x >> 6)] >> (x & 63)) & ((1ull << kCellPx) - 1)) != 0;
+    };
+    auto step_cell = [&](int j) {
+        const size_t i = static_cast<size_t>(2 * j);
+        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);  // cell mean ×16
+        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
+        bg[i] = static_cast<int16_t>(bg[i] + ((mcb - bg[i] + half) >> n));
+        bg[i + 1] = static_cast<int16_t>(bg[i + 1] + ((mcr - bg[i + 1] + half) >> n));
+    };
+    if (!bg_all_seeded_) {  // the field's first lines: cell by cell
+        for (int j = 0; j < kBgCells; ++j) {
+            if (held(j)) continue;
+            uint64_t& seeded = bg_seeded_[static_cast<size_t>(j >> 6)];
+            const uint64_t bit = 1ull << (j & 63);
+            if (seeded & bit) {
+                step_cell(j);
+                continue;
+            }
+            seeded |= bit;
+            bg[2 * j] = static_cast<int16_t>((sums[j] & 0xFFFFu) << (4 - kBgCellLog2));
+            bg[2 * j + 1] = static_cast<int16_t>((sums[j] >> 16) << (4 - kBgCellLog2));
+        }
+        bool all = true;
+        for (int w = 0; w < kBgCells / 64; ++w) all = all && bg_seeded_[static_cast<size_t>(w)] == ~0ull;
+        bg_all_seeded_ = all && (bg_seeded_[kBgCells / 64] | ~((1ull << (kBgCells % 64)) - 1)) == ~0ull;
+        return;
+    }
+    // Held cells' values, restored after the vector step: the cells of the set bits of `near`.
+    int n_held = 0;
+    std::array<uint16_t, kBgCells> held_j;
+    std::array<uint32_t, kBgCells> held_v;
+    for (int w = 0; any != 0 && w < kMaskWords; ++w) {
+        uint64_t v = near[static_cast<size_t>(w)];
+        while (v != 0) {
+            const int j = (64 * w + __builtin_ctzll(v)) / kCellPx;
+            if (j >= kBgCells) break;
+            held_j[static_cast<size_t>(n_held)] = static_cast<uint16_t>(j);
+            std::memcpy(&held_v[static_cast<size_t>(n_held++)], bg + 2 * j, 4);
+            const int e = kCellPx * (j + 1) - 64 * w;  // first bit after cell j in this word
+            v = e >= 64 ? 0 : v & (~0ull << e);
+        }
+    }
+    bg_step_(bg, sums, n);
+    for (int h = 0; h < n_held; ++h)
+        std::memcpy(bg + 2 * held_j[static_cast<size_t>(h)], &held_v[static_cast<size_t>(h)], 4);
+}
+
+// Tracks the background chroma per 8-pixel cell from line y (called once line y + 1 is labelled): a cell with a
+// pixel within kBgHoldColumns of a classified pixel on line y - 1, y or y + 1 holds its value; the others move
+// towards the mean chroma of their four pairs by 2^-n of the difference (the first sample of a field seeds the
+// cell). Only cells wholly inside a processed span (ROI) learn.
+void Pipeline::update_background(const uint8_t* line, int y) {
+    uint16_t sx0[kNumRoiWindows + 1], sx1[kNumRoiWindows + 1];
+    const int n_spans = processed_spans(y, sx0, sx1);
+    if (n_spans == 0) return;  // outside every ROI window
+    std::array<uint64_t, kMaskWords> near;
+    uint64_t any = 0;
+    background_hold_mask(near, any);
     const int n = params_.bg_track_shift;
     const int half = 1 << (n - 1);
     const double gain = 1.0 / static_cast<double>(1 << n);

@@ -70,11 +70,21 @@ enum class PipelineStatus : uint8_t {
     kNullLine,         ///< null pixel pointer
 };
 
+/// Instruction set of the software model's line scan (the fast path's per-cell grey-box test and cell chroma
+/// sums). A model option, not hardware: every choice gives identical output.
+enum class ScanIsa : uint8_t {
+    kAuto = 0,  ///< the best the CPU has (AVX2, else SSE2, else portable C++)
+    kScalar,    ///< portable C++
+    kSse2,      ///< 16-byte vectors (x86-64 baseline)
+    kAvx2,      ///< 32-byte vectors (selected at run time where the CPU has AVX2)
+};
+
 /// Construction-time options (hardware build parameters, not registers).
 struct PipelineConfig {
     uint8_t camera = 0;                     ///< copied into every Blob
     int blob_table_capacity = kMaxBlobSlots;  ///< 1..kMaxBlobSlots usable slots (smaller = cheaper FPGA)
     bool float_reference = false;           ///< also accumulate the floating reference moments (slower)
+    ScanIsa scan_isa = ScanIsa::kAuto;      ///< line scan of the software model (falls back where unsupported)
 };
 
 /// Storage the FPGA needs for this configuration, in bits. Depends on the line width and table sizes only.
@@ -162,6 +172,16 @@ public:
     /// Half-width of the grey chroma box the fast path treats as background (0: fast path off).
     int fast_path_half_width() const { return fast_half_width_; }
 
+    /// Line scan in use (PipelineConfig::scan_isa resolved against the CPU; never kAuto).
+    ScanIsa scan_isa() const { return scan_isa_; }
+
+    /// Per-line scan of the software model's fast path: the 8-px cell chroma sums (Cb in the low, Cr in the high
+    /// 16 bits) and one bit per cell (bit j of word j / 64) set where a chroma sample lies outside the grey box
+    /// |C − 128| ≤ half_width.
+    using LineScan = void (*)(const uint8_t* uyvy_line, int half_width, uint32_t* cell_sums, uint64_t* out_cells);
+    /// Background step of every cell from a line's cell sums with gain 2^-shift (BG_TRACK), cells interleaved Cb, Cr.
+    using BgStep = void (*)(int16_t* bg_q4, const uint32_t* cell_sums, int shift);
+
 private:
     struct Run {
         uint16_t x0, x1;      // inclusive
@@ -171,6 +191,13 @@ private:
         uint32_t sum_wx;      // Σw·x (28 bits)
         uint64_t sum_wxx;     // Σw·x² (38 bits)
         double ref_w, ref_wx, ref_wxx;  // floating reference sums
+    };
+    struct OpenRun {          // the run being extracted on the current line
+        uint8_t cls = 0;      // 0: none open
+        int x0 = 0;
+        uint32_t sw = 0, swx = 0;
+        uint64_t swxx = 0;
+        double rw = 0, rwx = 0, rwxx = 0;
     };
     struct Slot {
         uint16_t parent;      // merge table: == own index for a root
@@ -191,6 +218,12 @@ private:
     void compile();
     template <bool kRef>
     void classify_line(const uint8_t* line, int y);
+    template <bool kRef>
+    void classify_pixel(const uint8_t* line, int px, OpenRun& o, Run* runs, int& n);
+    void close_run(OpenRun& o, int x_end, Run* runs, int& n);
+    void classify_line_cells(const uint8_t* line);
+    void background_hold_mask(std::array<uint64_t, (kActivePixelsPerLine + 63) / 64>& near, uint64_t& any) const;
+    void update_background_cells();
     void label_line(int y, bool end_of_field, const uint8_t* line);
     PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
     void add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y);
@@ -239,6 +272,13 @@ private:
     std::array<uint64_t, (kBgCells + 63) / 64> bg_seeded_{};
     bool bg_all_seeded_ = false;
     std::array<uint64_t, kMaskWords> occupied_older_{};
+    // Fast line path (whole-field fields, fast path on, no floating reference): per line buffer the cells' chroma
+    // sums from the line scan, which the background tracker learns from one line later.
+    bool cells_path_ = false;
+    ScanIsa scan_isa_ = ScanIsa::kScalar;
+    LineScan scan_ = nullptr;
+    BgStep bg_step_ = nullptr;
+    std::array<std::array<uint32_t, kBgCells>, 2> cell_sums_{};
 
     // Blob table.
     std::array<Slot, kMaxBlobSlots> slots_{};
