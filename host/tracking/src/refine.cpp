@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string_view>
+#include <type_traits>
 
 namespace eyesim::tracking {
 
@@ -52,31 +53,39 @@ constexpr double kOffset[3] = {16.0, 128.0, 128.0};
 using Vec = std::array<double, kMaxPar>;
 using Mat = std::array<double, kMaxPar * kMaxPar>;
 
-// Solves (A + λ·diag A)·x = g for the first n unknowns by Cholesky; false when not positive definite.
+// Solves (A + λ·diag A)·x = g for the first n unknowns by Cholesky; false when not positive definite. The factor is
+// stored compactly (stride n) with reciprocal pivots: the divisions were most of a 15 × 15 solve.
 bool solve_damped(const Mat& a, const Vec& g, int n, double lambda, Vec& x) {
-    Mat l;  // only the lower triangle of the first n rows is written and read
-    for (int i = 0; i < n; ++i)
+    double l[kMaxPar * kMaxPar];  // lower triangle, row i at i·n
+    double inv_d[kMaxPar];
+    for (int i = 0; i < n; ++i) {
+        const double* ai = &a[static_cast<size_t>(i * kMaxPar)];
+        double* li = l + i * n;
         for (int j = 0; j <= i; ++j) {
-            double s = a[i * kMaxPar + j] + (i == j ? lambda * a[i * kMaxPar + i] + 1e-9 : 0.0);
-            for (int k = 0; k < j; ++k) s -= l[i * kMaxPar + k] * l[j * kMaxPar + k];
+            const double* lj = l + j * n;
+            double s = ai[j] + (i == j ? lambda * ai[i] + 1e-9 : 0.0);
+            for (int k = 0; k < j; ++k) s -= li[k] * lj[k];
             if (i == j) {
                 if (!(s > 0)) return false;
-                l[i * kMaxPar + i] = std::sqrt(s);
+                const double d = std::sqrt(s);
+                li[i] = d;
+                inv_d[i] = 1.0 / d;
             } else {
-                l[i * kMaxPar + j] = s / l[j * kMaxPar + j];
+                li[j] = s * inv_d[j];
             }
         }
-    Vec y{};
+    }
+    double y[kMaxPar];
     for (int i = 0; i < n; ++i) {
-        double s = g[i];
-        for (int k = 0; k < i; ++k) s -= l[i * kMaxPar + k] * y[k];
-        y[i] = s / l[i * kMaxPar + i];
+        double s = g[static_cast<size_t>(i)];
+        for (int k = 0; k < i; ++k) s -= l[i * n + k] * y[k];
+        y[i] = s * inv_d[i];
     }
     x.fill(0.0);
     for (int i = n - 1; i >= 0; --i) {
         double s = y[i];
-        for (int k = i + 1; k < n; ++k) s -= l[k * kMaxPar + i] * x[k];
-        x[i] = s / l[i * kMaxPar + i];
+        for (int k = i + 1; k < n; ++k) s -= l[k * n + i] * x[static_cast<size_t>(k)];
+        x[static_cast<size_t>(i)] = s * inv_d[i];
     }
     return true;
 }
@@ -202,6 +211,7 @@ public:
         m_[0] = p_.colour.y_dn;
         m_[1] = p_.colour.cb_dn;
         m_[2] = p_.colour.cr_dn;
+        background_moments();
     }
 
     // Coverage and coverage × shading of the marker per model pixel at t; with kDeriv also their derivatives by
@@ -310,19 +320,27 @@ public:
         const double ap = cfg_.aperture_lines_px, amb = cfg_.shade_ambient, dif = cfg_.shade_diffuse;
         double* dc = w_.dcov.data();
         double* ds = w_.dshade.data();
+        // Only the box the marker can reach is visited: ρ ≥ √(1 − |e|)·|d|, and pixel_integral() refuses
+        // ρ > r + 0.62·(1 + ap). Everything else is zero.
+        std::fill(cov, cov + n, 0.0);
+        std::fill(shade, shade + n, 0.0);
+        if constexpr (kDeriv) {
+            std::fill(w_.touch.begin(), w_.touch.begin() + n, uint8_t{0});
+            std::fill(dc, dc + kShapePar * n, 0.0);
+            std::fill(ds, ds + kShapePar * n, 0.0);
+        }
+        const double reach = (r + 0.62 * (1.0 + ap)) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
+        const int i_lo = std::max(0, static_cast<int>(std::floor(x0 - reach)) - (p_.x0 - 1));
+        const int i_hi = std::min(p_.cols - 1, static_cast<int>(std::ceil(x0 + reach)) - (p_.x0 - 1));
+        const int j_lo = std::max(0, static_cast<int>(std::floor((v0 - reach - p_.parity) / 2.0)) - p_.j0);
+        const int j_hi = std::min(p_.lines - 1, static_cast<int>(std::ceil((v0 + reach - p_.parity) / 2.0)) - p_.j0);
         PixelIntegral pi;
-        for (int j = 0; j < p_.lines; ++j) {
+        for (int j = j_lo; j <= j_hi; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
-            for (int i = 0; i < p_.cols; ++i) {
+            for (int i = i_lo; i <= i_hi; ++i) {
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
-                if constexpr (kDeriv) w_.touch[k] = 0;
-                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) {
-                    cov[k] = shade[k] = 0.0;
-                    if constexpr (kDeriv)
-                        for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
-                    continue;
-                }
+                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) continue;
                 cov[k] = pi.cov;
                 shade[k] = amb * pi.cov + dif * pi.q;
                 if constexpr (kDeriv) {
@@ -411,72 +429,223 @@ public:
     // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise());
     // returns Σ (r/σ)² at t.
     double normal_equations(const Vec& t, Mat& a, Vec& g) const {
-        if (p_.outline) return normal_equations_n<kRow>(t, a, g);
-        return normal_equations_n<kRow - 5>(t, a, g);  // the outline's 5 are last
+        if (p_.outline) return normal_equations_outline(t, a, g);
+        return normal_equations_marker(t, a, g);
     }
 
-    // normal_equations over the first nr compact parameters (a compile-time count, so the loops unroll).
-    template <int nr>
-    double normal_equations_n(const Vec& t, Mat& a, Vec& g) const {
+    // Per channel (Y, Cb, Cr), moments of the kept observations over the background's design (1, x, v):
+    // Σw, Σwx, Σwv, Σwx², Σwxv, Σwv², Σw·o, Σw·o·x, Σw·o·v, Σw·o². Fixed for a patch and its kept set: the
+    // observations the marker does not reach enter the normal equations through them (all kept minus those
+    // reached), so that a linearisation costs only the marker's pixels.
+    void background_moments() {
+        const int nx = p_.x1 - p_.x0 + 1;
+        const double wc = 1.0 / var_c();
+        for (auto& m : mom_) m.fill(0.0);
+        auto add = [](std::array<double, 10>& m, double w, double x, double v, double o) {
+            m[0] += w;
+            m[1] += w * x;
+            m[2] += w * v;
+            m[3] += w * x * x;
+            m[4] += w * x * v;
+            m[5] += w * v * v;
+            m[6] += w * o;
+            m[7] += w * o * x;
+            m[8] += w * o * v;
+            m[9] += w * o * o;
+        };
+        for (int j = 0; j < p_.lines; ++j) {
+            const double vj = vrel_[static_cast<size_t>(j)];
+            for (int x = 0; x < nx; ++x) {
+                const int o = j * nx + x;
+                if (w_.keep_y[o]) add(mom_[0], 1.0 / w_.var_y[o], xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o]);
+            }
+            int s = 0;
+            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
+                const int i = x - p_.x0 + 1, o = j * nx + s;
+                if (w_.keep_cb[o]) add(mom_[1], wc, xrel_[static_cast<size_t>(i)], vj, w_.obs_cb[o]);
+                if (w_.keep_cr[o]) add(mom_[2], wc, xrel_[static_cast<size_t>(i)], vj, w_.obs_cr[o]);
+            }
+        }
+    }
+
+    // normal_equations without an outline: only the observations the marker reaches (touch) are visited, their
+    // model values formed in place; the rest enter through the background moments.
+    double normal_equations_marker(const Vec& t, Mat& a, Vec& g) const {
+        constexpr int nr = kRow - 5;  // shape, amplitude, the channel's background (the outline's 5 are last)
+        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const double wc = 1.0 / var_c();
+        const double* cov = w_.cov.data();
+        const double* shade = w_.shade.data();
+        const double* dc = w_.dcov.data();
+        const double* ds = w_.dshade.data();
+        const uint8_t* touch = w_.touch.data();
+        double acc[3][nr * nr] = {}, acc_g[3][nr] = {}, chi2 = 0;
+        std::array<double, 10> reached[3] = {};  // background moments of the visited observations
+        double am[3], b0[3], bx[3], bv[3];
+        for (int ch = 0; ch < 3; ++ch) {
+            am[ch] = t[kA] * m_[ch];
+            b0[ch] = t[kB0 + 3 * ch];
+            bx[ch] = t[kB0 + 3 * ch + 1];
+            bv[ch] = t[kB0 + 3 * ch + 2];
+        }
+        // Model value and compact derivative row of model pixel k (column i) in channel ch.
+        auto pixel = [&](int ch, int i, int k, double vj, double* row) {
+            const double x = xrel_[static_cast<size_t>(i)];
+            const double under = b0[ch] + bx[ch] * x + bv[ch] * vj - kOffset[ch], open = 1.0 - cov[k];
+            for (int q = 0; q < kShapePar; ++q) row[q] = am[ch] * ds[q * n + k] - dc[q * n + k] * under;
+            if (!cfg_.fit_ellipse) row[3] = row[4] = 0.0;
+            row[5] = shade[k] * m_[ch];
+            row[6] = open;
+            row[7] = open * x;
+            row[8] = open * vj;
+            return kOffset[ch] + am[ch] * shade[k] + open * under;
+        };
+        auto add = [&](int ch, const double* row, double r, double wgt, double x, double vj, double o) {
+            double* m = acc[ch];
+            double* gg = acc_g[ch];
+            chi2 += wgt * r * r;
+            for (int q = 0; q < nr; ++q) {
+                const double wq = wgt * row[q];
+                gg[q] += wq * r;
+                for (int u = 0; u <= q; ++u) m[q * nr + u] += wq * row[u];
+            }
+            std::array<double, 10>& mo = reached[ch];
+            mo[0] += wgt;
+            mo[1] += wgt * x;
+            mo[2] += wgt * vj;
+            mo[3] += wgt * x * x;
+            mo[4] += wgt * x * vj;
+            mo[5] += wgt * vj * vj;
+            mo[6] += wgt * o;
+            mo[7] += wgt * o * x;
+            mo[8] += wgt * o * vj;
+            mo[9] += wgt * o * o;
+        };
+        double row[nr], crow[2][SphereFitWorkspace::kCols][nr], cval[2][SphereFitWorkspace::kCols];
+        for (int j = 0; j < p_.lines; ++j) {
+            const double vj = vrel_[static_cast<size_t>(j)];
+            const uint8_t* tl = touch + j * p_.cols;
+            for (int x = 0; x < nx; ++x) {
+                const int o = j * nx + x, i = x + 1;
+                if (!tl[i] || !w_.keep_y[o]) continue;
+                const double mod = pixel(0, i, j * p_.cols + i, vj, row);
+                add(0, row, w_.obs_y[o] - mod, 1.0 / w_.var_y[o], xrel_[static_cast<size_t>(i)], vj, w_.obs_y[o]);
+            }
+            int s = 0, have = -1;  // model pixels up to `have` hold their chroma rows in crow
+            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
+                const int i = x - p_.x0 + 1, o = j * nx + s;
+                if (!tl[i - 1] && !tl[i] && !tl[i + 1]) continue;
+                const bool keep[2] = {w_.keep_cb[o] != 0, w_.keep_cr[o] != 0};
+                if (!keep[0] && !keep[1]) continue;
+                for (int m = std::max(i - 1, have + 1); m <= i + 1; ++m) {
+                    cval[0][m] = pixel(1, m, j * p_.cols + m, vj, crow[0][m]);
+                    cval[1][m] = pixel(2, m, j * p_.cols + m, vj, crow[1][m]);
+                    have = m;
+                }
+                for (int c = 0; c < 2; ++c) {
+                    if (!keep[c]) continue;
+                    const double* q0 = crow[c][i - 1];
+                    const double* q1 = crow[c][i];
+                    const double* q2 = crow[c][i + 1];
+                    for (int q = 0; q < nr; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
+                    const double mod = 0.25 * (cval[c][i - 1] + cval[c][i + 1]) + 0.5 * cval[c][i];
+                    const double obs = c == 0 ? w_.obs_cb[o] : w_.obs_cr[o];
+                    add(1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
+                }
+            }
+        }
+        // The observations the marker does not reach: model = background b·β exactly, derivatives (1, x, v) by β.
+        for (int ch = 0; ch < 3; ++ch) {
+            double mo[10];
+            for (int q = 0; q < 10; ++q) mo[q] = mom_[static_cast<size_t>(ch)][static_cast<size_t>(q)] - reached[ch][static_cast<size_t>(q)];
+            const double mm[3][3] = {{mo[0], mo[1], mo[2]}, {mo[1], mo[3], mo[4]}, {mo[2], mo[4], mo[5]}};
+            const double bo[3] = {mo[6], mo[7], mo[8]}, be[3] = {b0[ch], bx[ch], bv[ch]};
+            double quad = 0, lin = 0;
+            for (int q = 0; q < 3; ++q) {
+                double mb = 0;
+                for (int u = 0; u < 3; ++u) mb += mm[q][u] * be[u];
+                acc_g[ch][6 + q] += bo[q] - mb;
+                for (int u = 0; u <= q; ++u) acc[ch][(6 + q) * nr + 6 + u] += mm[q][u];
+                quad += be[q] * mb;
+                lin += be[q] * bo[q];
+            }
+            chi2 += std::max(0.0, mo[9] - 2.0 * lin + quad);
+        }
+        a.fill(0.0);
+        g.fill(0.0);
+        for (int ch = 0; ch < 3; ++ch) {
+            int idx[kRow];
+            row_params(ch, idx);
+            for (int q = 0; q < nr; ++q) {
+                g[static_cast<size_t>(idx[q])] += acc_g[ch][q];
+                for (int u = 0; u <= q; ++u) a[static_cast<size_t>(idx[q] * kMaxPar + idx[u])] += acc[ch][q * nr + u];
+            }
+        }
+        for (int q = 0; q < np(); ++q)
+            for (int u = q + 1; u < np(); ++u)
+                a[static_cast<size_t>(q * kMaxPar + u)] = a[static_cast<size_t>(u * kMaxPar + q)];
+        return chi2;
+    }
+
+    // normal_equations with an outline: every observation depends on the outline's parameters; those the marker
+    // does not reach have no shape or amplitude derivatives, so their rank-one update skips the first 6.
+    double normal_equations_outline(const Vec& t, Mat& a, Vec& g) const {
+        constexpr int nr = kRow;
         const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
         double* val = w_.val.data();
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
         double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {}, chi2 = 0;
-        auto add = [&](int ch, const double* row, double r, double wgt) {
+        auto add = [&]<int q0>(std::integral_constant<int, q0>, int ch, const double* row, double r, double wgt) {
             double* am = acc[ch];
             chi2 += wgt * r * r;
-            for (int q = 0; q < nr; ++q) {
+            for (int q = q0; q < nr; ++q) {
                 const double wq = wgt * row[q];
                 acc_g[ch][q] += wq * r;
-                for (int s = 0; s <= q; ++s) am[q * kRow + s] += wq * row[s];
+                for (int u = q0; u <= q; ++u) am[q * kRow + u] += wq * row[u];
             }
         };
-        // A pixel the marker does not reach, without an outline: only the background's level and slopes (compact
-        // 6..8) have derivatives, 1, x, v.
-        auto add_bg = [&](int ch, double x, double v, double r, double wgt) {
-            double* am = acc[ch];
-            chi2 += wgt * r * r;
-            const double b[3] = {1.0, x, v};
-            for (int q = 0; q < 3; ++q) {
-                const double wq = wgt * b[q];
-                acc_g[ch][6 + q] += wq * r;
-                for (int s = 0; s <= q; ++s) am[(6 + q) * kRow + 6 + s] += wq * b[s];
-            }
-        };
+        constexpr std::integral_constant<int, 0> kAll;
+        constexpr std::integral_constant<int, 6> kBackground;
         const uint8_t* touch = w_.touch.data();
-        double row[kRow] = {}, r0[kRow] = {}, r1[kRow] = {}, r2[kRow] = {};
+        double row[kRow] = {};
+        double crow[2][SphereFitWorkspace::kCols][kRow];  // one line's chroma pixel rows
         for (int j = 0; j < p_.lines; ++j) {
-            const double vj = vrel_[static_cast<size_t>(j)];
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x, k = j * p_.cols + x + 1;
                 if (!w_.keep_y[o]) continue;
-                if (!p_.outline && !touch[k]) {
-                    add_bg(0, xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
-                    continue;
-                }
                 pixel_row(t, 0, x + 1, j, row);
-                add(0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                if (touch[k])
+                    add(kAll, 0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                else
+                    add(kBackground, 0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
             }
-            int s = 0;
+            // Chroma: each model pixel's row is computed once per line and channel (a sample filters three
+            // pixels, and neighbouring samples share one).
+            int s = 0, have = -1;  // model pixels up to `have` hold their rows in crow
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
                 const int i = x - p_.x0 + 1, o = j * nx + s, k = j * p_.cols + i;
-                const bool bg_only = !p_.outline && !touch[k - 1] && !touch[k] && !touch[k + 1];
+                const bool reached = touch[k - 1] || touch[k] || touch[k + 1];
+                const bool keep[2] = {w_.keep_cb[o] != 0, w_.keep_cr[o] != 0};
+                if (!keep[0] && !keep[1]) continue;
+                for (int m = std::max(i - 1, have + 1); m <= i + 1; ++m) {
+                    pixel_row(t, 1, m, j, crow[0][m]);
+                    pixel_row(t, 2, m, j, crow[1][m]);
+                    have = m;
+                }
                 for (int ch = 1; ch <= 2; ++ch) {
-                    if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
-                    if (bg_only) {
-                        // The [1 2 1] filter of 1, x, v is 1, x, v.
-                        const double mod = filtered(val + ch * n + j * p_.cols, i);
-                        add_bg(ch, xrel_[static_cast<size_t>(i)], vj, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
-                        continue;
-                    }
-                    pixel_row(t, ch, i - 1, j, r0);
-                    pixel_row(t, ch, i, j, r1);
-                    pixel_row(t, ch, i + 1, j, r2);
-                    for (int q = 0; q < nr; ++q) row[q] = 0.25 * (r0[q] + r2[q]) + 0.5 * r1[q];
+                    if (!keep[ch - 1]) continue;
                     const double mod = filtered(val + ch * n + j * p_.cols, i);
-                    add(ch, row, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
+                    const double res = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod;
+                    const double* q0 = crow[ch - 1][i - 1];
+                    const double* q1 = crow[ch - 1][i];
+                    const double* q2 = crow[ch - 1][i + 1];
+                    for (int q = 0; q < nr; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
+                    if (reached)
+                        add(kAll, ch, row, res, wc);
+                    else
+                        add(kBackground, ch, row, res, wc);
                 }
             }
         }
@@ -573,6 +742,7 @@ public:
                 }
             }
         }
+        background_moments();
         return dropped;
     }
 
@@ -651,6 +821,7 @@ private:
     std::array<double, SphereFitWorkspace::kCols> xrel_{};
     std::array<double, SphereFitWorkspace::kLines> vrel_{};
     double m_[3] = {};
+    std::array<std::array<double, 10>, 3> mom_{};  // background_moments()
 };
 
 // intensity_centroid() from the analytic pixel integrals: Σ x·I / Σ I over the pixels the marker reaches.
@@ -848,6 +1019,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     Fitter f(cfg, p, w);
     const int np = f.np();
     double chi2 = 0;
+    bool chi2_at_t = false;  // chi2 holds χ² at t (measured, or predicted for an unverified last step)
     int it = 0;
     // An accepted Gauss–Newton step this small leaves an error of the order of its square: far below the noise.
     auto small_step = [](const Vec& d) {
@@ -857,11 +1029,14 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // patch).
     // Each trial point is linearised at once: its χ² comes with its normal equations, which an accepted step
     // needs next (no separate cost render).
-    Mat a, a1;
-    Vec g, g1;
+    // Normal equations at t and at the trial point; an accepted trial's become t's by swapping the two.
+    Mat mats[2];
+    Vec grads[2];
+    int at_t = 0;
     auto solve = [&](int max_it, bool give_up) {
         f.linearise(t);
-        chi2 = f.normal_equations(t, a, g);
+        chi2 = f.normal_equations(t, mats[at_t], grads[at_t]);
+        chi2_at_t = true;
         double lambda = 1e-3;
         const int dof = std::max(1, f.observations() - np);
         for (int k = 0; k < max_it; ++k, ++it) {
@@ -869,21 +1044,31 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
             double gain = 0;
             for (int tries = 0; tries < 8 && !improved; ++tries) {
                 Vec d;
+                const Mat& a = mats[at_t];
+                const Vec& g = grads[at_t];
                 if (solve_damped(a, g, np, lambda, d)) {
                     Vec tt = t;
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
                     if (k > 0 && tries == 0 && small_step(d)) {
                         // The step after an accepted one is already below the noise's reach: take it unverified
-                        // (its χ² change is far below one) instead of rendering once more to confirm it.
+                        // (its χ² change is far below one) instead of rendering once more to confirm it. Its χ² is
+                        // the linear model's, χ² − 2dᵀg + dᵀAd, for the refusal test (no render for that either).
+                        double dad = 0, dg = 0;
+                        for (int q = 0; q < np; ++q) {
+                            dg += d[q] * g[q];
+                            double ad = 0;
+                            for (int u = 0; u < np; ++u) ad += a[static_cast<size_t>(q * kMaxPar + u)] * d[u];
+                            dad += d[q] * ad;
+                        }
+                        chi2 = std::max(0.0, chi2 - 2.0 * dg + dad);
                         t = tt;
                         converged = true;
                         break;
                     }
                     f.linearise(tt);
-                    const double c1 = f.normal_equations(tt, a1, g1);
+                    const double c1 = f.normal_equations(tt, mats[1 - at_t], grads[1 - at_t]);
                     if (c1 < chi2) {
-                        a = a1;
-                        g = g1;
+                        at_t = 1 - at_t;
                         // Centre and radius settled far below the noise's reach (≈ 0.01 px): another step buys nothing.
                         converged = small_step(d);
                         gain = chi2 - c1;
@@ -918,6 +1103,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         // so that the first cut takes only the grossest misfits.
         for (int round = 3; round >= 1; --round) {
             res.outliers = f.drop_outliers(t, round * cfg.outlier_sigma);
+            chi2_at_t = false;
             too_many = res.outliers > cfg.max_outlier_fraction * before;
             if (too_many) break;
             solve(cfg.max_iterations, true);
@@ -932,7 +1118,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     }
     res.iterations = it;
     res.outline = p.outline;
-    res.reduced_chi2 = f.cost(t) / std::max(1, f.observations() - np);
+    res.reduced_chi2 = (chi2_at_t ? chi2 : f.cost(t)) / std::max(1, f.observations() - np);
     res.radius_px = t[kR];
     res.e1 = t[kE1];
     res.e2 = t[kE2];
