@@ -726,6 +726,10 @@ void Pipeline::background_hold_mask(std::array<uint64_t, kMaskWords>& near, uint
         m[i] = a[i] | b[i] | occupied_older_[i];
         any |= m[i];
     }
+    if (any == 0) {  // nothing classified on the three lines (most lines)
+        near.fill(0);
+        return;
+    }
     for (int i = 0; i < kMaskWords; ++i) {  // m dilated by kBgHoldColumns (nothing to dilate on most lines)
         const size_t u = static_cast<size_t>(i);
         uint64_t v = m[u];
@@ -944,6 +948,50 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     ++stats_.ring_pixels;
 }
 
+// add_ring_pixel for every pixel of [xa, xb] on the fast line path (no ROI, no floating reference): the free
+// pixels (neither classified nor claimed) are found word by word from the line masks, their weights summed and
+// added to the blob once (integer sums: the same totals).
+void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y) {
+    uint64_t* occ = occupied_[cur_buf_].data();
+    uint64_t* clm = claimed_[cur_buf_].data();
+    uint64_t sw = 0, swx = 0, swxx = 0;
+    uint32_t count = 0;
+    const uint8_t cls = slots_[root].cls;
+    for (int w = xa >> 6; w <= xb >> 6; ++w) {
+        uint64_t range = ~0ull;
+        if (w == xa >> 6) range &= ~0ull << (xa & 63);
+        if (w == xb >> 6 && (xb & 63) != 63) range &= (1ull << ((xb & 63) + 1)) - 1;
+        uint64_t free = range & ~occ[static_cast<size_t>(w)] & ~clm[static_cast<size_t>(w)];
+        clm[static_cast<size_t>(w)] |= free;
+        for (; free != 0; free &= free - 1) {
+            const int x = 64 * w + __builtin_ctzll(free);
+            const int k = x >> 1;
+            const uint8_t* q = line + 4 * k;
+            int cb2 = 2 * q[0], cr2 = 2 * q[2];
+            const int luma = q[1 + 2 * (x & 1)];
+            if ((x & 1) && k < kPairs - 1) {
+                cb2 = q[0] + q[4];
+                cr2 = q[2] + q[6];
+            }
+            const uint64_t wt = weight_at(cls, luma, cb2, cr2, x);
+            const uint64_t ux = static_cast<uint64_t>(x);
+            sw += wt;
+            swx += wt * ux;
+            swxx += wt * ux * ux;
+            ++count;
+        }
+    }
+    Slot& s = slots_[root];
+    const uint64_t uy = static_cast<uint64_t>(y);
+    s.sw += sw;
+    s.swx += swx;
+    s.swy += sw * uy;
+    s.swxx += swxx;
+    s.swyy += sw * uy * uy;
+    s.swxy += swx * uy;
+    stats_.ring_pixels += count;
+}
+
 uint16_t Pipeline::find_root(uint16_t s) {
     while (slots_[s].parent != s) {
         slots_[s].parent = slots_[slots_[s].parent].parent;  // path halving
@@ -1072,7 +1120,30 @@ void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
     // two pixels sideways; the linear weights of those pixels are what makes the weighted x centroid exact. The
     // ring is collected on this line below the previous line's runs and beside this line's runs, and on the
     // previous line above this line's runs, so a blob's ring is complete when the blob is.
-    if (params_.edge_ring && params_.weight_mode != 0 && line != nullptr) {
+    if (params_.edge_ring && params_.weight_mode != 0 && line != nullptr && cells_path_) {
+        // The same claims span by span (whole field: no ROI test): only the free pixels of each span are visited.
+        const int xmax = static_cast<int>(kActivePixelsPerLine) - 1;
+        for (int k = 0; k < n_prev; ++k) {
+            if (prev[k].label == kNoLabel) continue;
+            add_ring_span(find_root(prev[k].label), line, std::max(0, prev[k].x0 - kRingColumns),
+                          std::min(xmax, prev[k].x1 + kRingColumns), y);
+        }
+        for (int i = 0; i < n_cur; ++i) {
+            if (cur[i].label == kNoLabel) continue;
+            const uint16_t root = find_root(cur[i].label);
+            if (cur[i].x0 > 0) add_ring_span(root, line, std::max(0, cur[i].x0 - kRingColumns), cur[i].x0 - 1, y);
+            if (cur[i].x1 < xmax) add_ring_span(root, line, cur[i].x1 + 1, std::min(xmax, cur[i].x1 + kRingColumns), y);
+        }
+        if (prev_line_ != nullptr && y > 0) {
+            cur_buf_ ^= 1;  // the previous line's masks
+            for (int i = 0; i < n_cur; ++i) {
+                if (cur[i].label == kNoLabel) continue;
+                add_ring_span(find_root(cur[i].label), prev_line_, std::max(0, cur[i].x0 - kRingColumns),
+                              std::min(xmax, cur[i].x1 + kRingColumns), y - 1);
+            }
+            cur_buf_ ^= 1;
+        }
+    } else if (params_.edge_ring && params_.weight_mode != 0 && line != nullptr) {
         const int xmax = static_cast<int>(kActivePixelsPerLine) - 1;
         for (int k = 0; k < n_prev; ++k) {
             if (prev[k].label == kNoLabel) continue;

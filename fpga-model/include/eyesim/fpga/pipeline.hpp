@@ -227,6 +227,7 @@ private:
     void label_line(int y, bool end_of_field, const uint8_t* line);
     PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
     void add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y);
+    void add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y);
     int processed_spans(int y, uint16_t* x0, uint16_t* x1) const;
     void update_background(const uint8_t* line, int y);
     void background_at(int x, int& cb_q7, int& cr_q7) const;
