@@ -8,6 +8,7 @@
 //   poses; per method recall and precision over poses (min, p5, median) and thread-CPU time per query (p50, p99).
 
 #include "eyesim/render/zcoll_gles.hpp"
+#include "eyesim/sim/collision/contact.hpp"
 #include "eyesim/sim/collision/exact.hpp"
 #include "eyesim/sim/collision/instrument.hpp"
 #include "eyesim/sim/collision/tri_tri.hpp"
@@ -527,13 +528,22 @@ int main(int argc, char** argv) {
         };
         std::vector<MethodResult> methods;
 
-        // --- exact: the project's exact colliding set (surface intersections and contained triangles).
+        // --- exact: the exact contact query (colliding set, ZI − ZM per colliding triangle along π = the
+        // membrane normal, Eq. 1 node push vectors), as the frame loop runs it.
+        {
+            ExactContact contact(mem, ins.mesh.triangle_count());
+            const Vec3f pi_eye(0, 0, 1);
+            methods.push_back(run_method("exact", s, poses, false, set_pose, [&](size_t) {
+                return contact.query(verts, forceps, pi_eye).colliding_triangles;
+            }));
+        }
+        // --- exact_grid: the uniform-grid narrow phase ZCOLL falls back to (colliding set only).
         {
             ExactNarrowPhase exact(mem.triangle_count(), ins.mesh.triangle_count());
             ExactOptions opt;
             opt.vertex_triangle_begin = mem.vertex_triangle_begin;
             opt.vertex_triangles = mem.vertex_triangles;
-            methods.push_back(run_method("exact", s, poses, false, set_pose, [&](size_t) {
+            methods.push_back(run_method("exact_grid", s, poses, false, set_pose, [&](size_t) {
                 const MeshRef m{verts, mem.triangles, Eigen::Isometry3f::Identity()};
                 const MeshRef t{forceps.vertices_local_mm(), ins.mesh.triangles, forceps.instrument_to_eye()};
                 return exact.colliding_triangles(m, t, ins.part_triangle_begin, opt);
