@@ -409,6 +409,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     bg_seeded_ = {};
     bg_all_seeded_ = false;
     occupied_older_ = {};
+    n_runs_older_ = 0;
     occupied_ = {};  // the first line's "line above" masks are empty, not the previous field's
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     return PipelineStatus::kOk;
@@ -436,6 +437,7 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
     }
     cur_buf_ ^= 1;
     occupied_older_ = occupied_[cur_buf_];
+    n_runs_older_ = n_runs_[cur_buf_];
     occupied_[cur_buf_] = {};
     claimed_[cur_buf_] = {};
     if (cells_path_)
@@ -746,12 +748,17 @@ void Pipeline::background_hold_mask(std::array<uint64_t, kMaskWords>& near, uint
 // cell sums kept from its line scan (whole field, no floating reference), so the line is not read again. Every
 // cell steps at once in 16-bit lanes; held cells are then put back and unseeded ones seeded, one by one.
 void Pipeline::update_background_cells() {
-    std::array<uint64_t, kMaskWords> near;
-    uint64_t any = 0;
-    background_hold_mask(near, any);
     const uint32_t* sums = cell_sums_[cur_buf_ ^ 1].data();  // the previous line's
     int16_t* bg = bg_q4_.data();
     const int n = params_.bg_track_shift;
+    // No run on the three lines (a line's occupied mask is empty exactly when it has no run): nothing is held.
+    if (bg_all_seeded_ && n_runs_[0] == 0 && n_runs_[1] == 0 && n_runs_older_ == 0) {
+        bg_step_(bg, sums, n);
+        return;
+    }
+    std::array<uint64_t, kMaskWords> near;
+    uint64_t any = 0;
+    background_hold_mask(near, any);
     const int half = 1 << (n - 1);
     constexpr int kCellPx = 2 * kBgCellPairs;
     auto held = [&](int j) {

@@ -273,6 +273,7 @@ private:
     std::array<uint64_t, (kBgCells + 63) / 64> bg_seeded_{};
     bool bg_all_seeded_ = false;
     std::array<uint64_t, kMaskWords> occupied_older_{};
+    int n_runs_older_ = 0;  // runs of that line (0: its occupied mask is empty)
     // Fast line path (whole-field fields, fast path on, no floating reference): per line buffer the cells' chroma
     // sums from the line scan, which the background tracker learns from one line later.
     bool cells_path_ = false;
