@@ -495,7 +495,7 @@ int main(int argc, char** argv) {
         {"400 membrane, ~40 colliding", kPatch400, 40, 0.25f, 0.10f, 3.0f},
         {"1k membrane, ~40 colliding", kPatch1k, 40, 0.25f, 0.10f, 3.0f},
         {"3k membrane, ~40 colliding", kPatch3k, 40, 0.25f, 0.10f, 3.0f},
-        {"3k membrane, dense contact", kPatch3k, 0, 0.25f, 0.03f, 2.0f},
+        {"3k membrane, dense contact", kPatch3k, 0, 0.20f, 0.03f, 1.5f},
     };
 
     nlohmann::json out;
