@@ -26,6 +26,7 @@
 #include <exception>
 #include <limits>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -53,6 +54,12 @@ struct Options {
     long long max_fields = -1;
     int send_buffer = 0;
     int linger_ms = 5000;
+    std::vector<std::string> regs;  // ADDRESS=VALUE register writes at power-up
+};
+
+/// A command-line value the device refuses (exit 2, like a parse error).
+struct UsageError : std::runtime_error {
+    using std::runtime_error::runtime_error;
 };
 
 using Clock = std::chrono::steady_clock;
@@ -206,6 +213,28 @@ int run(const Options& opt) {
     config.low_latency = opt.low_latency;
     config.stream_on_start = opt.stream;
     auto core = std::make_unique<DeviceCore>(hal, config);
+    // Power-up register settings (as a configuration tool would leave them): executed as host commands would be,
+    // so they are validated the same way.
+    for (const std::string& w : opt.regs) {
+        const std::size_t eq = w.find('=');
+        eyesim::protocol::Command c;
+        c.opcode = static_cast<std::uint8_t>(eyesim::protocol::Opcode::RegisterWrite);
+        bool ok = eq != std::string::npos && eq > 0 && eq + 1 < w.size();
+        try {
+            std::size_t a = 0, v = 0;
+            const unsigned long address = ok ? std::stoul(w.substr(0, eq), &a, 0) : 0;
+            const unsigned long value = ok ? std::stoul(w.substr(eq + 1), &v, 0) : 0;
+            ok = ok && a == eq && v == w.size() - eq - 1 && address <= 0xFFFFu && value <= 0xFFFFFFFFul;
+            c.address = static_cast<std::uint32_t>(address);
+            c.value = static_cast<std::uint32_t>(value);
+        } catch (const std::exception&) {
+            ok = false;
+        }
+        if (!ok) throw UsageError("--reg: '" + w + "': expected ADDRESS=VALUE");
+        const eyesim::protocol::Reply r = core->execute(c);
+        if (r.status != static_cast<std::uint8_t>(eyesim::protocol::ReplyStatus::Ack))
+            throw UsageError("--reg: '" + w + "': register write refused (NACK reason " + std::to_string(r.reason) + ")");
+    }
 
     // Fields per camera this run will play (-1: endless loop).
     const long long expected_fields =
@@ -367,6 +396,9 @@ int main(int argc, char** argv) {
     app.add_flag("--free-run", opt.free_run, "run the cameras from start-up, whether or not a host listens");
     app.add_flag("--stream", opt.stream, "stream without waiting for a stream_start command");
     app.add_flag("--low-latency", opt.low_latency, "start in per-blob (low-latency) mode");
+    app.add_option("--reg", opt.regs,
+                   "register write ADDRESS=VALUE at power-up, as a configuration tool would leave it (repeatable; "
+                   "device address space: 0x0000-0x0FFF every camera, 0x1000/0x2000/0x3000 + offset one camera)");
     app.add_flag("--allow-drops", opt.allow_drops,
                  "as-fast-as-possible mode: let the queue drop for a slow host instead of pausing the player");
     app.add_option("--send-buffer", opt.send_buffer, "kernel send buffer of the host socket, bytes")
@@ -393,6 +425,9 @@ int main(int argc, char** argv) {
     std::signal(SIGPIPE, SIG_IGN);
     try {
         return run(opt);
+    } catch (const UsageError& e) {
+        std::fprintf(stderr, "eyesim-device: error: %s (see --help)\n", e.what());
+        return 2;
     } catch (const std::exception& e) {
         std::fprintf(stderr, "eyesim-device: error: %s\n", e.what());
         return 1;

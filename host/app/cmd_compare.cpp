@@ -2,6 +2,9 @@
 // recording, field by field and message by message: every header value, every marker value, the device times.
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/fpga_run.hpp"
+#include "eyesim/firmware/capacity.hpp"
+#include "eyesim/firmware/registers.hpp"
+#include "eyesim/fpga/register_map.hpp"
 #include "eyesim/protocol/capture_replay.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/recording.hpp"
@@ -25,6 +28,7 @@ namespace {
 
 namespace proto = eyesim::protocol;
 namespace rig = eyesim::rig;
+namespace firmware = eyesim::firmware;
 using eyesim::app::Error;
 
 struct CompareOptions {
@@ -198,7 +202,6 @@ struct Counts {
 int run(const CompareOptions& opt) {
     rig::Recording rec = rig::Recording::open(opt.recording);
     const std::vector<int> cams = eyesim::app::parse_cameras(opt.cameras, rec.camera_count());
-    const std::vector<eyesim::fpga::RegisterMap> maps = eyesim::app::register_maps(opt.regs, rec.camera_count());
     std::vector<std::string> warnings;  // the capture's, then the recording's
     const int64_t recorded_fields = rec.common_field_count();
     const int64_t n_fields = opt.max_fields >= 0 ? std::min(recorded_fields, opt.max_fields) : recorded_fields;
@@ -209,9 +212,26 @@ int run(const CompareOptions& opt) {
         throw Error(fmt::format("{}: {}", opt.capture, replay->reader().open_error_message()));
     std::map<std::pair<int, uint32_t>, SentField> sent;
     int64_t field_markers = 0, pedal_states = 0, device_status = 0, replies = 0, commands = 0, register_writes = 0;
+    // The device's register map as the capture holds it: the host's register reads and writes (its Sent records,
+    // eyesim track --capture-out) paired with the device's acknowledgements by command id, up to the first field.
+    struct SentCommand {
+        uint8_t opcode;
+        uint32_t address;
+    };
+    std::map<uint32_t, SentCommand> sent_commands;
+    std::vector<eyesim::fpga::RegisterMap> captured_maps(size_t(std::max(rec.camera_count(), 0)));
+    int64_t registers_read = 0, register_changes_in_stream = 0, host_commands = 0;
+    uint32_t first_change_address = 0;
     proto::DecodedFrame frame;
     uint64_t rx_us = 0;
-    while (replay->next(frame, rx_us)) {
+    bool from_host = false;
+    while (replay->next(frame, rx_us, from_host)) {
+        if (from_host) {
+            ++host_commands;
+            if (const auto* c = std::get_if<proto::Command>(&frame.message))
+                sent_commands[c->command_id] = SentCommand{c->opcode, c->address};
+            continue;
+        }
         switch (proto::message_type(frame.message)) {
             case proto::MessageType::FieldMarkers: {
                 const auto& m = std::get<proto::FieldMarkers>(frame.message);
@@ -227,8 +247,32 @@ int run(const CompareOptions& opt) {
             case proto::MessageType::Reply: {
                 const auto& r = std::get<proto::Reply>(frame.message);
                 ++replies;
-                register_writes += r.opcode == uint8_t(proto::Opcode::RegisterWrite) &&
-                                   r.status == uint8_t(proto::ReplyStatus::Ack);
+                const bool is_register = r.opcode == uint8_t(proto::Opcode::RegisterWrite) ||
+                                         r.opcode == uint8_t(proto::Opcode::RegisterRead);
+                if (!is_register || r.status != uint8_t(proto::ReplyStatus::Ack)) break;
+                const auto it = sent_commands.find(r.command_id);
+                if (it == sent_commands.end() || it->second.opcode != r.opcode) {
+                    register_writes += r.opcode == uint8_t(proto::Opcode::RegisterWrite);  // address unknown
+                    break;
+                }
+                // A pipeline register: the broadcast window writes every camera (and reads camera 0), the camera
+                // windows one camera; the firmware's own registers do not change what the pipelines find.
+                const uint32_t target = it->second.address & firmware::kRegTargetMask;
+                const auto offset = uint16_t(it->second.address & firmware::kRegOffsetMask);
+                const eyesim::fpga::RegisterInfo* info = eyesim::fpga::find_register(offset);
+                if (target > firmware::kRegCameraBase * firmware::kCameras || !info || !info->writable) break;
+                size_t first_cam = 0, last_cam = captured_maps.size();
+                if (target != 0 || r.opcode == uint8_t(proto::Opcode::RegisterRead)) {
+                    first_cam = target == 0 ? 0 : target / firmware::kRegCameraBase - 1;
+                    last_cam = std::min(first_cam + 1, captured_maps.size());
+                }
+                for (size_t c = first_cam; c < last_cam; ++c) {
+                    if (field_markers == 0) {
+                        registers_read += captured_maps[c].write(offset, r.value) == eyesim::fpga::RegWriteResult::kOk;
+                    } else if (captured_maps[c].get(offset) != r.value) {
+                        if (register_changes_in_stream++ == 0) first_change_address = it->second.address;
+                    }
+                }
                 break;
             }
             case proto::MessageType::Command: ++commands; break;
@@ -246,10 +290,19 @@ int run(const CompareOptions& opt) {
     if (replay->status() == proto::CaptureStatus::Torn)
         warnings.push_back(fmt::format("{}: torn tail at byte {} ({} bytes) skipped", opt.capture,
                                        replay->reader().bad_offset(), replay->reader().dropped_bytes()));
-    // A capture holds what the host received: a Reply to a register write carries the value, not the address.
+    // A Reply carries the value, not the address: a write whose command the capture does not hold (a version-1
+    // capture, or one written by another tool) leaves the map unknown.
     if (register_writes > 0)
-        warnings.push_back(fmt::format("{}: {} register write(s) acknowledged by the device; a capture holds no register "
-                                       "addresses: give the device's writes with --reg", opt.capture, register_writes));
+        warnings.push_back(fmt::format("{}: {} register write(s) acknowledged by the device; the capture does not hold "
+                                       "their addresses: give the device's writes with --reg", opt.capture,
+                                       register_writes));
+    if (register_changes_in_stream > 0)
+        warnings.push_back(fmt::format("{}: {} register value(s) changed after the first field (first: 0x{:04X}); the "
+                                       "model runs with the map from before the first field", opt.capture,
+                                       register_changes_in_stream, first_change_address));
+    // The model's register maps: the capture's (reset values where it holds none), then --reg on top.
+    const std::vector<eyesim::fpga::RegisterMap> maps =
+        eyesim::app::register_maps(opt.regs, rec.camera_count(), std::move(captured_maps));
     if (ps.errors() || ps.skipped_bytes || ps.sequence_gaps)
         warnings.push_back(fmt::format("{}: {} damaged frames, {} bytes skipped, {} sequence gaps: what was lost shows "
                                        "as missing fields", opt.capture, ps.errors(), ps.skipped_bytes, ps.sequence_gaps));
@@ -424,6 +477,9 @@ int run(const CompareOptions& opt) {
                       {"values", values_compared}}},
         {"device", {{"field_markers", field_markers}, {"pedal_states", pedal_states}, {"device_status", device_status},
                     {"replies", replies}, {"register_writes", register_writes}, {"commands", commands},
+                    {"registers_from_capture", registers_read}, {"register_changes_after_first_field",
+                                                                 register_changes_in_stream},
+                    {"host_commands", host_commands},
                     {"ignored_messages", ignored}, {"after_fields_limit", beyond_limit},
                     {"low_latency_fields", low_latency}}},
         {"device_epoch_us", epoch_us},
@@ -484,8 +540,9 @@ eyesim::app::Registrar reg{
             ->required();
         sub.add_option("--capture", opt->capture, "the device's capture file (or raw protocol stream)")->required();
         sub.add_option("--reg", opt->regs,
-                       "register write ADDRESS=VALUE the device had before its first field (repeatable; 0x0000-0x0FFF "
-                       "every camera, 0x1000/0x2000/0x3000 + offset one camera)");
+                       "register write ADDRESS=VALUE the device had before its first field, on top of the map the "
+                       "capture holds (repeatable; 0x0000-0x0FFF every camera, 0x1000/0x2000/0x3000 + offset one "
+                       "camera)");
         sub.add_option("--cameras", opt->cameras, "comma-separated camera indices to compare (default: all)");
         sub.add_option("--fields", opt->max_fields, "compare at most this many fields per camera")
             ->check(CLI::Range(int64_t{1}, std::numeric_limits<int64_t>::max()));

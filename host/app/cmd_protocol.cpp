@@ -36,7 +36,7 @@ struct DecodeOptions {
 };
 
 int run_decode(const DecodeOptions& opt) {
-    // The replay holds ~18 KiB of buffers: keep it off the stack.
+    // The replay holds ~36 KiB of buffers: keep it off the stack.
     auto replay = std::make_unique<proto::CaptureReplay>();
     if (!replay->open(opt.file.c_str()))
         throw eyesim::app::Error(opt.file + ": " + replay->reader().open_error_message());
@@ -75,6 +75,7 @@ int run_decode(const DecodeOptions& opt) {
         j["parser"] = nlohmann::json::parse(buf);
         if (is_capture) {
             j["capture"] = {{"records", records},
+                            {"sent_records", replay->sent_records()},
                             {"status", status_name(status)},
                             {"bad_offset", reader->bad_offset()},
                             {"dropped_bytes", reader->dropped_bytes()},
@@ -94,7 +95,9 @@ int run_decode(const DecodeOptions& opt) {
                      static_cast<unsigned long long>(s.bad_length), static_cast<unsigned long long>(s.crc_errors),
                      static_cast<unsigned long long>(s.truncated), static_cast<unsigned long long>(s.bad_payload),
                      static_cast<unsigned long long>(s.sequence_gaps));
-        if (is_capture) std::fprintf(stderr, "; %llu good records", static_cast<unsigned long long>(records));
+        if (is_capture)
+            std::fprintf(stderr, "; %llu good records (%llu of them the host's own commands, not printed)",
+                         static_cast<unsigned long long>(records), static_cast<unsigned long long>(replay->sent_records()));
         if (reader->corrupt_regions() > 0)
             std::fprintf(stderr, ", damaged stretches skipped: %llu (%llu bytes)",
                          static_cast<unsigned long long>(reader->corrupt_regions()),

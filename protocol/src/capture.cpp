@@ -15,9 +15,9 @@ using namespace wire;
 
 namespace {
 
-void put_file_header(std::uint8_t* h) noexcept {
+void put_file_header(std::uint8_t* h, std::uint16_t version = kCaptureVersion) noexcept {
     std::memcpy(h, kCaptureMagic.data(), kCaptureMagic.size());
-    put_u16(h + 8, kCaptureVersion);
+    put_u16(h + 8, version);
     put_u16(h + 10, static_cast<std::uint16_t>(kCaptureHeaderBytes));
     put_u32(h + 12, 0);
 }
@@ -34,10 +34,12 @@ std::uint64_t file_size(std::FILE* f) noexcept {
 }
 
 // Payload length of the record whose 12-byte header is `h` when the header is plausible (length 1..16384,
-// reserved 0, the whole record within the `room` bytes left in the file), else 0. The CRC is checked separately.
-std::size_t plausible_length(const std::uint8_t* h, std::uint64_t room) noexcept {
+// direction 0, or 1 in version 2, the whole record within the `room` bytes left in the file), else 0. The CRC is
+// checked separately.
+std::size_t plausible_length(const std::uint8_t* h, std::uint64_t room, std::uint16_t version) noexcept {
     const std::size_t len = get_u16(h);
-    if (len == 0 || len > kMaxCaptureRecordBytes || get_u16(h + 2) != 0) return 0;
+    const std::uint16_t direction = get_u16(h + 2);
+    if (len == 0 || len > kMaxCaptureRecordBytes || direction > (version >= 2 ? 1 : 0)) return 0;
     return kCaptureRecordHeaderBytes + len + kCaptureRecordCrcBytes <= room ? len : 0;
 }
 
@@ -77,8 +79,9 @@ bool CaptureReader::fail_open(CaptureOpenError e, std::uint64_t header_bytes_rea
                           static_cast<unsigned long long>(header_bytes_read), kCaptureHeaderBytes);
             break;
         case CaptureOpenError::UnsupportedVersion:
-            std::snprintf(m, cap, "capture format version %u not supported (this build reads %u)",
-                          static_cast<unsigned>(found_version_), static_cast<unsigned>(kCaptureVersion));
+            std::snprintf(m, cap, "capture format version %u not supported (this build reads %u to %u)",
+                          static_cast<unsigned>(found_version_), static_cast<unsigned>(kCaptureOldestVersion),
+                          static_cast<unsigned>(kCaptureVersion));
             break;
         case CaptureOpenError::BadHeaderSize:
             std::snprintf(m, cap, "capture header size %u not supported (this build reads %zu)",
@@ -104,7 +107,8 @@ bool CaptureReader::open(const char* path) noexcept {
         if (got < kCaptureHeaderBytes) return fail_open(CaptureOpenError::ShortHeader, got);
         found_version_ = get_u16(h + 8);
         found_header_bytes_ = get_u16(h + 10);
-        if (found_version_ != kCaptureVersion) return fail_open(CaptureOpenError::UnsupportedVersion, got);
+        if (found_version_ < kCaptureOldestVersion || found_version_ > kCaptureVersion)
+            return fail_open(CaptureOpenError::UnsupportedVersion, got);
         if (found_header_bytes_ != kCaptureHeaderBytes) return fail_open(CaptureOpenError::BadHeaderSize, got);
         kind_ = CaptureKind::Capture;
         offset_ = kCaptureHeaderBytes;
@@ -131,7 +135,7 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
             done_ = true;
             return std::ferror(f_) ? CaptureStatus::IoError : CaptureStatus::End;
         }
-        rec = CaptureRecord{0, false, offset_, {buf_.data(), got}};
+        rec = CaptureRecord{0, false, CaptureDirection::Received, offset_, {buf_.data(), got}};
         offset_ += got;
         return CaptureStatus::Ok;
     }
@@ -165,7 +169,7 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
         done_ = true;
         return CaptureStatus::IoError;
     }
-    const std::size_t len = plausible_length(buf_.data(), left);
+    const std::size_t len = plausible_length(buf_.data(), left, found_version_);
     if (len == 0) return damaged();
     const std::size_t rest = len + kCaptureRecordCrcBytes;
     if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) {
@@ -173,7 +177,8 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
         return CaptureStatus::IoError;
     }
     if (!crc_matches(buf_.data(), len)) return damaged();
-    rec = CaptureRecord{get_u64(buf_.data() + 4), true, offset_, {buf_.data() + kCaptureRecordHeaderBytes, len}};
+    rec = CaptureRecord{get_u64(buf_.data() + 4), true, static_cast<CaptureDirection>(get_u16(buf_.data() + 2)), offset_,
+                        {buf_.data() + kCaptureRecordHeaderBytes, len}};
     offset_ += kCaptureRecordHeaderBytes + rest;
     return CaptureStatus::Ok;
 }
@@ -181,7 +186,7 @@ CaptureStatus CaptureReader::next(CaptureRecord& rec) noexcept {
 std::size_t CaptureReader::read_record_at(std::uint64_t at) noexcept {
     if (at > size_ || std::fseek(f_, static_cast<long>(at), SEEK_SET) != 0) return 0;
     if (std::fread(buf_.data(), 1, kCaptureRecordHeaderBytes, f_) != kCaptureRecordHeaderBytes) return 0;
-    const std::size_t len = plausible_length(buf_.data(), size_ - at);
+    const std::size_t len = plausible_length(buf_.data(), size_ - at, found_version_);
     if (len == 0) return 0;
     const std::size_t rest = len + kCaptureRecordCrcBytes;
     if (std::fread(buf_.data() + kCaptureRecordHeaderBytes, 1, rest, f_) != rest) return 0;
@@ -189,7 +194,7 @@ std::size_t CaptureReader::read_record_at(std::uint64_t at) noexcept {
 }
 
 std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
-    // Headers are screened in a window (length in range, reserved 0, fits the file); only a plausible one costs
+    // Headers are screened in a window (length in range, direction valid, fits the file); only a plausible one costs
     // a read and a CRC. A false match needs a 32-bit CRC to agree as well.
     constexpr std::uint64_t kMinRecord = kCaptureRecordHeaderBytes + 1 + kCaptureRecordCrcBytes;
     if (size_ < kMinRecord) return size_;
@@ -201,7 +206,7 @@ std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
             return size_;
         const std::size_t candidates = n - kCaptureRecordHeaderBytes + 1;  // headers wholly in the window
         for (std::size_t i = 0; i < candidates && p + i <= last; ++i)
-            if (plausible_length(scan_.data() + i, size_ - (p + i)) != 0 && read_record_at(p + i) != 0) return p + i;
+            if (plausible_length(scan_.data() + i, size_ - (p + i), found_version_) != 0 && read_record_at(p + i) != 0) return p + i;
         p += candidates;
     }
     return size_;
@@ -212,6 +217,7 @@ std::uint64_t CaptureReader::resync_from(std::uint64_t from) noexcept {
 bool CaptureWriter::create(const char* path) noexcept {
     close();
     recovered_ = dropped_ = 0;
+    version_ = kCaptureVersion;
     f_ = std::fopen(path, "wb");
     if (!f_) return false;
     std::uint8_t h[kCaptureHeaderBytes];
@@ -240,9 +246,11 @@ bool CaptureWriter::append(const char* path) noexcept {
             std::FILE* f = std::fopen(path, "rb");
             const std::size_t got = f ? std::fread(h, 1, sizeof h, f) : 0;
             if (f) std::fclose(f);
-            std::uint8_t want[kCaptureHeaderBytes];
+            std::uint8_t want[kCaptureHeaderBytes], want_v1[kCaptureHeaderBytes];
             put_file_header(want);
-            if (got >= kCaptureHeaderBytes || std::memcmp(h, want, got) != 0) return false;
+            put_file_header(want_v1, kCaptureOldestVersion);
+            if (got >= kCaptureHeaderBytes || (std::memcmp(h, want, got) != 0 && std::memcmp(h, want_v1, got) != 0))
+                return false;
             dropped_ = got;
             return create(path);
         }
@@ -256,6 +264,7 @@ bool CaptureWriter::append(const char* path) noexcept {
         }
         if (s == CaptureStatus::IoError) return false;
         dropped_ = reader.dropped_bytes();
+        version_ = reader.found_format_version();  // an older file keeps its format (no Sent records then)
     }
     if (dropped_ > 0) {
         std::error_code ec;
@@ -266,12 +275,14 @@ bool CaptureWriter::append(const char* path) noexcept {
     return f_ != nullptr;
 }
 
-bool CaptureWriter::write(std::uint64_t host_rx_us, std::span<const std::uint8_t> bytes) noexcept {
+bool CaptureWriter::write(std::uint64_t host_us, std::span<const std::uint8_t> bytes,
+                          CaptureDirection direction) noexcept {
     if (!f_ || bytes.empty() || bytes.size() > kMaxCaptureRecordBytes) return false;
+    if (direction != CaptureDirection::Received && version_ < 2) return false;
     std::uint8_t h[kCaptureRecordHeaderBytes];
     put_u16(h, static_cast<std::uint16_t>(bytes.size()));
-    put_u16(h + 2, 0);
-    put_u64(h + 4, host_rx_us);
+    put_u16(h + 2, static_cast<std::uint16_t>(direction));
+    put_u64(h + 4, host_us);
     std::uint8_t c[kCaptureRecordCrcBytes];
     put_u32(c, crc32c_finish(crc32c_update(crc32c_update(kCrc32cInit, h), bytes)));
     if (std::fwrite(h, 1, sizeof h, f_) != sizeof h || std::fwrite(bytes.data(), 1, bytes.size(), f_) != bytes.size() ||

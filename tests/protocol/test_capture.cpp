@@ -71,7 +71,7 @@ TEST_CASE("capture records read back exactly", "[protocol][capture]") {
     char h[16];
     f.read(h, 16);
     CHECK(std::string(h, 8) == "EYESIMCP");
-    CHECK(h[8] == 1);
+    CHECK(h[8] == 2);  // format_version 2
     CHECK(h[10] == 16);
 }
 
@@ -434,7 +434,7 @@ TEST_CASE("a capture that cannot be opened says why, naming the unsupported vers
     REQUIRE(reader.open(good.c_str()));
     CHECK(reader.open_error() == CaptureOpenError::None);
     CHECK(std::string(reader.open_error_message()).empty());
-    CHECK(reader.found_format_version() == 1);
+    CHECK(reader.found_format_version() == kCaptureVersion);
     CHECK(reader.file_bytes() == file.size());
 
     Bytes v7 = file;
@@ -444,19 +444,19 @@ TEST_CASE("a capture that cannot be opened says why, naming the unsupported vers
     CHECK_FALSE(reader.open(p7.c_str()));
     CHECK(reader.open_error() == CaptureOpenError::UnsupportedVersion);
     CHECK(reader.found_format_version() == 7);
-    CHECK(std::string(reader.open_error_message()) == "capture format version 7 not supported (this build reads 1)");
+    CHECK(std::string(reader.open_error_message()) == "capture format version 7 not supported (this build reads 1 to 2)");
     // The replay reports the same reason through its reader.
     auto replay = std::make_unique<CaptureReplay>();
     CHECK_FALSE(replay->open(p7.c_str()));
     CHECK(replay->reader().open_error() == CaptureOpenError::UnsupportedVersion);
     CHECK(std::string(replay->reader().open_error_message()) ==
-          "capture format version 7 not supported (this build reads 1)");
+          "capture format version 7 not supported (this build reads 1 to 2)");
 
     Bytes v258 = file;
     v258[8] = 2, v258[9] = 1;  // little-endian 0x0102 = 258
     write_file(p7, v258);
     CHECK_FALSE(reader.open(p7.c_str()));
-    CHECK(std::string(reader.open_error_message()) == "capture format version 258 not supported (this build reads 1)");
+    CHECK(std::string(reader.open_error_message()) == "capture format version 258 not supported (this build reads 1 to 2)");
 
     Bytes h20 = file;
     h20[10] = 20;  // header_bytes 20
@@ -486,4 +486,132 @@ TEST_CASE("a capture that cannot be opened says why, naming the unsupported vers
     CHECK(reader.open_error() == CaptureOpenError::None);
     CHECK(std::string(reader.open_error_message()).empty());
     CHECK(std::string(to_string(CaptureOpenError::UnsupportedVersion)) == "unsupported_version");
+}
+
+TEST_CASE("capture version 2: the host's own commands are Sent records, a separate stream in replay",
+          "[protocol][capture]") {
+    std::mt19937_64 rng(28);
+    const auto received = random_records(rng, 40);
+    // The host's commands, one frame each, between the received records; their own sequence numbers.
+    std::vector<Rec> sent;
+    for (int i = 0; i < 10; ++i) {
+        Command c;
+        c.command_id = static_cast<std::uint32_t>(100 + i);
+        c.opcode = static_cast<std::uint8_t>(Opcode::RegisterRead);
+        c.address = 0x1000u + 4u * static_cast<std::uint32_t>(i);
+        sent.push_back({received[4 * i].t + 1, frame_of(Message{c}, static_cast<std::uint16_t>(i))});
+    }
+    const fs::path path = temp_file("directions.cap");
+    {
+        CaptureWriter w;
+        REQUIRE(w.create(path.c_str()));
+        CHECK(w.format_version() == kCaptureVersion);
+        for (std::size_t i = 0; i < received.size(); ++i) {
+            REQUIRE(w.write(received[i].t, received[i].bytes));
+            if (i % 4 == 0) REQUIRE(w.write(sent[i / 4].t, sent[i / 4].bytes, CaptureDirection::Sent));
+        }
+    }
+    // The reader gives each record its direction, in file order.
+    CaptureReader reader;
+    REQUIRE(reader.open(path.c_str()));
+    CHECK(reader.found_format_version() == 2);
+    CaptureRecord rec;
+    std::size_t n_sent = 0, n_received = 0;
+    while (reader.next(rec) == CaptureStatus::Ok) {
+        if (rec.direction == CaptureDirection::Sent) {
+            REQUIRE(n_sent < sent.size());
+            CHECK(Bytes(rec.bytes.begin(), rec.bytes.end()) == sent[n_sent++].bytes);
+        } else {
+            REQUIRE(n_received < received.size());
+            CHECK(Bytes(rec.bytes.begin(), rec.bytes.end()) == received[n_received++].bytes);
+        }
+    }
+    CHECK(n_sent == sent.size());
+    CHECK(n_received == received.size());
+
+    // Replay: the two-argument next() gives the received stream alone, with no sequence gap from the commands.
+    auto replay = std::make_unique<CaptureReplay>();
+    REQUIRE(replay->open(path.c_str()));
+    DecodedFrame f;
+    std::uint64_t t = 0;
+    std::size_t k = 0;
+    while (replay->next(f, t)) {
+        REQUIRE(k < received.size());
+        CHECK(frame_of(f.message, f.header.sequence) == received[k].bytes);
+        CHECK(t == received[k].t);
+        ++k;
+    }
+    CHECK(k == received.size());
+    CHECK(replay->stats().errors() == 0);
+    CHECK(replay->sent_records() == sent.size());
+    CHECK(replay->records() == received.size() + sent.size());
+    // The three-argument next() gives both, each command after the received record it followed.
+    REQUIRE(replay->open(path.c_str()));
+    bool from_host = false;
+    std::vector<bool> order;
+    std::size_t commands = 0;
+    while (replay->next(f, t, from_host)) {
+        order.push_back(from_host);
+        if (from_host) {
+            REQUIRE(commands < sent.size());
+            CHECK(frame_of(f.message, f.header.sequence) == sent[commands].bytes);
+            CHECK(t == sent[commands].t);
+            ++commands;
+        }
+    }
+    CHECK(commands == sent.size());
+    REQUIRE(order.size() == received.size() + sent.size());
+    CHECK(order[0] == false);
+    CHECK(order[1] == true);
+    CHECK(replay->sent_stats().errors() == 0);
+    CHECK(replay->sent_stats().sequence_gaps == 0);
+
+    // A direction above 1 is damage (the record is skipped, those after it are kept); so is any direction but 0
+    // in a version-1 file, which has no directions.
+    Bytes file;
+    {
+        std::ifstream in(path, std::ios::binary);
+        file.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    auto write_file = [](const fs::path& p, const Bytes& b) {
+        std::ofstream o(p, std::ios::binary | std::ios::trunc);
+        o.write(reinterpret_cast<const char*>(b.data()), static_cast<std::streamsize>(b.size()));
+    };
+    const std::size_t second = kCaptureHeaderBytes + kCaptureRecordHeaderBytes + received[0].bytes.size() +
+                               kCaptureRecordCrcBytes;  // the first Sent record
+    REQUIRE(file[second + 2] == 1);
+    Bytes bad = file;
+    bad[second + 2] = 2;
+    const fs::path p_bad = temp_file("directions_bad.cap");
+    write_file(p_bad, bad);
+    REQUIRE(reader.open(p_bad.c_str()));
+    std::size_t good = 0;
+    CaptureStatus s;
+    while ((s = reader.next(rec)) == CaptureStatus::Ok || s == CaptureStatus::Corrupt) good += s == CaptureStatus::Ok;
+    CHECK(good == received.size() + sent.size() - 1);
+    CHECK(reader.corrupt_regions() == 1);
+    Bytes v1 = file;
+    v1[8] = 1;  // format_version 1: the Sent records are now damage, the received ones all survive
+    write_file(p_bad, v1);
+    REQUIRE(reader.open(p_bad.c_str()));
+    good = 0;
+    while ((s = reader.next(rec)) == CaptureStatus::Ok || s == CaptureStatus::Corrupt) {
+        good += s == CaptureStatus::Ok;
+        if (s == CaptureStatus::Ok) CHECK(rec.direction == CaptureDirection::Received);
+    }
+    CHECK(good == received.size());
+    // Appending to a version-1 file keeps its format: received records go in, Sent ones are refused.
+    Bytes v1_clean(file.begin(), file.begin() + static_cast<std::ptrdiff_t>(second));
+    v1_clean[8] = 1;
+    write_file(p_bad, v1_clean);
+    CaptureWriter w;
+    REQUIRE(w.append(p_bad.c_str()));
+    CHECK(w.format_version() == 1);
+    CHECK(w.write(5, received[1].bytes));
+    CHECK_FALSE(w.write(6, sent[0].bytes, CaptureDirection::Sent));
+    w.close();
+    REQUIRE(reader.open(p_bad.c_str()));
+    good = 0;
+    while (reader.next(rec) == CaptureStatus::Ok) ++good;
+    CHECK(good == 2);
 }

@@ -133,7 +133,7 @@ TEST_CASE("eyesim protocol decode: lost frames exit 3; empty, unreadable and uns
     std::vector<std::uint8_t> v7 = {'E', 'Y', 'E', 'S', 'I', 'M', 'C', 'P', 7, 0, 16, 0, 0, 0, 0, 0};
     v7.insert(v7.end(), gap.begin(), gap.end());
     write_file(dir / "v7.cap", v7);
-    one_error(dir / "v7.cap", "capture format version 7 not supported (this build reads 1)");
+    one_error(dir / "v7.cap", "capture format version 7 not supported (this build reads 1 to 2)");
     std::vector<std::uint8_t> h20 = {'E', 'Y', 'E', 'S', 'I', 'M', 'C', 'P', 1, 0, 20, 0, 0, 0, 0, 0};
     write_file(dir / "h20.cap", h20);
     one_error(dir / "h20.cap", "capture header size 20 not supported (this build reads 16)");

@@ -41,8 +41,10 @@ std::vector<int> parse_cameras(const std::string& text, int count) {
     return cams;
 }
 
-std::vector<fpga::RegisterMap> register_maps(const std::vector<std::string>& writes, int camera_count) {
-    std::vector<fpga::RegisterMap> maps(static_cast<size_t>(std::max(camera_count, 0)));
+std::vector<fpga::RegisterMap> register_maps(const std::vector<std::string>& writes, int camera_count,
+                                             std::vector<fpga::RegisterMap> base) {
+    std::vector<fpga::RegisterMap> maps = std::move(base);
+    maps.resize(static_cast<size_t>(std::max(camera_count, 0)));
     for (const std::string& w : writes) {
         const size_t eq = w.find('=');
         unsigned long addr = 0, value = 0;

@@ -1,8 +1,11 @@
 #include "eyesim/frame/session.hpp"
 
+#include "eyesim/firmware/capacity.hpp"
 #include "eyesim/firmware/latency.hpp"
+#include "eyesim/firmware/registers.hpp"
 #include "eyesim/firmware/pc/pedal_track.hpp"
 #include "eyesim/fpga/pipeline.hpp"
+#include "eyesim/fpga/register_map.hpp"
 #include "eyesim/fpga/timing.hpp"
 #include "eyesim/fpga/wire.hpp"
 #include "eyesim/protocol/capture_replay.hpp"
@@ -327,8 +330,10 @@ void run_capture(const std::string& path, HostRun& run, std::vector<std::string>
 
 namespace {
 
-bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint16_t& seq, uint64_t host_us = 0,
-                  uint32_t address = 0, uint32_t value = 0) {
+// Sends one command; with `capture`, records the sent frame in it too (a Sent record: the register reads and
+// writes and their replies let a capture rebuild the device's register map).
+bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint16_t& seq,
+                  proto::CaptureWriter* capture, uint64_t host_us = 0, uint32_t address = 0, uint32_t value = 0) {
     proto::Command c;
     c.command_id = id++;
     c.opcode = uint8_t(op);
@@ -337,7 +342,10 @@ bool send_command(transport::Transport& t, proto::Opcode op, uint32_t& id, uint1
     c.value = value;
     std::array<uint8_t, proto::kMaxFrameBytes> bytes{};
     const size_t len = proto::encode_frame(proto::Message{c}, seq++, bytes);
-    return len > 0 && t.write(std::span<const uint8_t>(bytes.data(), len), 1000).status == transport::IoStatus::ok;
+    const std::span<const uint8_t> frame(bytes.data(), len);
+    if (len == 0 || t.write(frame, 1000).status != transport::IoStatus::ok) return false;
+    if (capture) capture->write(uint64_t(host_now_us()), frame, proto::CaptureDirection::Sent);
+    return true;
 }
 
 /// PATCH_ENABLE's address in the broadcast window: written to every camera (docs/protocol.md, register map).
@@ -365,13 +373,22 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
         res.end = std::move(why);
         res.clean = clean;
     };
+    auto sent_to_capture = [&]() -> proto::CaptureWriter* { return capturing ? &capture : nullptr; };
     // Precision mode: PATCH_ENABLE (0x03C: every camera's window) before each stream_start, since a device
-    // that comes back after an unplug starts from its reset values.
+    // that comes back after an unplug starts from its reset values. A capture also gets the device's whole
+    // pipeline register map (a read of every register of every camera), so `eyesim compare` can re-run the model
+    // with it.
     auto start_stream = [&] {
-        if (opt.patch_enable != 0 &&
-            !send_command(link, proto::Opcode::RegisterWrite, id, seq, 0, kPatchEnableAllCameras, opt.patch_enable))
+        if (opt.patch_enable != 0 && !send_command(link, proto::Opcode::RegisterWrite, id, seq, sent_to_capture(), 0,
+                                                   kPatchEnableAllCameras, opt.patch_enable))
             return false;
-        return send_command(link, proto::Opcode::StreamStart, id, seq);
+        if (sent_to_capture())
+            for (uint32_t cam = 0; cam < firmware::kCameras; ++cam)
+                for (const fpga::RegisterInfo& r : fpga::register_table())
+                    if (!send_command(link, proto::Opcode::RegisterRead, id, seq, sent_to_capture(), 0,
+                                      (cam + 1) * firmware::kRegCameraBase + r.address))
+                        return false;
+        return send_command(link, proto::Opcode::StreamStart, id, seq, sent_to_capture());
     };
     bool streaming = start_stream();
     if (!streaming && !link.reconnects()) {
@@ -400,7 +417,7 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
             if (!streaming) streaming = start_stream();
             // Pings for the clock offset: every 50 ms for the first half second, then every 200 ms.
             if (now - last_ping > (now - t0 < 500000.0 ? 50000.0 : 200000.0)) {
-                send_command(link, proto::Opcode::Ping, id, seq, uint64_t(now));
+                send_command(link, proto::Opcode::Ping, id, seq, sent_to_capture(), uint64_t(now));
                 last_ping = now;
             }
         }
@@ -444,7 +461,7 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
         }
     }
     if (opt.progress) std::fprintf(stderr, "\n");
-    if (link.connected()) send_command(link, proto::Opcode::StreamStop, id, seq);
+    if (link.connected()) send_command(link, proto::Opcode::StreamStop, id, seq, sent_to_capture());
     rx_us = host_now_us();
     parser.finish(deliver);
     run.set_parser_stats(parser.stats());

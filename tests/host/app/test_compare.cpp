@@ -4,6 +4,7 @@
 // --capture-out`) compares identical to the model.
 #include "../../firmware/child_process.hpp"
 
+#include "eyesim/fpga/register_map.hpp"
 #include "eyesim/protocol/capture.hpp"
 #include "eyesim/protocol/capture_replay.hpp"
 #include "eyesim/protocol/codec.hpp"
@@ -287,8 +288,8 @@ TEST_CASE("compare: a capture made with one register changed differs unless comp
     j = compare(cam1, rc, "--reg 0x01C=30 --cameras 1");
     CHECK(rc == 0);
 
-    // A capture in which the device acknowledged a register write: the Reply has the value but not the address,
-    // so compare says it cannot know the map from the capture.
+    // A capture in which the device acknowledged a register write whose command the capture does not hold (as
+    // one written by another tool): the Reply has the value but not the address, so compare cannot know the map.
     proto::Reply ack;
     ack.command_id = 7;
     ack.opcode = uint8_t(proto::Opcode::RegisterWrite);
@@ -298,8 +299,8 @@ TEST_CASE("compare: a capture made with one register changed differs unless comp
     const Result r = run_eyesim("compare --recording " + recording().string() + " --capture " + acked.string() +
                                 " --reg 0x01C=30 --json");
     CHECK(r.rc == 0);
-    CHECK(r.err == "eyesim: warning: " + acked.string() + ": 1 register write(s) acknowledged by the device; a capture "
-                   "holds no register addresses: give the device's writes with --reg\n");
+    CHECK(r.err == "eyesim: warning: " + acked.string() + ": 1 register write(s) acknowledged by the device; the "
+                   "capture does not hold their addresses: give the device's writes with --reg\n");
     j = json::parse(r.out);
     CHECK(j["device"]["register_writes"] == 1);
     CHECK(j["warnings"].size() == 1);
@@ -392,4 +393,53 @@ TEST_CASE("compare: the live path (eyesim-device over TCP, recorded by the host)
     const Result bad = run_eyesim("track --capture " + live.string() + " --rig " + (recording() / "rig.yaml").string() +
                                   " --capture-out " + (scratch() / "x.bin").string());
     CHECK(bad.rc == 2);
+}
+
+TEST_CASE("compare: a host capture holds the device's register map, so compare needs no --reg",
+          "[host][compare][e2e]") {
+    // The device powered up with registers a configuration tool changed; the host's capture records its reads of
+    // every pipeline register and the device's replies.
+    const fs::path cap = scratch() / "live_configured.bin";
+    live_capture(cap, {"--reg", "0x01C=30", "--reg", "0x2038=2"});
+    int rc = -1;
+    json j = compare(cap, rc);
+    CHECK(rc == 0);
+    CHECK(j["identical"] == true);
+    CHECK(j["compared"]["fields"] == 30);
+    int writable = 0;
+    for (const eyesim::fpga::RegisterInfo& r : eyesim::fpga::register_table()) writable += r.writable;
+    CHECK(j["device"]["registers_from_capture"] == 3 * writable);  // every camera's whole map
+    CHECK(j["device"]["host_commands"].get<int>() > 3 * writable);  // the reads, stream_start, pings
+    CHECK(j["device"]["register_changes_after_first_field"] == 0);
+    CHECK(j["warnings"].empty());
+    // The same device's fields are not the reset map's: --reg on top of the capture's map puts the reset back.
+    j = compare(cap, rc, "--reg 0x01C=2");
+    CHECK(rc == 3);
+    CHECK(j["counts"]["blob_missing"].get<int64_t>() > 0);
+    // A version-1 capture of the same run (no Sent records: the received records alone, header version 1) holds
+    // no map: compare uses the reset values and finds the difference.
+    const fs::path v1 = scratch() / "live_configured_v1.bin";
+    {
+        proto::CaptureReader reader;
+        REQUIRE(reader.open(cap.c_str()));
+        std::ofstream out(v1, std::ios::binary | std::ios::trunc);
+        std::ifstream in(cap, std::ios::binary);
+        std::vector<char> header(proto::kCaptureHeaderBytes);
+        in.read(header.data(), std::streamsize(header.size()));
+        header[8] = 1;
+        out.write(header.data(), std::streamsize(header.size()));
+        proto::CaptureRecord rec;
+        while (reader.next(rec) == proto::CaptureStatus::Ok) {
+            if (rec.direction == proto::CaptureDirection::Sent) continue;
+            in.seekg(std::streamoff(rec.file_offset));
+            std::vector<char> whole(proto::kCaptureRecordHeaderBytes + rec.bytes.size() + proto::kCaptureRecordCrcBytes);
+            in.read(whole.data(), std::streamsize(whole.size()));
+            out.write(whole.data(), std::streamsize(whole.size()));
+        }
+    }
+    j = compare(v1, rc);
+    CHECK(rc == 3);
+    CHECK(j["device"]["registers_from_capture"] == 0);
+    j = compare(v1, rc, "--reg 0x01C=30 --reg 0x2038=2");
+    CHECK(rc == 0);
 }

@@ -293,7 +293,7 @@ TEST_CASE("usage errors, garbage captures and empty truth are one line and a non
         std::ofstream f(dir + "/v7.cap", std::ios::binary);
         f.write("EYESIMCP\x07\x00\x10\x00\x00\x00\x00\x00", 16);
     }
-    const std::string v7 = dir + "/v7.cap: capture format version 7 not supported (this build reads 1)";
+    const std::string v7 = dir + "/v7.cap: capture format version 7 not supported (this build reads 1 to 2)";
     one_line_error("protocol decode " + dir + "/v7.cap", 1, v7);
     one_line_error("track --capture " + dir + "/v7.cap --rig " + dir + "/rec/rig.yaml", 1, v7);
     one_line_error("sim --scene " + std::string(EYESIM_SOURCE_DIR) + "/scenes/membrane-peel.json --capture " + dir +

@@ -140,7 +140,8 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
                 refiner.on_patch(*bp);
             }
         };
-        while (reader.next(r) == proto::CaptureStatus::Ok) parser.parse(r.bytes, on);
+        while (reader.next(r) == proto::CaptureStatus::Ok)
+            if (r.direction == proto::CaptureDirection::Received) parser.parse(r.bytes, on);  // not the host's commands
         parser.finish(on);
         refiner.flush();
     }

@@ -3,9 +3,12 @@
 /// Capture files: the received bytes with their host receive timestamps, appendable, and readable after a crash
 /// mid-write (a torn last record is reported and skipped, all earlier records survive). Layout (little-endian):
 ///
-///   file header, 16 bytes: magic "EYESIMCP" (8), u16 format version 1, u16 header bytes 16, u32 reserved 0
-///   record: u16 length L (1..kMaxCaptureRecordBytes), u16 reserved 0, u64 host receive time µs, L bytes,
-///           u32 CRC-32C over the 12 record-header bytes and the L bytes
+///   file header, 16 bytes: magic "EYESIMCP" (8), u16 format version 2, u16 header bytes 16, u32 reserved 0
+///   record: u16 length L (1..kMaxCaptureRecordBytes), u16 direction (0 received by the host, 1 sent by the host;
+///           always 0 in version 1), u64 host time µs, L bytes, u32 CRC-32C over the 12 header bytes and the L bytes
+///
+/// The host's own commands are recorded too (direction 1), so a capture holds the register reads and writes and
+/// their replies: the device's register map can be rebuilt from it.
 ///
 /// A record normally holds one frame; it may hold any received chunk (the reader feeds it to a StreamParser).
 /// A damaged record in the middle of a file is skipped: the reader scans on to the next offset that holds a whole
@@ -23,11 +26,19 @@ namespace eyesim::protocol {
 
 /// Capture file magic, the first 8 bytes.
 inline constexpr std::array<std::uint8_t, 8> kCaptureMagic = {'E', 'Y', 'E', 'S', 'I', 'M', 'C', 'P'};
-/// Capture format version.
-inline constexpr std::uint16_t kCaptureVersion = 1;
+/// Capture format version written (2: records carry a direction). Readers also read version 1.
+inline constexpr std::uint16_t kCaptureVersion = 2;
+/// Oldest capture format version readers accept (1: every record was received by the host).
+inline constexpr std::uint16_t kCaptureOldestVersion = 1;
 /// Capture file header bytes.
 inline constexpr std::size_t kCaptureHeaderBytes = 16;
-/// Record header bytes (length, reserved, host time).
+/// Who produced a record's bytes.
+enum class CaptureDirection : std::uint16_t {
+    Received = 0,  ///< bytes the host received from the device
+    Sent = 1,      ///< bytes the host sent to the device (its commands)
+};
+
+/// Record header bytes (length, direction, host time).
 inline constexpr std::size_t kCaptureRecordHeaderBytes = 12;
 /// Record trailer bytes (CRC-32C).
 inline constexpr std::size_t kCaptureRecordCrcBytes = 4;
@@ -38,6 +49,7 @@ inline constexpr std::size_t kMaxCaptureRecordBytes = 16384;
 struct CaptureRecord {
     std::uint64_t host_rx_us = 0;            ///< host receive time, µs (0 for raw streams)
     bool has_time = false;                   ///< false for chunks of a raw byte stream
+    CaptureDirection direction = CaptureDirection::Received;  ///< Sent: the host's own commands
     std::uint64_t file_offset = 0;           ///< offset of the record (or chunk) in the file
     std::span<const std::uint8_t> bytes;     ///< the received bytes; valid until the next read
 };
@@ -57,7 +69,7 @@ enum class CaptureOpenError : std::uint8_t {
     None,                ///< opened (or not tried yet)
     CannotOpen,          ///< the file cannot be opened for reading (missing, no permission, a directory, ...)
     ShortHeader,         ///< it starts with the capture magic but ends inside the 16-byte file header
-    UnsupportedVersion,  ///< its format_version is not kCaptureVersion (found_format_version() says which)
+    UnsupportedVersion,  ///< its format_version is not 1 or 2 (found_format_version() says which)
     BadHeaderSize,       ///< its header_bytes is not kCaptureHeaderBytes (found_header_bytes() says which)
 };
 
@@ -146,7 +158,11 @@ public:
     /// recovered_records() / dropped_bytes()).
     bool append(const char* path) noexcept;
     /// Appends one record (1..kMaxCaptureRecordBytes bytes) and, with flush_each (default), flushes it to the OS.
-    bool write(std::uint64_t host_rx_us, std::span<const std::uint8_t> bytes) noexcept;
+    /// A Sent record cannot go into a version-1 file opened by append() (false; that format has no direction).
+    bool write(std::uint64_t host_us, std::span<const std::uint8_t> bytes,
+               CaptureDirection direction = CaptureDirection::Received) noexcept;
+    /// Format version of the open file (kCaptureVersion unless append() kept an older file's).
+    std::uint16_t format_version() const noexcept { return version_; }
     /// Flushes buffered records to the OS.
     bool flush() noexcept;
     /// Flushes and closes.
@@ -161,6 +177,7 @@ public:
 private:
     std::FILE* f_ = nullptr;
     bool flush_each_ = true;
+    std::uint16_t version_ = kCaptureVersion;
     std::uint64_t recovered_ = 0;
     std::uint64_t dropped_ = 0;
 };

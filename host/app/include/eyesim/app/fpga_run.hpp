@@ -29,7 +29,9 @@ std::vector<int> parse_cameras(const std::string& text, int count);
 /// 0x0000–0x0FFF writes the pipeline register at that offset of every camera (checked against every camera first,
 /// applied to all or none), 0x1000–0x1FFF, 0x2000–0x2FFF, 0x3000–0x3FFF only camera 0, 1, 2's. Throws Error
 /// (exit 2) naming the write that is malformed, outside those windows, or refused by the map (read-only, range).
-std::vector<fpga::RegisterMap> register_maps(const std::vector<std::string>& writes, int camera_count);
+/// `base`: the maps the writes start from (e.g. read from a capture) instead of the reset values.
+std::vector<fpga::RegisterMap> register_maps(const std::vector<std::string>& writes, int camera_count,
+                                             std::vector<fpga::RegisterMap> base = {});
 
 /// One camera field through the model. `blobs` may be changed (refined) before the field is packed.
 struct ModelField {
