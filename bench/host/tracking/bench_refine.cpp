@@ -5,8 +5,8 @@
 //  - discs: flat discs from the pipeline tests' generator (field_gen.hpp), 24 per field with random sub-pixel
 //    centres and diameters, truth = the coverage centroid; the fit with its flat-disc model.
 // Each fit configuration runs on the same blobs; time is thread CPU per blob (every blob of every field, refused
-// ones included), error is the RMS over matched markers of the fit's centroid where it accepts and the pipeline's
-// where it refuses.
+// ones included), error is the RMS (and the mean, the bias) over matched markers of the fit's centroid where it
+// accepts and the pipeline's where it refuses.
 //
 // Usage: bench_refine [--seeds N=6] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20] [--no-reference]
 //                     [--json]
@@ -66,6 +66,7 @@ struct Method {
 // One (data, noise, method, size) cell.
 struct Cell {
     double se = 0;
+    double sum_dx = 0, sum_dy = 0;  // Σ error in x and y (bias = mean)
     int n = 0, refined = 0;
     double iterations = 0;
     std::vector<double> us;  // fit time of each matched marker's blob
@@ -236,6 +237,8 @@ int main(int argc, char** argv) {
                                 const Out& o = out[static_cast<size_t>(d)];
                                 Cell& c = row.bins[bin];
                                 c.se += std::pow(o.x - v->centroid_px.x(), 2) + std::pow(o.y - v->centroid_px.y(), 2);
+                                c.sum_dx += o.x - v->centroid_px.x();
+                                c.sum_dy += o.y - v->centroid_px.y();
                                 ++c.n;
                                 c.refined += o.ok;
                                 c.iterations += o.iterations;
@@ -287,6 +290,8 @@ int main(int argc, char** argv) {
                             const Out& o = out[static_cast<size_t>(best)];
                             Cell& c = row.bins[bin];
                             c.se += std::pow(o.x - truth[i][0], 2) + std::pow(o.y - truth[i][1], 2);
+                            c.sum_dx += o.x - truth[i][0];
+                            c.sum_dy += o.y - truth[i][1];
                             ++c.n;
                             c.refined += o.ok;
                             c.iterations += o.iterations;
@@ -307,8 +312,8 @@ int main(int argc, char** argv) {
     if (!json)
         std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched, unoccluded markers; the "
                     "pipeline's centroid where a fit refuses). Seeds 1-%d; rig: %s, %.2f s per seed.\n\n"
-                    "| data | noise σ DN | method | size px | markers | refined | RMS px | iterations | µs/blob p50 | µs/blob p99 |\n"
-                    "|---|---:|---|---|---:|---:|---:|---:|---:|---:|\n",
+                    "| data | noise σ DN | method | size px | markers | refined | RMS px | bias x / y px | iterations | µs/blob p50 | µs/blob p99 |\n"
+                    "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
                     seeds, scenario.c_str(), seconds);
     for (const Row& r : rows) {
         for (int b = 0; b < 3; ++b) {
@@ -322,14 +327,15 @@ int main(int argc, char** argv) {
                                  {"markers", c.n},
                                  {"refined", c.refined},
                                  {"rms_px", num(rms)},
+                                 {"bias_px", {{"x", num(c.sum_dx / c.n)}, {"y", num(c.sum_dy / c.n)}}},
                                  {"iterations_mean", c.us.empty() ? nlohmann::json(nullptr) : num(c.iterations / c.n)},
                                  {"us_per_blob", {{"p50", num(p50)}, {"p99", num(p99)}}}});
             if (!json) {
                 auto us = [](double v) { return std::isfinite(v) ? std::to_string(v).substr(0, std::to_string(v).find('.') + 2) : std::string("–"); };
                 const std::string it = c.us.empty() ? "–" : us(c.iterations / c.n);
-                std::printf("| %s | %.0f | %s | %s | %d | %d | %.4f | %s | %s | %s |\n", r.data.c_str(), r.noise,
-                            r.method.c_str(), kBinName[b], c.n, c.refined, rms, it.c_str(), us(p50).c_str(),
-                            us(p99).c_str());
+                std::printf("| %s | %.0f | %s | %s | %d | %d | %.4f | %+.4f / %+.4f | %s | %s | %s |\n", r.data.c_str(),
+                            r.noise, r.method.c_str(), kBinName[b], c.n, c.refined, rms, c.sum_dx / c.n, c.sum_dy / c.n,
+                            it.c_str(), us(p50).c_str(), us(p99).c_str());
             }
         }
         if (!r.all_us.empty()) {
@@ -339,7 +345,7 @@ int main(int argc, char** argv) {
                                       {"blobs", r.all_us.size()},
                                       {"us_per_blob", {{"p50", num(pct(r.all_us, 0.5))}, {"p99", num(pct(r.all_us, 0.99))}}}});
             if (!json)
-                std::printf("| %s | %.0f | %s | every blob | %zu | | | | %.1f | %.1f |\n", r.data.c_str(), r.noise,
+                std::printf("| %s | %.0f | %s | every blob | %zu | | | | | %.1f | %.1f |\n", r.data.c_str(), r.noise,
                             r.method.c_str(), r.all_us.size(), pct(r.all_us, 0.5), pct(r.all_us, 0.99));
         }
     }

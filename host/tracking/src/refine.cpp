@@ -105,6 +105,36 @@ struct PixelIntegral {
     double dq_dp[5] = {};
 };
 
+// asin on [0, 1/√2] from a cubic Hermite table (values and slopes), within 1e-15 of std::asin there; above it
+// π/2 − asin(√(1 − t²)), within 1e-13 (the error of √(1 − t²) itself). std::asin was a fifth of the render.
+struct AsinTable {
+    static constexpr int kN = 1024;
+    static constexpr double kMax = 0.70711;  // just above 1/√2
+    static constexpr double kScale = kN / kMax;
+    double v[kN + 2], d[kN + 2];  // asin and h·asin′ at the nodes
+    AsinTable() {
+        const double h = kMax / kN;
+        for (int i = 0; i <= kN + 1; ++i) {
+            const double t = i * h;
+            v[i] = std::asin(t);
+            d[i] = h / std::sqrt(1.0 - t * t);
+        }
+    }
+};
+inline double asin_small(double u) {
+    static const AsinTable tab;
+    const double x = u * AsinTable::kScale;
+    const int i = static_cast<int>(x);
+    const double f = x - i, g = 1.0 - f;
+    return (1.0 + 2.0 * f) * g * g * tab.v[i] + f * g * g * tab.d[i] + f * f * (3.0 - 2.0 * f) * tab.v[i + 1] -
+           f * f * g * tab.d[i + 1];
+}
+// asin(t) for t in [0, 1] given s = √(1 − t²).
+inline double asin_01(double t, double s) {
+    constexpr double kHalfPi = 1.5707963267948966;
+    return t <= 0.7071067811865476 ? asin_small(t) : kHalfPi - asin_small(s);
+}
+
 // Second antiderivatives (and first) of c and q in ρ, extended evenly to ρ < 0 (c, q even; S1, Q1 odd).
 struct Anti {
     double s1, s2, q1, q2;
@@ -120,7 +150,7 @@ inline Anti anti(double rho, double r) {
         o.q2 = r * r * kQuarterPi + r * kQuarterPi * (a - r);
         return o;
     }
-    const double t = a / r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = std::asin(t);
+    const double t = a / r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = asin_01(t, s);
     o.s1 = sg * a;
     o.s2 = 0.5 * a * a;
     o.q1 = sg * 0.5 * r * (t * s + as);
@@ -321,19 +351,23 @@ public:
         double* dc = w_.dcov.data();
         double* ds = w_.dshade.data();
         // Only the box the marker can reach is visited: ρ ≥ √(1 − |e|)·|d|, and pixel_integral() refuses
-        // ρ > r + 0.62·(1 + ap). Everything else is zero.
-        std::fill(cov, cov + n, 0.0);
-        std::fill(shade, shade + n, 0.0);
-        if constexpr (kDeriv) {
-            std::fill(w_.touch.begin(), w_.touch.begin() + n, uint8_t{0});
-            std::fill(dc, dc + kShapePar * n, 0.0);
-            std::fill(ds, ds + kShapePar * n, 0.0);
-        }
+        // ρ > r + 0.62·(1 + ap). Everything else is zero: the previous render's box is cleared first.
+        std::array<int, 4>& box = written_[kDeriv ? 0 : 1];
+        for (int j = box[0]; j <= box[1]; ++j)
+            for (int i = box[2]; i <= box[3]; ++i) {
+                const int k = j * p_.cols + i;
+                cov[k] = shade[k] = 0.0;
+                if constexpr (kDeriv) {
+                    w_.touch[k] = 0;
+                    for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
+                }
+            }
         const double reach = (r + 0.62 * (1.0 + ap)) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
         const int i_lo = std::max(0, static_cast<int>(std::floor(x0 - reach)) - (p_.x0 - 1));
         const int i_hi = std::min(p_.cols - 1, static_cast<int>(std::ceil(x0 + reach)) - (p_.x0 - 1));
         const int j_lo = std::max(0, static_cast<int>(std::floor((v0 - reach - p_.parity) / 2.0)) - p_.j0);
         const int j_hi = std::min(p_.lines - 1, static_cast<int>(std::ceil((v0 + reach - p_.parity) / 2.0)) - p_.j0);
+        box = {j_lo, j_hi, i_lo, i_hi};
         PixelIntegral pi;
         for (int j = j_lo; j <= j_hi; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
@@ -472,6 +506,7 @@ public:
     // model values formed in place; the rest enter through the background moments.
     double normal_equations_marker(const Vec& t, Mat& a, Vec& g) const {
         constexpr int nr = kRow - 5;  // shape, amplitude, the channel's background (the outline's 5 are last)
+        constexpr int ns = nr + 1;    // row stride: even, so that the rank-one updates go in pairs (SIMD)
         const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
         const double wc = 1.0 / var_c();
         const double* cov = w_.cov.data();
@@ -479,7 +514,7 @@ public:
         const double* dc = w_.dcov.data();
         const double* ds = w_.dshade.data();
         const uint8_t* touch = w_.touch.data();
-        double acc[3][nr * nr] = {}, acc_g[3][nr] = {}, chi2 = 0;
+        double acc[3][nr * ns] = {}, acc_g[3][nr] = {}, chi2 = 0;
         std::array<double, 10> reached[3] = {};  // background moments of the visited observations
         double am[3], b0[3], bx[3], bv[3];
         for (int ch = 0; ch < 3; ++ch) {
@@ -498,6 +533,7 @@ public:
             row[6] = open;
             row[7] = open * x;
             row[8] = open * vj;
+            row[9] = 0.0;
             return kOffset[ch] + am[ch] * shade[k] + open * under;
         };
         auto add = [&](int ch, const double* row, double r, double wgt, double x, double vj, double o) {
@@ -507,7 +543,11 @@ public:
             for (int q = 0; q < nr; ++q) {
                 const double wq = wgt * row[q];
                 gg[q] += wq * r;
-                for (int u = 0; u <= q; ++u) m[q * nr + u] += wq * row[u];
+                // The lower triangle rounded up to whole pairs (row[nr] is 0).
+                for (int u = 0; u <= q; u += 2) {
+                    m[q * ns + u] += wq * row[u];
+                    m[q * ns + u + 1] += wq * row[u + 1];
+                }
             }
             std::array<double, 10>& mo = reached[ch];
             mo[0] += wgt;
@@ -521,7 +561,7 @@ public:
             mo[8] += wgt * o * vj;
             mo[9] += wgt * o * o;
         };
-        double row[nr], crow[2][SphereFitWorkspace::kCols][nr], cval[2][SphereFitWorkspace::kCols];
+        double row[ns], crow[2][SphereFitWorkspace::kCols][ns], cval[2][SphereFitWorkspace::kCols];
         for (int j = 0; j < p_.lines; ++j) {
             const double vj = vrel_[static_cast<size_t>(j)];
             const uint8_t* tl = touch + j * p_.cols;
@@ -547,7 +587,7 @@ public:
                     const double* q0 = crow[c][i - 1];
                     const double* q1 = crow[c][i];
                     const double* q2 = crow[c][i + 1];
-                    for (int q = 0; q < nr; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
+                    for (int q = 0; q < ns; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
                     const double mod = 0.25 * (cval[c][i - 1] + cval[c][i + 1]) + 0.5 * cval[c][i];
                     const double obs = c == 0 ? w_.obs_cb[o] : w_.obs_cr[o];
                     add(1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
@@ -565,7 +605,7 @@ public:
                 double mb = 0;
                 for (int u = 0; u < 3; ++u) mb += mm[q][u] * be[u];
                 acc_g[ch][6 + q] += bo[q] - mb;
-                for (int u = 0; u <= q; ++u) acc[ch][(6 + q) * nr + 6 + u] += mm[q][u];
+                for (int u = 0; u <= q; ++u) acc[ch][(6 + q) * ns + 6 + u] += mm[q][u];
                 quad += be[q] * mb;
                 lin += be[q] * bo[q];
             }
@@ -578,7 +618,7 @@ public:
             row_params(ch, idx);
             for (int q = 0; q < nr; ++q) {
                 g[static_cast<size_t>(idx[q])] += acc_g[ch][q];
-                for (int u = 0; u <= q; ++u) a[static_cast<size_t>(idx[q] * kMaxPar + idx[u])] += acc[ch][q * nr + u];
+                for (int u = 0; u <= q; ++u) a[static_cast<size_t>(idx[q] * kMaxPar + idx[u])] += acc[ch][q * ns + u];
             }
         }
         for (int q = 0; q < np(); ++q)
@@ -596,25 +636,41 @@ public:
         model(t, w_.cov.data(), w_.shade.data(), val);
         const double wc = 1.0 / var_c();
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
-        double acc[3][kRow * kRow] = {}, acc_g[3][kRow] = {}, chi2 = 0;
+        double acc[3][kRow * (kRow + 1)] = {}, acc_g[3][kRow] = {}, chi2 = 0;
         auto add = [&]<int q0>(std::integral_constant<int, q0>, int ch, const double* row, double r, double wgt) {
             double* am = acc[ch];
             chi2 += wgt * r * r;
             for (int q = q0; q < nr; ++q) {
                 const double wq = wgt * row[q];
                 acc_g[ch][q] += wq * r;
-                for (int u = q0; u <= q; ++u) am[q * kRow + u] += wq * row[u];
+                // The lower triangle rounded up to whole pairs (SIMD); row[q + 1] for q = nr − 1 is row[kRow], 0.
+                for (int u = q0; u <= q; u += 2) {
+                    am[q * kRow + u] += wq * row[u];
+                    am[q * kRow + u + 1] += wq * row[u + 1];
+                }
             }
         };
+        // An observation beyond the outline that the marker does not reach depends only on the level beyond it
+        // (compact 11), with derivative 1.
+        auto add_beyond = [&](int ch, double r, double wgt) {
+            chi2 += wgt * r * r;
+            acc_g[ch][11] += wgt * r;
+            acc[ch][11 * kRow + 11] += wgt;
+        };
+        const double* edge_w = w_.edge_w.data();
         constexpr std::integral_constant<int, 0> kAll;
         constexpr std::integral_constant<int, 6> kBackground;
         const uint8_t* touch = w_.touch.data();
-        double row[kRow] = {};
+        double row[kRow + 1] = {};
         double crow[2][SphereFitWorkspace::kCols][kRow];  // one line's chroma pixel rows
         for (int j = 0; j < p_.lines; ++j) {
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x, k = j * p_.cols + x + 1;
                 if (!w_.keep_y[o]) continue;
+                if (!touch[k] && edge_w[k] == 0.0) {
+                    add_beyond(0, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                    continue;
+                }
                 pixel_row(t, 0, x + 1, j, row);
                 if (touch[k])
                     add(kAll, 0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
@@ -629,6 +685,13 @@ public:
                 const bool reached = touch[k - 1] || touch[k] || touch[k + 1];
                 const bool keep[2] = {w_.keep_cb[o] != 0, w_.keep_cr[o] != 0};
                 if (!keep[0] && !keep[1]) continue;
+                if (!reached && edge_w[k - 1] == 0.0 && edge_w[k] == 0.0 && edge_w[k + 1] == 0.0) {
+                    for (int ch = 1; ch <= 2; ++ch)
+                        if (keep[ch - 1])
+                            add_beyond(ch, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(val + ch * n + j * p_.cols, i),
+                                       wc);
+                    continue;
+                }
                 for (int m = std::max(i - 1, have + 1); m <= i + 1; ++m) {
                     pixel_row(t, 1, m, j, crow[0][m]);
                     pixel_row(t, 2, m, j, crow[1][m]);
@@ -822,6 +885,8 @@ private:
     std::array<double, SphereFitWorkspace::kLines> vrel_{};
     double m_[3] = {};
     std::array<std::array<double, 10>, 3> mom_{};  // background_moments()
+    // The box (lines, columns) raster_analytic() last wrote, with and without derivatives; the whole patch at first.
+    mutable std::array<int, 4> written_[2] = {{0, p_.lines - 1, 0, p_.cols - 1}, {0, p_.lines - 1, 0, p_.cols - 1}};
 };
 
 // intensity_centroid() from the analytic pixel integrals: Σ x·I / Σ I over the pixels the marker reaches.
