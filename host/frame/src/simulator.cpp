@@ -169,6 +169,7 @@ void Simulator::place_tissue(const FramePoses& poses) {
     zc.resolution_px = scene_.collision.zcoll_resolution_px;
     zc.grab_radius_mm = kGrabRadius_mm;
     zcoll_ = std::make_unique<col::ZcollEngine>(mesh_, zc);
+    contact_ = std::make_unique<col::ExactContact>(mesh_);
     pushes_.reserve(mesh_.vertex_count());
     grabbed_nodes_.reserve(mesh_.vertex_count());
     placed_ = true;
@@ -247,16 +248,24 @@ void Simulator::step(const FramePoses& poses) {
             const auto verts = std::span<const sim::Vec3f>(mesh_.vertices_mm);
             switch (hand->spec.zcoll) {
                 case ZcollMode::kPush: {
-                    ++use_.zcoll_push;
+                    // Deformation wanted: the exact colliding set inside ZCOLL's V, ZI − ZM along its π per colliding
+                    // triangle, Eq. 1 node pushes; the grab rule when the forceps jaws are closed.
+                    ++use_.exact_push;
                     const auto view = col::make_tip_view(poses.tissue_to_eye, cs.zcoll_half_width_mm, cs.zcoll_ahead_mm,
                                                          cs.zcoll_behind_mm, cs.zcoll_resolution_px);
-                    const col::ZcollResult& r = zcoll_->push(verts, hand->posed, view);
-                    if (r.gated_out) ++use_.zcoll_gated;
-                    tissue_contact = r.colliding || r.grabbed;
-                    if (!r.pi_convex) {
-                        ++scores_.not_pi_convex_frames;
-                        add_event(t, EventKind::kNotPiConvex, float(r.multi_layer_pixels));
+                    const col::OrientedBox volume = col::view_volume(view);
+                    col::ContactOptions opt;
+                    opt.within = &volume;
+                    opt.grab = hand->spec.kind == col::InstrumentKind::Forceps &&
+                               hand->posed.opening_deg() < zcoll_->config().grab_below_deg;
+                    opt.grab_tip_eye_mm = hand->posed.tip_eye_mm();
+                    opt.grab_radius_mm = zcoll_->config().grab_radius_mm;
+                    if (!zcoll_->volume_touches(verts, view)) {
+                        ++use_.zcoll_gated;  // V misses the membrane's bounds: nothing to test
+                        break;
                     }
+                    const col::ContactResult& r = contact_->query(verts, hand->posed, view.direction_eye(), opt);
+                    tissue_contact = r.colliding || r.grabbed;
                     for (size_t k = 0; k < r.pushed_nodes.size(); ++k)
                         pushes_.push_back({r.pushed_nodes[k], r.node_push_eye_mm[k]});
                     grabbed_nodes_.assign(r.grabbed_nodes.begin(), r.grabbed_nodes.end());
@@ -377,9 +386,11 @@ void Simulator::step(const FramePoses& poses) {
     if (placed_) {
         ScopedStage s(timer_, Stage::kTransfer);
         if (tissue_->write_to(mesh_)) {
-            // Topology changed: the ZCOLL engine keeps per-triangle buffers; rebuild it (rare: tearing, cutting).
+            // Topology changed: the collision engines keep per-triangle buffers; rebuild them (rare: tearing,
+            // cutting).
             col::ZcollConfig zc = zcoll_->config();
             zcoll_ = std::make_unique<col::ZcollEngine>(mesh_, zc);
+            contact_ = std::make_unique<col::ExactContact>(mesh_);
         }
     }
 

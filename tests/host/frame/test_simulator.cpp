@@ -37,7 +37,7 @@ TEST_CASE("a rigid-only scene runs no tissue and no ZCOLL code", "[sim][frame]")
     Simulator sim(sim::scenes::load_scene(scene_path("abstract-shadow")));
     run_on_truth(sim, "surgery", 2.0);
     CHECK(sim.use().tissue_steps == 0);
-    CHECK(sim.use().zcoll_push + sim.use().zcoll_boolean + sim.use().zcoll_suction == 0);
+    CHECK(sim.use().exact_push + sim.use().zcoll_push + sim.use().zcoll_boolean + sim.use().zcoll_suction == 0);
     CHECK(sim.use().convex > 0);
     CHECK(sim.use().eye_sphere > 0);
     CHECK(sim.tissue() == nullptr);
@@ -84,7 +84,8 @@ TEST_CASE("membrane peel: the forceps pushes and grabs the membrane, determinist
         CHECK(a.events()[i].kind == b.events()[i].kind);
         CHECK(a.events()[i].time_s == b.events()[i].time_s);
     }
-    CHECK(a.use().zcoll_push > 0);
+    CHECK(a.use().exact_push > 0);  // deformation and grab from the exact contact query
+    CHECK(a.use().zcoll_push == 0);
     CHECK(a.use().zcoll_boolean == 0);
     CHECK(a.use().tissue_steps == 400);
     CHECK(a.scores().tissue_contact_frames > 0);
@@ -132,7 +133,7 @@ TEST_CASE("boolean ZCOLL is used when the scene needs no deformation vectors", "
         if (in.zcoll == sim::scenes::ZcollMode::kPush) in.zcoll = sim::scenes::ZcollMode::kBoolean;
     Simulator sim(scene);
     run_on_truth(sim, "peel", 8.0);
-    CHECK(sim.use().zcoll_push == 0);
+    CHECK(sim.use().zcoll_push + sim.use().exact_push == 0);
     CHECK(sim.use().zcoll_boolean > 0);
     CHECK(sim.scores().tissue_contact_frames > 0);
 }

@@ -530,8 +530,7 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
     }
     result_.colliding_triangles = out_;
     result_.colliding = !out_.empty();
-    if (out_.empty()) return result_;
-    if (options.deformation) compute_deformation(verts, instrument.to_eye, pi_eye);
+    if (options.deformation && !out_.empty()) compute_deformation(verts, instrument.to_eye, pi_eye);
     if (options.grab) {
         // Grab rule: nodes of the colliding triangles and nodes near the tip are bound to the tip.
         auto add = [&](uint32_t v) {
@@ -550,7 +549,7 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
         result_.grabbed = !grabbed_.empty();
         if (result_.grabbed) return result_;
     }
-    if (options.deformation) {
+    if (options.deformation && !out_.empty()) {
         // Eq. 1 over node i's adjacent colliding triangles: v_i = max|d| · Σd / |Σd|, d = π · (ZI − ZM).
         const Vec3f pi = pi_eye.normalized();
         for (const TriangleContact& c : contacts_) {

@@ -6,6 +6,7 @@
 /// pre-reserved list whose overflow is counted).
 
 #include "eyesim/frame/stage_timer.hpp"
+#include "eyesim/sim/collision/contact.hpp"
 #include "eyesim/sim/collision/convex_objects.hpp"
 #include "eyesim/sim/collision/eye_sphere.hpp"
 #include "eyesim/sim/collision/instrument.hpp"
@@ -96,10 +97,12 @@ inline double peeled_percent(const Scores& s) {
 /// Applies `rules` to `scores`.
 Verdict judge(const sim::scenes::ScoringSpec& rules, const Scores& scores);
 
-/// Which parts of the frame loop a scene made run (for "skip what a scene does not need" checks).
+/// Which parts of the frame loop a scene made run (for "skip what a scene does not need" checks). Push-mode
+/// tissue contact (deformation vectors, grab) runs the exact contact query (`exact_push`); `zcoll_push` counts
+/// ZCOLL push queries, which the frame loop no longer makes.
 struct StageUse {
-    uint64_t eye_sphere = 0, convex = 0, zcoll_push = 0, zcoll_boolean = 0, zcoll_suction = 0, zcoll_gated = 0,
-             tissue_steps = 0;
+    uint64_t eye_sphere = 0, convex = 0, exact_push = 0, zcoll_push = 0, zcoll_boolean = 0, zcoll_suction = 0,
+             zcoll_gated = 0, tissue_steps = 0;
 };
 
 /// The simulator for one scene.
@@ -154,7 +157,8 @@ private:
     std::vector<std::unique_ptr<Tool>> tools_;
     sim::TriangleMesh mesh_;              // tissue geometry for collision and rendering (eye frame)
     std::unique_ptr<sim::tissue::Tissue> tissue_;
-    std::unique_ptr<sim::collision::ZcollEngine> zcoll_;
+    std::unique_ptr<sim::collision::ZcollEngine> zcoll_;     // boolean and suction modes
+    std::unique_ptr<sim::collision::ExactContact> contact_;  // push mode: exact set + deformation values
     std::unique_ptr<sim::collision::ConvexObjectSet> convex_;
     std::vector<sim::tissue::NodePush> pushes_;
     std::vector<uint32_t> grabbed_nodes_;

@@ -32,7 +32,8 @@ struct ContactOptions {
     bool deformation = true;              ///< per-triangle ZI − ZM along π and Eq. 1 node push vectors
     const OrientedBox* within = nullptr;  ///< only membrane triangles whose bounds overlap this box (e.g. V)
     /// Grab rule (forceps closed on tissue, paper §3.3.1): bind the nodes of the colliding triangles and every
-    /// node within `grab_radius_mm` of `grab_tip_eye_mm`; no push vectors are produced then.
+    /// node within `grab_radius_mm` of `grab_tip_eye_mm` (also without colliding triangles); no push vectors are
+    /// produced then.
     bool grab = false;
     Vec3f grab_tip_eye_mm{0, 0, 0};  ///< see grab
     float grab_radius_mm = 0.3f;     ///< see grab
