@@ -935,6 +935,7 @@ long count_capture_messages(const std::string& path) {
         const proto::CaptureStatus st = reader->next(rec);
         if (st == proto::CaptureStatus::Corrupt) continue;
         if (st != proto::CaptureStatus::Ok) break;
+        if (rec.direction == proto::CaptureDirection::Sent) continue;  // the host's own commands
         parser.parse(rec.bytes, [&](const proto::DecodedFrame&) { ++n; });
     }
     return n;

@@ -304,6 +304,7 @@ void run_capture(const std::string& path, HostRun& run, std::vector<std::string>
             continue;
         }
         ++records;
+        if (rec.direction == proto::CaptureDirection::Sent) continue;  // the host's own commands: not the device's stream
         if (rec.has_time) {
             rx_us = double(rec.host_rx_us);
             // Receive times going back: the records are not in the order they arrived (files joined or reordered).

@@ -412,6 +412,14 @@ TEST_CASE("compare: a host capture holds the device's register map, so compare n
     CHECK(j["device"]["host_commands"].get<int>() > 3 * writable);  // the reads, stream_start, pings
     CHECK(j["device"]["register_changes_after_first_field"] == 0);
     CHECK(j["warnings"].empty());
+    // Replaying the capture sees the device's stream alone: the host's commands are no loss and no gap.
+    const Result replayed = run_eyesim("track --capture " + cap.string() + " --rig " +
+                                       (recording() / "rig.yaml").string() + " --json");
+    REQUIRE(replayed.rc == 0);
+    const json tj = json::parse(replayed.out);
+    CHECK(tj["loss"]["frames_lost"] == 0);
+    CHECK(tj["loss"]["sequence_gaps"] == 0);
+    CHECK(tj["loss"]["frames_repeated"] == 0);
     // The same device's fields are not the reset map's: --reg on top of the capture's map puts the reset back.
     j = compare(cap, rc, "--reg 0x01C=2");
     CHECK(rc == 3);
