@@ -529,13 +529,22 @@ int main(int argc, char** argv) {
         std::vector<MethodResult> methods;
 
         // --- exact: the exact contact query (colliding set, ZI − ZM per colliding triangle along π = the
-        // membrane normal, Eq. 1 node push vectors), as the frame loop runs it.
+        // membrane normal, Eq. 1 node push vectors), as the frame loop runs it: within ZCOLL's V, along its π.
         {
             ExactContact contact(mem, ins.mesh.triangle_count());
-            const Vec3f pi_eye(0, 0, 1);
-            methods.push_back(run_method("exact", s, poses, false, set_pose, [&](size_t) {
-                return contact.query(verts, forceps, pi_eye).colliding_triangles;
-            }));
+            OrientedBox volume;
+            ContactOptions opt;
+            opt.within = &volume;
+            Vec3f pi_eye(0, 0, 1);
+            methods.push_back(run_method(
+                "exact", s, poses, false,
+                [&](size_t k) {
+                    set_pose(k);
+                    const ZcollView view = scene_view(s, k, 32);
+                    volume = view_volume(view);
+                    pi_eye = view.direction_eye();
+                },
+                [&](size_t) { return contact.query(verts, forceps, pi_eye, opt).colliding_triangles; }));
         }
         // --- exact_grid: the uniform-grid narrow phase ZCOLL falls back to (colliding set only).
         {
