@@ -1,7 +1,10 @@
 #pragma once
 /// \file
-/// The OpenCV peer of the FPGA model in the benchmarks: UYVY → BGR → HSV, inRange per class, 8-connected
-/// connectedComponentsWithStats, then a binary centroid or saturation-weighted moments per component.
+/// The naive OpenCV pipeline of the benchmarks, kept as a labelled row beside the fair peer (opencv_peer.hpp):
+/// UYVY → BGR → HSV over the whole field, inRange per class, 8-connected connectedComponentsWithStats with 32-bit
+/// labels, then a binary centroid or saturation-weighted moments (no background subtracted) per component.
+
+#include "detection.hpp"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -11,15 +14,7 @@
 
 namespace eyesim::fpga::bench {
 
-/// One detected marker.
-struct Detection {
-    int cls;   ///< colour class 1..4
-    double x;  ///< centroid, field px
-    double y;  ///< centroid, field px
-};
-
-// The OpenCV baseline: UYVY → BGR → HSV, inRange per class, connected components, moments.
-/// The baseline pipeline with its reusable images.
+/// The naive pipeline with its reusable images.
 struct OpenCvPipeline {
     cv::Mat bgr, hsv, mask, mask2, labels, stats, centroids;
     bool weighted = true;
