@@ -363,10 +363,14 @@ public:
                 }
             }
         const double reach = (r + 0.62 * (1.0 + ap)) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
-        const int i_lo = std::max(0, static_cast<int>(std::floor(x0 - reach)) - (p_.x0 - 1));
-        const int i_hi = std::min(p_.cols - 1, static_cast<int>(std::ceil(x0 + reach)) - (p_.x0 - 1));
-        const int j_lo = std::max(0, static_cast<int>(std::floor((v0 - reach - p_.parity) / 2.0)) - p_.j0);
-        const int j_hi = std::min(p_.lines - 1, static_cast<int>(std::ceil((v0 + reach - p_.parity) / 2.0)) - p_.j0);
+        box = {0, -1, 0, -1};
+        if (!std::isfinite(x0) || !std::isfinite(v0) || !std::isfinite(reach)) return;  // a diverged trial: nothing
+        // Clamped before the conversion: a wild trial point may lie far outside the patch.
+        auto index = [](double v, int hi) { return static_cast<int>(std::clamp(v, -1.0, static_cast<double>(hi + 1))); };
+        const int i_lo = std::max(0, index(std::floor(x0 - reach) - (p_.x0 - 1), p_.cols));
+        const int i_hi = std::min(p_.cols - 1, index(std::ceil(x0 + reach) - (p_.x0 - 1), p_.cols));
+        const int j_lo = std::max(0, index(std::floor((v0 - reach - p_.parity) / 2.0) - p_.j0, p_.lines));
+        const int j_hi = std::min(p_.lines - 1, index(std::ceil((v0 + reach - p_.parity) / 2.0) - p_.j0, p_.lines));
         box = {j_lo, j_hi, i_lo, i_hi};
         PixelIntegral pi;
         for (int j = j_lo; j <= j_hi; ++j) {
