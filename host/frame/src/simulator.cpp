@@ -387,10 +387,10 @@ void Simulator::step(const FramePoses& poses) {
         ScopedStage s(timer_, Stage::kTransfer);
         if (tissue_->write_to(mesh_)) {
             // Topology changed: the collision engines keep per-triangle buffers; rebuild them (rare: tearing,
-            // cutting).
+            // cutting; they allocate then).
             col::ZcollConfig zc = zcoll_->config();
             zcoll_ = std::make_unique<col::ZcollEngine>(mesh_, zc);
-            contact_ = std::make_unique<col::ExactContact>(mesh_);
+            contact_->set_membrane(mesh_);  // keeps the instrument's structure
         }
     }
 

@@ -37,6 +37,23 @@ uint32_t bump(uint32_t& counter, Vs&... arrays) {
 }  // namespace
 
 ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_triangles) {
+    set_membrane(membrane);
+    const size_t ni = max_instrument_triangles;
+    inst_vertices_.reserve(ni);
+    inst_triangles_.reserve(ni);
+    tris_.reserve(ni);
+    tri_part_.reserve(ni);
+    inst_stamp_.reserve(ni);
+    cell_items_.reserve(ni * 8);
+    for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
+    keep_.reserve(ni);
+    front_.reserve(ni);
+    bin_items_.reserve(ni * 4);
+    bin_begin_.reserve(kMaxBins * kMaxBins + 1);
+    bin_fill_.reserve(kMaxBins * kMaxBins);
+}
+
+void ExactContact::set_membrane(const TriangleMesh& membrane) {
     triangles_ = membrane.triangles;
     vertex_count_ = membrane.vertex_count();
     if (membrane.vertex_triangle_begin.size() == vertex_count_ + 1) {
@@ -66,19 +83,7 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     nodes_.reserve(nv);
     grabbed_.reserve(nv);
     push_.reserve(nv);
-    const size_t ni = max_instrument_triangles;
-    inst_vertices_.reserve(ni);
-    inst_triangles_.reserve(ni);
-    tris_.reserve(ni);
-    tri_part_.reserve(ni);
-    inst_stamp_.reserve(ni);
-    cell_items_.reserve(ni * 8);
-    for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
-    keep_.reserve(ni);
-    front_.reserve(ni);
-    bin_items_.reserve(ni * 4);
-    bin_begin_.reserve(kMaxBins * kMaxBins + 1);
-    bin_fill_.reserve(kMaxBins * kMaxBins);
+    query_ = 0;
 }
 
 void ExactContact::reset_result() {

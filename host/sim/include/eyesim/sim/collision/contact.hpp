@@ -88,6 +88,9 @@ public:
                                std::span<const uint32_t> part_triangle_begin, const Vec3f& pi_eye,
                                const ContactOptions& options = {});
 
+    /// Replaces the membrane topology (after tearing or cutting; allocates). The instrument structure is kept.
+    void set_membrane(const TriangleMesh& membrane);
+
     /// Membrane triangle count of the topology.
     size_t triangle_count() const { return triangles_.size(); }
 
