@@ -80,6 +80,10 @@ struct RunStats {
     std::vector<double> tip_err_um, tip_eye_err_um, axis_err_deg, insertion_err_um, eye_err_deg;
     std::vector<double> latency_end_to_ready_us, latency_end_to_received_us, latency_sample_to_ready_us;
     std::vector<double> compute_us;
+    // Display-time prediction (async filters): the pose predicted to the next reference field's exposure mid (about
+    // when the pose is ready), against that field's truth; and the same with the pose held, for comparison.
+    std::vector<double> predicted_tip_err_um, predicted_eye_err_deg, held_tip_err_um, held_eye_err_deg,
+        prediction_horizon_us;
     // Per frame, for the time plot: time (s), marker RMS (µm), tip error per instrument (µm, −1 if none).
     std::vector<double> frame_t_s, frame_marker_rms_um, frame_eye_deg;
     std::vector<std::vector<double>> frame_tip_um;
@@ -175,6 +179,7 @@ private:
         s.latency_sample_to_ready_us.push_back(frame_.timing.poses_ready_host_us - frame_.timing.sample_host_us);
         if (frame_.reference_field >= truth_.size()) return;
         const rig::FieldTruth& truth = truth_[frame_.reference_field];
+        score_prediction(truth);
         const tr::FrameScore fs = tr::score_frame(frame_, bodies_, truth);
         s.ghosts += fs.ghosts;
         s.truth_visible2 += fs.truth_markers_visible2;
@@ -209,11 +214,37 @@ private:
         }
     }
 
+    // Async filters only: the poses predicted from the filters' state now (nothing of the next field fused yet) to
+    // the next reference field's instant, scored against its truth, beside the frame's own poses held to then.
+    void score_prediction(const rig::FieldTruth& truth) {
+        if (tracker_.config().sync.mode != tr::SyncMode::Async || frame_.reference_field + 1 >= truth_.size()) return;
+        const rig::FieldTruth& next = truth_[frame_.reference_field + 1];
+        const double horizon_us = next.t_us - truth.t_us;
+        if (!(horizon_us > 0.0)) return;
+        predicted_ = frame_;
+        if (!tracker_.pose_at(frame_.time_device_us + horizon_us, predicted_.eye,
+                              std::span(predicted_.instruments.data(), std::size_t(predicted_.instrument_count))))
+            return;
+        RunStats& s = stats_;
+        s.prediction_horizon_us.push_back(horizon_us);
+        const tr::FrameScore ps = tr::score_frame(predicted_, bodies_, next);
+        const tr::FrameScore hs = tr::score_frame(frame_, bodies_, next);
+        if (ps.eye_error_deg >= 0 && hs.eye_error_deg >= 0) {
+            s.predicted_eye_err_deg.push_back(ps.eye_error_deg);
+            s.held_eye_err_deg.push_back(hs.eye_error_deg);
+        }
+        for (std::size_t b = 0; b < ps.tip_error_mm.size() && b < hs.tip_error_mm.size(); ++b)
+            if (ps.tip_error_mm[b] >= 0 && hs.tip_error_mm[b] >= 0) {
+                s.predicted_tip_err_um.push_back(ps.tip_error_mm[b] * 1e3);
+                s.held_tip_err_um.push_back(hs.tip_error_mm[b] * 1e3);
+            }
+    }
+
     tr::Tracker tracker_;
     tr::BodySet bodies_;
     const std::vector<rig::FieldTruth>& truth_;
     tr::TruthFreeStats free_;
-    tr::TrackingFrame frame_;
+    tr::TrackingFrame frame_, predicted_;
     RunStats stats_;
 };
 
@@ -476,6 +507,18 @@ nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
     j["latency_field_end_to_received_us"] = latency_json(s.latency_end_to_received_us);
     j["exposure_to_pose_us"] = latency_json(s.latency_sample_to_ready_us);
     j["tracking_compute_us"] = latency_json(s.compute_us);
+    {
+        // Null figures outside --sync async (no filter to predict with).
+        std::vector<double> horizon = s.prediction_horizon_us;
+        std::sort(horizon.begin(), horizon.end());
+        j["display_prediction"] = {
+            {"horizon_us", horizon.empty() ? nlohmann::json(nullptr) : nlohmann::json(horizon[horizon.size() / 2])},
+            {"frames", horizon.size()},
+            {"tip_rms_um", rms(s.predicted_tip_err_um)},
+            {"eye_rot_rms_deg", rms(s.predicted_eye_err_deg)},
+            {"held_tip_rms_um", rms(s.held_tip_err_um)},
+            {"held_eye_rot_rms_deg", rms(s.held_eye_err_deg)}};
+    }
     const long found = long(s.marker_err_um.size());
     j["markers"] = {{"found", found},
                     {"truth_visible_in_2_cameras", s.truth_visible2},
@@ -1429,7 +1472,7 @@ int run_validate(const ValidateOptions& opt) {
     // Headline keys: the full chain from the FPGA model (null without truth).
     const nlohmann::json fj = run_json(fs, cfg.bodies);
     for (const char* k : {"marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg", "latency_us",
-                          "exposure_to_pose_us"})
+                          "exposure_to_pose_us", "display_prediction"})
         j[k] = fj[k];
     j["fpga_chain"] = fj;
     if (have_truth) {
@@ -1528,6 +1571,12 @@ int run_validate(const ValidateOptions& opt) {
                     figure(fj["exposure_to_pose_us"]["p50"], "{:.0f} us").c_str(),
                     figure(fj["exposure_to_pose_us"]["p99"], "{:.0f} us").c_str(),
                     figure(fj["exposure_to_pose_us"]["max"], "{:.0f} us").c_str());
+        if (const nlohmann::json& dp = fj["display_prediction"]; !dp["horizon_us"].is_null())
+            std::printf("  display-time prediction, %s ahead: tip RMS %s (held %s), eye RMS %s (held %s)\n",
+                        figure(dp["horizon_us"], "{:.0f} us").c_str(), figure(dp["tip_rms_um"], "{:.1f} um").c_str(),
+                        figure(dp["held_tip_rms_um"], "{:.1f} um").c_str(),
+                        figure(dp["eye_rot_rms_deg"], "{:.4f} deg").c_str(),
+                        figure(dp["held_eye_rot_rms_deg"], "{:.4f} deg").c_str());
         if (j.contains("report")) std::printf("  report: %s\n", j["report"].get<std::string>().c_str());
     }
     return 0;

@@ -95,6 +95,18 @@ void RigidBodyFilter::pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3
     t = t_ + v_ * dt;
 }
 
+void RigidBodyFilter::display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
+    const double dt = (t_us - time_us_) * 1e-6;
+    auto shrink = [](const Eigen::Vector3d& v, double var) {
+        const double v2 = v.squaredNorm();
+        return v2 + var > 0.0 ? Eigen::Vector3d(v * (v2 / (v2 + var))) : Eigen::Vector3d::Zero();
+    };
+    const Eigen::Vector3d w = shrink(w_, std::max(0.0, P_.block<3, 3>(6, 6).trace()));
+    const Eigen::Vector3d v = rotation_only_ ? v_ : shrink(v_, std::max(0.0, P_.block<3, 3>(9, 9).trace()));
+    R = (detail::exp_rotation(w * dt) * R_).normalized();
+    t = t_ + v * dt;
+}
+
 void RigidBodyFilter::predict_to(double t_us) {
     const double dt = (t_us - time_us_) * 1e-6;
     if (dt == 0.0) return;

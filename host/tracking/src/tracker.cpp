@@ -625,7 +625,7 @@ bool Tracker::pose_at(double t_device_us, EyePose& eye, std::span<InstrumentPose
     Eigen::Quaterniond R;
     Eigen::Vector3d t;
     if (filters_[0].tracking()) {
-        filters_[0].pose_at(t_device_us, R, t);
+        filters_[0].display_pose_at(t_device_us, R, t);
         eye_from_filter(bodies.eye, R, eye);
         any = true;
     }
@@ -633,7 +633,7 @@ bool Tracker::pose_at(double t_device_us, EyePose& eye, std::span<InstrumentPose
         const RigidBodyFilter& flt = filters_[std::size_t(1 + b)];
         if (!flt.tracking()) continue;
         const InstrumentModel& m = bodies.instruments[std::size_t(b)];
-        flt.pose_at(t_device_us, R, t);
+        flt.display_pose_at(t_device_us, R, t);
         instrument_from_filter(m, R, t, m.markers_on_axis(), instruments[std::size_t(b)]);
         instrument_in_eye(m, eye, instruments[std::size_t(b)]);
         any = true;

@@ -69,8 +69,11 @@ public:
     /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise). A time
     /// before the current one (a late field) is predicted back the same way.
     void predict_to(double t_us);
-    /// Pose at `t_us` without changing the filter (display-time prediction).
+    /// Pose at `t_us` without changing the filter: the constant-velocity model itself.
     void pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
+    /// Display-time prediction: as pose_at, with each velocity shrunk by its own uncertainty (v·|v|²/(|v|² +
+    /// tr Σ_v)), so that a velocity the filter barely knows is not extrapolated at full weight.
+    void display_pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
 
     /// Body point `b` in the rig frame at the filter's time.
     Eigen::Vector3d to_rig(const Eigen::Vector3d& b_body_mm) const { return R_ * b_body_mm + t_; }
