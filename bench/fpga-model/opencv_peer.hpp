@@ -132,8 +132,6 @@ public:
             buffer_h = std::max(buffer_h, t.h);
         }
         cls_.create(buffer_h, buffer_w);
-        cb2_.create(buffer_h, buffer_w);
-        cr2_.create(buffer_h, buffer_w);
         for (Tile& t : tiles_) classify(t);
         // Per box, on the bounding box of its classified pixels only (connectedComponentsWithStats costs ≈ 3 ns
         // a pixel here: one call over all boxes side by side, margins included, cost 2–3× more), per class
@@ -233,6 +231,16 @@ private:
         return cv::v_check_any(any);
     }
 
+    // Doubled chroma of pixel x of a line: 2·Cb of its pair (even x), the sum of the two pairs' (odd x; the
+    // last pixel keeps its own pair's).
+    static void chroma2(const uint8_t* line, int x, int& cb2, int& cr2) {
+        const int k = x >> 1;
+        const uint8_t* q = line + 4 * k;
+        const bool odd = (x & 1) && k < kWidth / 2 - 1;
+        cb2 = odd ? q[0] + q[4] : 2 * q[0];
+        cr2 = odd ? q[2] + q[6] : 2 * q[2];
+    }
+
     static constexpr uint8_t kForeign = 0xFF;  // class image: another coarse component's classified pixel
 
     // True when pixel (x, y) lies in a block of coarse component `label` (always for label −1).
@@ -273,8 +281,8 @@ private:
         tiles_.push_back(t);
     }
 
-    // Step 3: class of every pixel of a box (exact table on the pixel's chroma, luma band) and its doubled
-    // chroma for the weights, into the box's place in the buffer.
+    // Step 3: class of every pixel of a box (exact table on the pixel's chroma, luma band), into the box's place
+    // in the buffer.
     void classify(Tile& t) {
         unsigned present = 0;
         t.cx0 = t.w;
@@ -282,30 +290,16 @@ private:
         t.cy0 = t.h;
         t.cy1 = -1;
         // Only the candidates' extent (pairs outside the disc, their odd neighbours) can hold a class; the
-        // margins need the chroma only.
+        // weights read the chroma from the field.
         const int kx0 = std::max(0, t.kx0 - t.x0), kx1 = std::min(t.w - 1, t.kx1 - t.x0);
         for (int y = 0; y < t.h; ++y) {
             const uint8_t* line = field_ + static_cast<size_t>(t.y0 + y) * 2 * kWidth;
             uint8_t* cl = cls_.ptr<uint8_t>(y) + t.ox;
-            int16_t* b2 = cb2_.ptr<int16_t>(y) + t.ox;
-            int16_t* r2 = cr2_.ptr<int16_t>(y) + t.ox;
-            auto chroma = [&](int i, int& cb2, int& cr2) {
-                const int x = t.x0 + i, k = x >> 1;
-                const uint8_t* q = line + 4 * k;
-                const bool odd = (x & 1) && k < kWidth / 2 - 1;
-                cb2 = odd ? q[0] + q[4] : 2 * q[0];
-                cr2 = odd ? q[2] + q[6] : 2 * q[2];
-                b2[i] = static_cast<int16_t>(cb2);
-                r2[i] = static_cast<int16_t>(cr2);
-            };
-            const bool core_line = t.y0 + y >= t.ky0 && t.y0 + y <= t.ky1;
-            int cb2 = 0, cr2 = 0;
-            for (int i = 0; i < t.w; ++i) {
-                chroma(i, cb2, cr2);
-                if (!core_line || i < kx0 || i > kx1) {
-                    cl[i] = 0;
-                    continue;
-                }
+            std::fill_n(cl, t.w, uint8_t{0});
+            if (t.y0 + y < t.ky0 || t.y0 + y > t.ky1) continue;
+            for (int i = kx0; i <= kx1; ++i) {
+                int cb2, cr2;
+                chroma2(line, t.x0 + i, cb2, cr2);
                 const int x = t.x0 + i;
                 uint8_t c = lut_[static_cast<size_t>(((cb2 + 1) >> 1) << 8 | ((cr2 + 1) >> 1))];
                 const int luma = field_[static_cast<size_t>(t.y0 + y) * 2 * kWidth + 2 * static_cast<size_t>(x) + 1];
@@ -350,12 +344,12 @@ private:
         double sb = 0, sbx = 0, sby = 0, sr = 0, srx = 0, sry = 0, sbb = 0, sbr = 0, srr = 0;
         for (int y = oy0; y <= oy1; ++y) {
             const uint8_t* cl = cls_.ptr<uint8_t>(y);
-            const int16_t* b2 = cb2_.ptr<int16_t>(y);
-            const int16_t* r2 = cr2_.ptr<int16_t>(y);
+            const uint8_t* line = field_ + static_cast<size_t>(by0 + y) * 2 * kWidth;
             const bool inside_lines = y >= wy0 && y <= wy1;
             for (int x = ox0 + ((bx0 + ox0) & 1); x <= ox1; x += 2) {
                 if ((inside_lines && x >= wx0 && x <= wx1) || cl[x] != 0) continue;
-                const double dx = x - cx, dy = y - cy, vb = 0.5 * b2[x], vr = 0.5 * r2[x];
+                const uint8_t* q = line + 2 * (bx0 + x);  // an even pixel: its own pair's chroma
+                const double dx = x - cx, dy = y - cy, vb = q[0], vr = q[2];
                 n += 1;
                 sx += dx;
                 sy += dy;
@@ -409,14 +403,15 @@ private:
             const uint8_t* cl = cls_.ptr<uint8_t>(y);
             // Labels exist on the classified pixels' box only, and only classified pixels are looked up.
             const uint16_t* lb = y >= core.y && y < core.y + core.height ? labels_.ptr<uint16_t>(y - core.y) - core.x : nullptr;
-            const int16_t* b2 = cb2_.ptr<int16_t>(y);
-            const int16_t* r2 = cr2_.ptr<int16_t>(y);
+            const uint8_t* line = field_ + static_cast<size_t>(by0 + y) * 2 * kWidth;
             const double dy = y - cy;
             // Projection of the background plane along the line, as a linear function of x − cx.
             const double p0 = (ab + gby * dy) * dcb + (ar + gry * dy) * dcr, px = gbx * dcb + grx * dcr;
             for (int x = wx0; x <= wx1; ++x) {
                 if (cl[x] != 0 && !(cl[x] == c && lb[x] == label)) continue;
-                const double v = 0.5 * (b2[x] * dcb + r2[x] * dcr) - p0 - px * (x - cx) - level;
+                int cb2, cr2;
+                chroma2(line, bx0 + x, cb2, cr2);
+                const double v = 0.5 * (cb2 * dcb + cr2 * dcr) - p0 - px * (x - cx) - level;
                 if (v <= 0) continue;
                 sw += v;
                 swx += v * x;
@@ -436,7 +431,6 @@ private:
     int height_ = 0;
     const uint8_t* field_ = nullptr;
     cv::Mat1b coarse_, cls_, class_mask_;
-    cv::Mat_<int16_t> cb2_, cr2_;
     cv::Mat cc_labels_, cc_stats_, cc_centroids_, labels_, stats_, centroids_;
     std::vector<std::vector<cv::Point>> contours_;
     std::vector<Detection> out_;
