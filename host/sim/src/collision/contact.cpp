@@ -18,7 +18,7 @@ namespace {
 /// off by well under 1e-5 mm; pairs within the margin go to the double-precision predicates.
 constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
-constexpr int kMaxCells = 96;  // per axis of the instrument grid
+constexpr int kMaxCells = 192;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
 
 inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
@@ -146,7 +146,7 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
     // Uniform grid in the instrument frame, cells about the size of the instrument's triangles (built once per
     // articulation, so it can afford to be fine).
     const Vec3f ext = (hi_ - lo_).cwiseMax(Vec3f::Constant(1e-4f));
-    const float cell = std::max(ext.maxCoeff() / float(kMaxCells), std::cbrt(ext.prod() / float(std::max<size_t>(nt, 1))) * 0.75f);
+    const float cell = std::max(ext.maxCoeff() / float(kMaxCells), std::cbrt(ext.prod() / float(std::max<size_t>(nt, 1))) * 0.5f);
     for (int k = 0; k < 3; ++k) dims_[k] = std::clamp(int(std::ceil(ext[k] / cell)), 1, kMaxCells);
     inv_cell_ = Vec3f(float(dims_[0]) / ext.x(), float(dims_[1]) / ext.y(), float(dims_[2]) / ext.z());
     const size_t ncell = size_t(dims_[0]) * size_t(dims_[1]) * size_t(dims_[2]);
