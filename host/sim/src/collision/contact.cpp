@@ -34,6 +34,50 @@ uint32_t bump(uint32_t& counter, Vs&... arrays) {
     return counter;
 }
 
+/// Triangle–triangle test for the common, well-separated-from-degenerate case: Möller's interval overlap on
+/// the planes' intersection line, in double. Returns 1 (intersect), 0 (disjoint) or −1 when a vertex lies within
+/// 1e-7 mm of the other plane, the planes are nearly parallel or the intervals nearly touch (the caller then
+/// uses `triangles_intersect`'s predicates). Inputs are floats, so the differences are exact in double and the
+/// rounding of the products is ~1e-15 relative: far inside these margins.
+int interval_test(const Vec3f& a0, const Vec3f& a1, const Vec3f& a2, const Vec3f& b0, const Vec3f& b1, const Vec3f& b2) {
+    using D3 = Eigen::Vector3d;
+    const D3 A[3] = {a0.cast<double>(), a1.cast<double>(), a2.cast<double>()};
+    const D3 B[3] = {b0.cast<double>(), b1.cast<double>(), b2.cast<double>()};
+    const D3 na = (A[1] - A[0]).cross(A[2] - A[0]), nb = (B[1] - B[0]).cross(B[2] - B[0]);
+    const double la = na.norm(), lb = nb.norm();
+    if (la == 0.0 || lb == 0.0) return -1;
+    double da[3], db[3];
+    for (int i = 0; i < 3; ++i) {
+        da[i] = nb.dot(A[i] - B[0]);  // A's vertices against B's plane (× |nb|)
+        db[i] = na.dot(B[i] - A[0]);
+    }
+    constexpr double kTolDist_mm = 1e-7, kTolLine_mm = 1e-6;
+    for (int i = 0; i < 3; ++i)
+        if (std::fabs(da[i]) < kTolDist_mm * lb || std::fabs(db[i]) < kTolDist_mm * la) return -1;
+    if ((da[0] > 0) == (da[1] > 0) && (da[1] > 0) == (da[2] > 0)) return 0;
+    if ((db[0] > 0) == (db[1] > 0) && (db[1] > 0) == (db[2] > 0)) return 0;
+    const D3 dir = na.cross(nb);
+    const double ld = dir.norm();
+    if (ld < 1e-6 * la * lb) return -1;  // nearly parallel planes
+    // Interval of a triangle on the line: the vertex alone on its side, and the edges to it.
+    auto interval = [&](const D3* v, const double* d, double& lo, double& hi) {
+        const int k = ((d[0] > 0) == (d[1] > 0)) ? 2 : (((d[0] > 0) == (d[2] > 0)) ? 1 : 0);
+        const int i = (k + 1) % 3, j = (k + 2) % 3;
+        const double pk = dir.dot(v[k]), pi = dir.dot(v[i]), pj = dir.dot(v[j]);
+        const double t1 = pi + (pk - pi) * d[i] / (d[i] - d[k]);
+        const double t2 = pj + (pk - pj) * d[j] / (d[j] - d[k]);
+        lo = std::min(t1, t2);
+        hi = std::max(t1, t2);
+    };
+    double alo, ahi, blo, bhi;
+    interval(A, da, alo, ahi);
+    interval(B, db, blo, bhi);
+    const double gap = std::max(alo, blo) - std::min(ahi, bhi), tol = kTolLine_mm * ld;
+    if (gap < -tol) return 1;
+    if (gap > tol) return 0;
+    return -1;
+}
+
 }  // namespace
 
 ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_triangles) {
@@ -234,7 +278,8 @@ bool ExactContact::intersects_any(uint32_t mt) {
                                 ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
                     if ((ea > epsm && eb > epsm && ec > epsm) || (ea < -epsm && eb < -epsm && ec < -epsm)) continue;
                     ++result_.pair_tests;
-                    if (triangles_intersect(a, b, c, T.a, T.b, T.c)) return true;
+                    const int fast = interval_test(a, b, c, T.a, T.b, T.c);
+                    if (fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c))) return true;
                 }
             }
     return false;
