@@ -1,5 +1,6 @@
 // Centroid accuracy of the FPGA model on a rig recording (rendered truth), per marker size, beside a binary
-// centroid of the same model and the OpenCV baseline; with fields/s of each on the same fields. Then the
+// centroid of the same model and the naive OpenCV baseline (opencv_baseline.hpp; the fair peer is in
+// bench_fpga_model); with fields/s of each on the same fields. Then the
 // refinement stage (tracking/refine.hpp) alone: its run time against error by sub-samples per pixel, and its
 // effect and refusals by marker size and body (instrument markers, eye markers off and beside the eye's limb).
 //
@@ -177,8 +178,8 @@ int main(int argc, char** argv) {
         methods.push_back({"model, binary centroid", model(pb), {}, 0});
         methods.push_back({"luma, local bg (offline)", luma(false), {}, 0});
         methods.push_back({"model + luma (offline)", luma(true), {}, 0});
-        methods.push_back({"OpenCV weighted moments", [&](const uint8_t* f) { return cvw.run(f, rig::kFieldHeight); }, {}, 0});
-        methods.push_back({"OpenCV binary centroid", [&](const uint8_t* f) { return cvb.run(f, rig::kFieldHeight); }, {}, 0});
+        methods.push_back({"naive OpenCV weighted moments", [&](const uint8_t* f) { return cvw.run(f, rig::kFieldHeight); }, {}, 0});
+        methods.push_back({"naive OpenCV binary centroid", [&](const uint8_t* f) { return cvb.run(f, rig::kFieldHeight); }, {}, 0});
         for (Method& m : methods) {
             const double t0 = cpu_s();
             for (size_t k = 0; k < fields.size(); ++k)
