@@ -20,6 +20,7 @@ constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr int kMaxCells = 192;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
+constexpr uint32_t kNoHint = 0xFFFFFFFFu;
 
 inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
 inline float max3(float a, float b, float c) { return std::max(std::max(a, b), c); }
@@ -114,6 +115,7 @@ void ExactContact::set_membrane(const TriangleMesh& membrane) {
     code_.resize(nv);
     tri_stamp_.assign(nt, 0);
     tri_state_.assign(nt, 0);
+    hint_.assign(nt, kNoHint);
     vert_stamp_.assign(nv, 0);
     vert_inside_.assign(nv, 0);
     vdepth_.assign(nv, 0.0f);
@@ -213,6 +215,8 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
         for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { cell_items_[cell_fill_[c]++] = uint32_t(t); });
     inst_stamp_.assign(nt, 0);
     inst_query_ = 0;
+    std::fill(hint_.begin(), hint_.end(), kNoHint);  // they name triangles of the previous structure
+    last_hit_ = kNoHint;
     tcx_.resize(nt);
     tcy_.resize(nt);
     tcz_.resize(nt);
@@ -254,6 +258,36 @@ bool ExactContact::intersects_any(uint32_t mt) {
     const float nmx = e1y * e2z - e1z * e2y, nmy = e1z * e2x - e1x * e2z, nmz = e1x * e2y - e1y * e2x;
     const float dm = nmx * ax + nmy * ay + nmz * az;
     const float epsm = kEps_mm * std::sqrt(nmx * nmx + nmy * nmy + nmz * nmz);
+    auto pair_hits = [&](const InstTri& T) {
+        if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() || loz > T.hi.z())
+            return false;
+        // Plane filters (float, conservative margin): all of one triangle strictly on one side of the other's
+        // plane → disjoint.
+        const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
+        const float da = nx * ax + ny * ay + nz * az - T.d, db = nx * bx + ny * by + nz * bz - T.d,
+                    dc = nx * cx + ny * cy + nz * cz - T.d;
+        if ((da > kEps_mm && db > kEps_mm && dc > kEps_mm) || (da < -kEps_mm && db < -kEps_mm && dc < -kEps_mm))
+            return false;
+        const float ea = nmx * T.a.x() + nmy * T.a.y() + nmz * T.a.z() - dm,
+                    eb = nmx * T.b.x() + nmy * T.b.y() + nmz * T.b.z() - dm,
+                    ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
+        if ((ea > epsm && eb > epsm && ec > epsm) || (ea < -epsm && eb < -epsm && ec < -epsm)) return false;
+        ++result_.pair_tests;
+        const int fast = interval_test(a, b, c, T.a, T.b, T.c);
+        return fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c));
+    };
+    // Coherence: first the instrument triangle that hit this membrane triangle in the previous query (small
+    // motion between frames), then the one that hit the previous membrane triangle (neighbours in the mesh).
+    // Any intersecting pair decides, so this only saves the grid walk.
+    const uint32_t nit = uint32_t(tris_.size());
+    if (hint_[mt] < nit && pair_hits(tris_[hint_[mt]])) {
+        last_hit_ = hint_[mt];
+        return true;
+    }
+    if (last_hit_ < nit && last_hit_ != hint_[mt] && pair_hits(tris_[last_hit_])) {
+        hint_[mt] = last_hit_;
+        return true;
+    }
     for (int z = z0; z <= z1; ++z)
         for (int y = y0; y <= y1; ++y)
             for (int x = x0; x <= x1; ++x) {
@@ -262,24 +296,10 @@ bool ExactContact::intersects_any(uint32_t mt) {
                     const uint32_t it = cell_items_[k];
                     if (inst_stamp_[it] == q) continue;
                     inst_stamp_[it] = q;
-                    const InstTri& T = tris_[it];
-                    if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() ||
-                        loz > T.hi.z())
-                        continue;
-                    // Plane filters (float, conservative margin): all of one triangle strictly on one side of
-                    // the other's plane → disjoint.
-                    const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
-                    const float da = nx * ax + ny * ay + nz * az - T.d, db = nx * bx + ny * by + nz * bz - T.d,
-                                dc = nx * cx + ny * cy + nz * cz - T.d;
-                    if ((da > kEps_mm && db > kEps_mm && dc > kEps_mm) || (da < -kEps_mm && db < -kEps_mm && dc < -kEps_mm))
-                        continue;
-                    const float ea = nmx * T.a.x() + nmy * T.a.y() + nmz * T.a.z() - dm,
-                                eb = nmx * T.b.x() + nmy * T.b.y() + nmz * T.b.z() - dm,
-                                ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
-                    if ((ea > epsm && eb > epsm && ec > epsm) || (ea < -epsm && eb < -epsm && ec < -epsm)) continue;
-                    ++result_.pair_tests;
-                    const int fast = interval_test(a, b, c, T.a, T.b, T.c);
-                    if (fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c))) return true;
+                    if (pair_hits(tris_[it])) {
+                        hint_[mt] = last_hit_ = it;
+                        return true;
+                    }
                 }
             }
     return false;

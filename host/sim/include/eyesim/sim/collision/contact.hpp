@@ -131,6 +131,8 @@ private:
     std::vector<uint32_t> inst_stamp_, tri_stamp_, vert_stamp_;
     std::vector<uint8_t> tri_state_, vert_inside_;
     uint32_t inst_query_ = 0, query_ = 0;
+    std::vector<uint32_t> hint_;  // per membrane triangle: the instrument triangle that last intersected it
+    uint32_t last_hit_ = 0xFFFFFFFFu;
     std::vector<uint32_t> out_, queue_;
     // Deformation: bounding spheres and normals of the instrument triangles (structure of arrays, built with
     // the grid), the front-facing triangles over the contact as planes over (u, w) ⊥ π, binned.
