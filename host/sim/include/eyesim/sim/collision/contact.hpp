@@ -9,8 +9,10 @@
 /// triangle planes, part bounds) is built in the instrument frame once and rebuilt only when the articulated
 /// vertices change (forceps opening). Per query the membrane vertices are moved into the instrument frame
 /// (one affine transform each) and culled by outcodes against the instrument's bounds; the few remaining
-/// membrane triangles are tested against the grid's instrument triangles (float plane filter with a
-/// conservative margin, then the double-precision predicates of `triangles_intersect`). Containment is grown
+/// membrane triangles are tested against the grid's instrument triangles (coherence hints first: the
+/// instrument triangle that hit the same membrane triangle last query or the previous membrane triangle; float
+/// plane filters with a conservative margin; Möller's interval test in double, falling back to the predicates
+/// of `triangles_intersect` near degeneracy). Containment is grown
 /// from the intersecting triangles over the membrane's adjacency (ray parity, one test per inside/outside
 /// region of non-intersecting triangles). Deformation: the instrument's triangles over the contact are binned
 /// in the plane ⊥ π; each sample point looks up the front-most instrument surface on its line along π.
