@@ -153,10 +153,19 @@ void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
             }
         }
         if (t_us > 0.0) newest_device_us_ = std::max(newest_device_us_, t_us);
-        if (precision_) precision_->on_markers(*fm);
-        else tracker_->push(*fm, rx_host_us);
+        if (precision_) {
+            const double r0 = host_now_us();
+            precision_->on_markers(*fm);
+            refine_wall_us_ += host_now_us() - r0;
+        } else {
+            tracker_->push(*fm, rx_host_us);
+        }
     } else if (const auto* bp = std::get_if<proto::BlobPatch>(&f.message)) {
-        if (precision_) precision_->on_patch(*bp);
+        if (precision_) {
+            const double r0 = host_now_us();
+            precision_->on_patch(*bp);
+            refine_wall_us_ += host_now_us() - r0;
+        }
     } else if (const auto* ped = std::get_if<proto::PedalState>(&f.message)) {
         tracker_->push(*ped, rx_host_us);
     } else if (const auto* r = std::get_if<proto::Reply>(&f.message)) {
@@ -189,6 +198,8 @@ void HostRun::finish() {
 
 void HostRun::drain(double now_us) {
     while (tracker_->pop(frame_, now_us)) {
+        frame_.timing.compute_us += refine_wall_us_;
+        refine_wall_us_ = 0.0;
         adapter_.convert(frame_, poses_);
         if (sim_) sim_->step(poses_);
         ++stats_.frames;

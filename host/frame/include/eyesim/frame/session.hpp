@@ -135,6 +135,9 @@ private:
     void push_markers(const protocol::FieldMarkers& part);
     std::unique_ptr<tracking::Tracker> tracker_;
     std::unique_ptr<PatchRefiner> precision_;
+    // Precision mode: wall time spent refining since the last frame, added to the next frame's tracking compute
+    // (the refinement is tracking work, done as the patches arrive rather than when the frame is built).
+    double refine_wall_us_ = 0.0;
     double push_rx_us_ = 0.0;  // receive time of the message being handled (a held part's push time)
     Simulator* sim_ = nullptr;
     RunClock run_clock_ = RunClock::kHost;
