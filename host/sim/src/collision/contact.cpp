@@ -1,6 +1,7 @@
 #include "eyesim/sim/collision/contact.hpp"
 
 #include "eyesim/sim/collision/tri_tri.hpp"
+#include "eyesim/sim/collision/zcoll.hpp"
 
 #include <Eigen/Geometry>
 
@@ -332,18 +333,7 @@ bool ExactContact::inside_any_part(const Vec3f& p) {
                         inst_stamp_[it] = q;
                         const InstTri& T = tris_[it];
                         if (T.hi.x() < p.x()) continue;
-                        const Eigen::Vector3d v0 = T.a.cast<double>();
-                        const Eigen::Vector3d e1 = T.b.cast<double>() - v0, e2 = T.c.cast<double>() - v0;
-                        const Eigen::Vector3d h = dir.cross(e2);
-                        const double det = e1.dot(h);
-                        if (std::fabs(det) < 1e-18) continue;
-                        const Eigen::Vector3d s = o - v0;
-                        const double u = s.dot(h) / det;
-                        if (u < 0 || u > 1) continue;
-                        const Eigen::Vector3d qq = s.cross(e1);
-                        const double w = dir.dot(qq) / det;
-                        if (w < 0 || u + w > 1) continue;
-                        if (e2.dot(qq) / det > 0) ++crossings;
+                        crossings += ray_crosses_triangle(o, dir, T.a, T.b, T.c);
                     }
                 }
         if (crossings & 1) return true;
@@ -636,11 +626,7 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
                 node_max_[v] = std::max(node_max_[v], -c.depth_delta_mm);
             }
         }
-        std::sort(nodes_.begin(), nodes_.end());
-        for (uint32_t v : nodes_) {
-            const float n = node_sum_[v].norm();
-            push_.push_back(n > 0.0f ? Vec3f(node_sum_[v] * (node_max_[v] / n)) : Vec3f::Zero());
-        }
+        eq1_node_pushes(nodes_, node_sum_, node_max_, push_);
         result_.pushed_nodes = nodes_;
         result_.node_push_eye_mm = push_;
     }

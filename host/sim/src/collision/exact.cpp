@@ -190,18 +190,7 @@ bool ExactNarrowPhase::inside_part(const Vec3f& p, const MeshRef& instrument, ui
                     stamp_[it] = query_;
                     if (tri_hi_[it].x() < p.x()) continue;
                     const auto& t = instrument.triangles[it];
-                    const Eigen::Vector3d v0 = inst_eye_[t[0]].cast<double>();
-                    const Eigen::Vector3d e1 = inst_eye_[t[1]].cast<double>() - v0, e2 = inst_eye_[t[2]].cast<double>() - v0;
-                    const Eigen::Vector3d h = dir.cross(e2);
-                    const double det = e1.dot(h);
-                    if (std::fabs(det) < 1e-18) continue;
-                    const Eigen::Vector3d s = o - v0;
-                    const double u = s.dot(h) / det;
-                    if (u < 0 || u > 1) continue;
-                    const Eigen::Vector3d q = s.cross(e1);
-                    const double w = dir.dot(q) / det;
-                    if (w < 0 || u + w > 1) continue;
-                    if (e2.dot(q) / det > 0) ++crossings;
+                    crossings += ray_crosses_triangle(o, dir, inst_eye_[t[0]], inst_eye_[t[1]], inst_eye_[t[2]]);
                 }
             }
     return (crossings & 1) != 0;

@@ -105,22 +105,8 @@ bool point_inside_closed_mesh(const Vec3f& p, std::span<const Vec3f> vertices_mm
     const V3 o = p.cast<double>();
     const V3 dir = V3(0.5773502691896257, 0.6123724356957945, 0.5400617248673217).normalized();
     int crossings = 0;
-    for (const auto& t : triangles) {
-        const V3 v0 = vertices_mm[t[0]].cast<double>(), v1 = vertices_mm[t[1]].cast<double>(),
-                 v2 = vertices_mm[t[2]].cast<double>();
-        // Möller–Trumbore.
-        const V3 e1 = v1 - v0, e2 = v2 - v0, h = dir.cross(e2);
-        const double det = e1.dot(h);
-        if (std::fabs(det) < 1e-18) continue;
-        const double inv = 1.0 / det;
-        const V3 s = o - v0;
-        const double u = inv * s.dot(h);
-        if (u < 0 || u > 1) continue;
-        const V3 q = s.cross(e1);
-        const double v = inv * dir.dot(q);
-        if (v < 0 || u + v > 1) continue;
-        if (inv * e2.dot(q) > 0) ++crossings;
-    }
+    for (const auto& t : triangles)
+        crossings += ray_crosses_triangle(o, dir, vertices_mm[t[0]], vertices_mm[t[1]], vertices_mm[t[2]]);
     return (crossings & 1) != 0;
 }
 

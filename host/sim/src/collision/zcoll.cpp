@@ -17,6 +17,15 @@ Vec3f eq1_push_vector(std::span<const Vec3f> deformation_vectors) {
     return sum * (max_len / n);
 }
 
+void eq1_node_pushes(std::vector<uint32_t>& nodes, std::span<const Vec3f> node_sum, std::span<const float> node_max,
+                     std::vector<Vec3f>& push) {
+    std::sort(nodes.begin(), nodes.end());
+    for (uint32_t v : nodes) {
+        const float n = node_sum[v].norm();
+        push.push_back(n > 0.0f ? Vec3f(node_sum[v] * (node_max[v] / n)) : Vec3f::Zero());
+    }
+}
+
 ZcollEngine::ZcollEngine(const TriangleMesh& membrane, const ZcollConfig& config,
                          std::unique_ptr<ZcollRasterBackend> backend, size_t max_instrument_triangles)
     : topology_(membrane),
@@ -135,11 +144,7 @@ void ZcollEngine::compute_push_vectors(const ZcollView& view) {
             node_max_[v] = std::max(node_max_[v], std::fabs(f.depth_delta_mm));
         }
     }
-    std::sort(nodes_.begin(), nodes_.end());
-    for (uint32_t v : nodes_) {
-        const float n = node_sum_[v].norm();
-        push_.push_back(n > 0.0f ? Vec3f(node_sum_[v] * (node_max_[v] / n)) : Vec3f::Zero());
-    }
+    eq1_node_pushes(nodes_, node_sum_, node_max_, push_);
     result_.pushed_nodes = nodes_;
     result_.node_push_eye_mm = push_;
 }

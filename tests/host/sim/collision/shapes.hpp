@@ -15,6 +15,20 @@ namespace eyesim::sim::collision::testing {
 
 inline constexpr float kPi = 3.14159265358979f;
 
+/// Triangles of a closed body of revolution whose vertices from `base` on are: the bottom pole, rings 1 .. rings-1
+/// of `segments` vertices each, the top pole (the last vertex); outward normals.
+inline void close_rings(TriangleMesh& m, uint32_t base, int rings, int segments) {
+    const uint32_t top = uint32_t(m.vertices_mm.size() - 1);
+    auto id = [&](int ring, int s) { return base + 1 + uint32_t((ring - 1) * segments + (s % segments)); };
+    for (int s = 0; s < segments; ++s) m.triangles.push_back({base, id(1, s + 1), id(1, s)});
+    for (int i = 1; i < rings - 1; ++i)
+        for (int s = 0; s < segments; ++s) {
+            m.triangles.push_back({id(i, s), id(i, s + 1), id(i + 1, s + 1)});
+            m.triangles.push_back({id(i, s), id(i + 1, s + 1), id(i + 1, s)});
+        }
+    for (int s = 0; s < segments; ++s) m.triangles.push_back({top, id(rings - 1, s), id(rings - 1, s + 1)});
+}
+
 /// Closed UV sphere (radius r, centre c), outward normals.
 inline void append_uv_sphere(TriangleMesh& m, const Vec3f& c, float r, int rings, int segments,
                              const Vec3f& scale = Vec3f(1, 1, 1)) {
@@ -30,15 +44,7 @@ inline void append_uv_sphere(TriangleMesh& m, const Vec3f& c, float r, int rings
         }
     }
     m.vertices_mm.push_back(c + Vec3f(0, 0, r).cwiseProduct(scale));
-    const uint32_t top = uint32_t(m.vertices_mm.size() - 1);
-    auto id = [&](int ring, int s) { return base + 1 + uint32_t((ring - 1) * segments + (s % segments)); };
-    for (int s = 0; s < segments; ++s) m.triangles.push_back({base, id(1, s + 1), id(1, s)});
-    for (int i = 1; i < rings - 1; ++i)
-        for (int s = 0; s < segments; ++s) {
-            m.triangles.push_back({id(i, s), id(i, s + 1), id(i + 1, s + 1)});
-            m.triangles.push_back({id(i, s), id(i + 1, s + 1), id(i + 1, s)});
-        }
-    for (int s = 0; s < segments; ++s) m.triangles.push_back({top, id(rings - 1, s), id(rings - 1, s + 1)});
+    close_rings(m, base, rings, segments);
 }
 
 /// Closed torus around the z axis through c (major R, minor r), rotated by `rot`.

@@ -42,15 +42,7 @@ void append_lathe(TriangleMesh& m, const std::vector<std::pair<float, float>>& p
                 Vec3f(profile[size_t(i)].first * std::cos(az), profile[size_t(i)].first * std::sin(az), profile[size_t(i)].second));
         }
     m.vertices_mm.push_back(Vec3f(0, 0, profile.back().second));
-    const uint32_t top = uint32_t(m.vertices_mm.size() - 1);
-    auto id = [&](int ring, int s) { return base + 1 + uint32_t((ring - 1) * segments + (s % segments)); };
-    for (int s = 0; s < segments; ++s) m.triangles.push_back({base, id(1, s + 1), id(1, s)});
-    for (int i = 1; i < rings - 1; ++i)
-        for (int s = 0; s < segments; ++s) {
-            m.triangles.push_back({id(i, s), id(i, s + 1), id(i + 1, s + 1)});
-            m.triangles.push_back({id(i, s), id(i + 1, s + 1), id(i + 1, s)});
-        }
-    for (int s = 0; s < segments; ++s) m.triangles.push_back({top, id(rings - 1, s), id(rings - 1, s + 1)});
+    close_rings(m, base, rings, segments);
 }
 
 /// Capsule along z: radius r, cylinder from z = −half to +half, hemispherical caps; `cap_rings` per cap.

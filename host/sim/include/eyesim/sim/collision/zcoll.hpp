@@ -58,6 +58,11 @@ struct ZcollResult {
 /// Eq. 1: v = max_{d∈D} |d| · Σd / |Σd|. Returns zero for an empty set or a vanishing sum.
 Vec3f eq1_push_vector(std::span<const Vec3f> deformation_vectors);
 
+/// Eq. 1 per node from what was gathered over each node's deformation vectors (`node_sum[v]` = Σd, `node_max[v]`
+/// = max |d|): sorts `nodes` and appends, in that order, push = max |d| · Σd / |Σd| (zero for a vanishing sum).
+void eq1_node_pushes(std::vector<uint32_t>& nodes, std::span<const Vec3f> node_sum, std::span<const float> node_max,
+                     std::vector<Vec3f>& push);
+
 /// The ZCOLL engine for one membrane topology.
 class ZcollEngine {
 public:
