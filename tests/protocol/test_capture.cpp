@@ -45,6 +45,16 @@ void write_all(const fs::path& path, const std::vector<Rec>& recs) {
     for (const auto& r : recs) REQUIRE(w.write(r.t, r.bytes));
 }
 
+Bytes read_file(const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return Bytes(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+void write_file(const fs::path& p, const Bytes& b) {
+    std::ofstream out(p, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(b.data()), static_cast<std::streamsize>(b.size()));
+}
+
 std::vector<Rec> read_all(const fs::path& path, CaptureStatus& last, CaptureReader& reader) {
     std::vector<Rec> out;
     REQUIRE(reader.open(path.c_str()));
@@ -420,16 +430,8 @@ TEST_CASE("a capture that cannot be opened says why, naming the unsupported vers
     std::mt19937_64 rng(27);
     const fs::path good = temp_file("open_good.cap");
     write_all(good, random_records(rng, 3));
-    Bytes file;
-    {
-        std::ifstream f(good, std::ios::binary);
-        file.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
-    }
+    const Bytes file = read_file(good);
     REQUIRE(file.size() > kCaptureHeaderBytes);
-    auto write_file = [](const fs::path& p, const Bytes& b) {
-        std::ofstream f(p, std::ios::binary | std::ios::trunc);
-        f.write(reinterpret_cast<const char*>(b.data()), static_cast<std::streamsize>(b.size()));
-    };
     CaptureReader reader;
     REQUIRE(reader.open(good.c_str()));
     CHECK(reader.open_error() == CaptureOpenError::None);
@@ -568,15 +570,7 @@ TEST_CASE("capture version 2: the host's own commands are Sent records, a separa
 
     // A direction above 1 is damage (the record is skipped, those after it are kept); so is any direction but 0
     // in a version-1 file, which has no directions.
-    Bytes file;
-    {
-        std::ifstream in(path, std::ios::binary);
-        file.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    }
-    auto write_file = [](const fs::path& p, const Bytes& b) {
-        std::ofstream o(p, std::ios::binary | std::ios::trunc);
-        o.write(reinterpret_cast<const char*>(b.data()), static_cast<std::streamsize>(b.size()));
-    };
+    const Bytes file = read_file(path);
     const std::size_t second = kCaptureHeaderBytes + kCaptureRecordHeaderBytes + received[0].bytes.size() +
                                kCaptureRecordCrcBytes;  // the first Sent record
     REQUIRE(file[second + 2] == 1);

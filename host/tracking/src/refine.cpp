@@ -615,19 +615,7 @@ public:
             }
             chi2 += std::max(0.0, mo[9] - 2.0 * lin + quad);
         }
-        a.fill(0.0);
-        g.fill(0.0);
-        for (int ch = 0; ch < 3; ++ch) {
-            int idx[kRow];
-            row_params(ch, idx);
-            for (int q = 0; q < nr; ++q) {
-                g[static_cast<size_t>(idx[q])] += acc_g[ch][q];
-                for (int u = 0; u <= q; ++u) a[static_cast<size_t>(idx[q] * kMaxPar + idx[u])] += acc[ch][q * ns + u];
-            }
-        }
-        for (int q = 0; q < np(); ++q)
-            for (int u = q + 1; u < np(); ++u)
-                a[static_cast<size_t>(q * kMaxPar + u)] = a[static_cast<size_t>(u * kMaxPar + q)];
+        scatter(acc[0], sizeof acc[0] / sizeof(double), ns, acc_g[0], kRow - 5, nr, a, g);
         return chi2;
     }
 
@@ -716,20 +704,30 @@ public:
                 }
             }
         }
+        scatter(acc[0], sizeof acc[0] / sizeof(double), kRow, acc_g[0], kRow, nr, a, g);
+        return chi2;
+    }
+
+    // The normal equations from the per-channel ones over each channel's compact row of parameters (row_params):
+    // `acc` holds 3 channels `acc_size` apart, lower triangles with row stride `stride`; `acc_g` 3 channels
+    // `g_size` apart; `nr` rows each. The lower triangle is mirrored.
+    void scatter(const double* acc, size_t acc_size, int stride, const double* acc_g, int g_size, int nr, Mat& a,
+                 Vec& g) const {
         a.fill(0.0);
         g.fill(0.0);
         for (int ch = 0; ch < 3; ++ch) {
             int idx[kRow];
             row_params(ch, idx);
+            const double* am = acc + size_t(ch) * acc_size;
+            const double* gm = acc_g + ch * g_size;
             for (int q = 0; q < nr; ++q) {
-                g[static_cast<size_t>(idx[q])] += acc_g[ch][q];
-                for (int s = 0; s <= q; ++s) a[static_cast<size_t>(idx[q] * kMaxPar + idx[s])] += acc[ch][q * kRow + s];
+                g[static_cast<size_t>(idx[q])] += gm[q];
+                for (int u = 0; u <= q; ++u) a[static_cast<size_t>(idx[q] * kMaxPar + idx[u])] += am[q * stride + u];
             }
         }
         for (int q = 0; q < np(); ++q)
-            for (int s = q + 1; s < np(); ++s)
-                a[static_cast<size_t>(q * kMaxPar + s)] = a[static_cast<size_t>(s * kMaxPar + q)];
-        return chi2;
+            for (int u = q + 1; u < np(); ++u)
+                a[static_cast<size_t>(q * kMaxPar + u)] = a[static_cast<size_t>(u * kMaxPar + q)];
     }
 
     // Base render with its derivatives by the shape parameters, in one pass.

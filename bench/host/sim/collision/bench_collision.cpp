@@ -7,6 +7,7 @@
 //   Prints a Markdown table (or, with --json, one JSON object): per scene the colliding-count distribution over
 //   poses; per method recall and precision over poses (min, p5, median) and thread-CPU time per query (p50, p99).
 
+#include "bench_util.hpp"
 #include "eyesim/render/zcoll_gles.hpp"
 #include "eyesim/sim/collision/contact.hpp"
 #include "eyesim/sim/collision/exact.hpp"
@@ -38,6 +39,8 @@
 
 using namespace eyesim::sim;
 using namespace eyesim::sim::collision;
+using eyesim::sim::collision::bench::pose_at;
+using eyesim::sim::collision::bench::thread_cpu_us;
 
 namespace {
 
@@ -241,16 +244,6 @@ private:
 // ---------------------------------------------------------------------------------------------------------------
 // Scenes and poses.
 
-Eigen::Isometry3f pose_at(const Vec3f& tip, const Vec3f& forward) {
-    const Vec3f z = forward.normalized();
-    const Vec3f y = z.cross(std::fabs(z.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY()).normalized();
-    Eigen::Isometry3f t = Eigen::Isometry3f::Identity();
-    t.linear().col(0) = y.cross(z);
-    t.linear().col(1) = y;
-    t.linear().col(2) = z;
-    t.translation() = tip;
-    return t;
-}
 
 Vec3f scene_tip(float depth_mm) { return {0.11f, 0.07f, -depth_mm}; }
 Vec3f scene_forward(float tilt_deg) {
@@ -374,11 +367,6 @@ ZcollView scene_view(const Scene& s, size_t k, int r) {
 // ---------------------------------------------------------------------------------------------------------------
 // Timing and scoring.
 
-double thread_cpu_us() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return double(ts.tv_sec) * 1e6 + double(ts.tv_nsec) * 1e-3;
-}
 
 /// Nearest-rank percentile (p in [0, 1]); NaN without samples.
 double pct(std::vector<double> v, double p) {

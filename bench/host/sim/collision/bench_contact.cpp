@@ -6,6 +6,7 @@
 //
 // Usage: bench_contact [--poses N] [--seed S] [--json] [--no-grid]
 
+#include "bench_util.hpp"
 #include "eyesim/sim/collision/contact.hpp"
 #include "eyesim/sim/collision/exact.hpp"
 #include "eyesim/sim/collision/instrument.hpp"
@@ -24,27 +25,14 @@
 
 using namespace eyesim::sim;
 using namespace eyesim::sim::collision;
+using eyesim::sim::collision::bench::pose_at;
+using eyesim::sim::collision::bench::thread_cpu_us;
 
 namespace {
 
 constexpr float kPi = 3.14159265358979f;
 
-double thread_cpu_us() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return double(ts.tv_sec) * 1e6 + double(ts.tv_nsec) * 1e-3;
-}
 
-Eigen::Isometry3f pose_at(const Vec3f& tip, const Vec3f& forward) {
-    const Vec3f z = forward.normalized();
-    const Vec3f y = z.cross(std::fabs(z.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY()).normalized();
-    Eigen::Isometry3f t = Eigen::Isometry3f::Identity();
-    t.linear().col(0) = y.cross(z);
-    t.linear().col(1) = y;
-    t.linear().col(2) = z;
-    t.translation() = tip;
-    return t;
-}
 
 Eigen::Isometry3f scene_pose(float tilt_deg, float depth_mm) {
     const float a = tilt_deg * kPi / 180.0f;
