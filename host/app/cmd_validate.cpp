@@ -69,6 +69,7 @@ struct ValidateOptions {
     std::string bodies;
     std::uint64_t seed = 1;
     bool refine = false;
+    std::string emit = "field";  ///< device emission: "field" (a field's parts at its end) or "blob" (low latency)
 };
 
 /// Everything collected from one tracking run.
@@ -1066,6 +1067,7 @@ int run_validate_capture(const ValidateOptions& opt) {
     j["fields"] = st.fields;
     j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
     j["sync"] = opt.sync;
+    j["emit"] = opt.emit;
     j["trocar_constraint"] = !opt.no_trocar;
     // Truth figures, and the exposure → pose latency (a capture's replay has no exposure times on the host clock).
     for (const char* k : {"centroid_rms_px", "marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg"})
@@ -1228,6 +1230,12 @@ int run_validate(const ValidateOptions& opt) {
     std::vector<std::uint8_t> stream;
     proto::StreamParser parser;
     eyesim::firmware::LinkModel link;
+    std::vector<eyesim::firmware::LinkModel> cam_links(static_cast<std::size_t>(ncam));
+    const bool per_blob = opt.emit == "blob";
+    // The device's field end: its last active pixel in and its last blob out of the pipeline (fpga_run.cpp).
+    const auto end_cycle = [](const eyesim::fpga::FieldStats& st) {
+        return std::max(st.last_emit_cycle, st.last_active_line_end_cycle);
+    };
     std::mt19937_64 rng(opt.seed);
     std::normal_distribution<double> gauss(0.0, 1.0);
     std::uint16_t sequence = 0;
@@ -1271,7 +1279,57 @@ int run_validate(const ValidateOptions& opt) {
             const eyesim::fpga::FieldInfo info =
                 eyesim::fpga::field_info(pipe.field_stats(), std::uint8_t(c), std::uint8_t(parity), start_us);
             if (info.blobs_dropped) ++fields_with_drops;
-            const std::size_t nm = eyesim::fpga::to_field_markers(blobs.data(), blobs.size(), info, msgs.data(), msgs.size());
+            std::size_t nm = 0;
+            if (per_blob) {
+                // Low-latency mode, as the firmware sends it (DeviceCore::flush_low_latency): each blob as soon as
+                // the pipeline emits it, with the blobs already waiting in one frame, then a closing part at the
+                // field's end. Each camera on a link of its own: frames take microseconds on it, so the cameras'
+                // frames hardly ever wait for each other.
+                if (msgs.size() < blobs.size() + 1) msgs.resize(blobs.size() + 1);
+                eyesim::firmware::LinkModel& cl = cam_links[std::size_t(c)];
+                std::uint64_t core_ns = 0;
+                const auto emit_ns = [&](const eyesim::fpga::Blob& bl) {
+                    return eyesim::fpga::device_time_us(start_us, bl.emit_cycle) * 1000ull;
+                };
+                const std::uint64_t end_ns = eyesim::fpga::device_time_us(start_us, end_cycle(pipe.field_stats())) * 1000ull;
+                std::size_t k0 = 0;
+                for (;;) {
+                    const bool closing = k0 == blobs.size();
+                    const std::uint64_t t = std::max<std::uint64_t>(closing ? end_ns : emit_ns(blobs[k0]), core_ns);
+                    std::size_t k = 0;
+                    while (!closing && k0 + k < blobs.size() && k < proto::kMaxMarkersPerMessage && emit_ns(blobs[k0 + k]) <= t)
+                        ++k;
+                    proto::FieldMarkers& fm = msgs[nm];
+                    fm = proto::FieldMarkers{};
+                    fm.camera_id = std::uint8_t(c);
+                    fm.field_parity = std::uint8_t(parity);
+                    fm.field_counter = std::uint32_t(i);
+                    fm.flags = proto::kFieldFlagLowLatency;
+                    if (!closing) fm.flags |= proto::kFieldFlagMoreFollows;
+                    if (closing && info.blobs_dropped) fm.flags |= proto::kFieldFlagBlobsDropped;
+                    fm.field_end_us = closing ? eyesim::fpga::device_time_us(start_us, eyesim::fpga::active_line_end_cycle(
+                                                                                            eyesim::fpga::kActiveLinesPerField - 1))
+                                              : 0;
+                    fm.part_index = std::uint16_t(nm);
+                    fm.marker_count = std::uint8_t(k);
+                    for (std::size_t q = 0; q < k; ++q) fm.markers[q] = eyesim::fpga::to_marker(blobs[k0 + q], start_us);
+                    const std::size_t len = proto::encode_frame(fm, sequence++, frame_bytes);
+                    if (len == 0) throw Error(fmt::format("camera {} field {}: message {} did not encode", c, i, nm));
+                    core_ns = t + eyesim::firmware::frame_cost_ns(len, k);
+                    const std::uint64_t written = cl.transmit(core_ns, len);
+                    const std::span<const std::uint8_t> bytes(frame_bytes.data(), len);
+                    if (!opt.write_capture.empty() && !capture.write(written / 1000, bytes))
+                        throw Error(opt.write_capture + ": write failed");
+                    parser.parse(bytes, [&](const proto::DecodedFrame& df) {
+                        if (const auto* m = std::get_if<proto::FieldMarkers>(&df.message))
+                            fpga_msgs.push_back({double(written) * 1e-3, *m});
+                    });
+                    ++nm;
+                    k0 += k;
+                    if (closing) break;
+                }
+            } else {
+            nm = eyesim::fpga::to_field_markers(blobs.data(), blobs.size(), info, msgs.data(), msgs.size());
             stream.clear();
             std::uint64_t written_ns = 0;
             for (std::size_t k = 0; k < nm; ++k) {
@@ -1289,6 +1347,7 @@ int run_validate(const ValidateOptions& opt) {
             parser.parse(stream, [&](const proto::DecodedFrame& df) {
                 if (const auto* fm = std::get_if<proto::FieldMarkers>(&df.message)) fpga_msgs.push_back({received_us, *fm});
             });
+            }
             CentroidStats& cs = cstats[std::size_t(c)];
             std::vector<rig::DetectedMarker> got;
             for (std::size_t k = 0; k < nm; ++k)
@@ -1436,6 +1495,7 @@ int run_validate(const ValidateOptions& opt) {
     j["cameras"] = ncam;
     j["fields_per_s"] = double(n * ncam) / std::max(wall_s, 1e-9);
     j["sync"] = opt.sync;
+    j["emit"] = opt.emit;
     j["trocar_constraint"] = !opt.no_trocar;
     nlohmann::json cams = nlohmann::json::array();
     std::vector<double> all_c;
@@ -1601,6 +1661,10 @@ eyesim::app::Registrar reg{"validate",
                    "camera time alignment: interpolate | extrapolate | nearest | async (per-body filters updated by "
                    "each camera field at its own time)")
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest", "async"}));
+    sub.add_option("--emit", opt->emit,
+                   "how the modelled device sends a field's markers: field (all at the field's end) | blob (each as "
+                   "soon as the FPGA emits it, the low-latency mode; with --sync async each part is fused at once)")
+        ->check(CLI::IsMember({"field", "blob"}));
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
     sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run")
         ->check(eyesim::app::finite_in(0.0, 10.0));

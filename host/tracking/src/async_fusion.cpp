@@ -72,6 +72,7 @@ void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen
                            const Eigen::Vector3d& omega, const Eigen::Vector3d& v, double s_rot, double s_pos,
                            double s_omega, double s_v) {
     time_us_ = t_us;
+    newest_us_ = t_us;
     R_ = R.normalized();
     w_ = omega;
     P_.setZero();
@@ -112,12 +113,20 @@ void RigidBodyFilter::predict_to(double t_us) {
     if (dt == 0.0) return;
     pose_at(t_us, R_, t_);
     time_us_ = t_us;
-    // δθ' = δθ + dt·δω, δt' = δt + dt·δv; white acceleration noise (its magnitude whichever way time runs).
+    // δθ' = δθ + dt·δω, δt' = δt + dt·δv. White acceleration noise only for time not covered before: observations
+    // that arrive out of time order (low-latency parts of cameras whose fields overlap) move the state back and
+    // forth within what it has already been predicted through, and charging the noise on every such step would
+    // throw away what the filter knows.
     Cov F = Cov::Identity();
     F.block<3, 3>(0, 6).diagonal().setConstant(dt);
     if (!rotation_only_) F.block<3, 3>(3, 9).diagonal().setConstant(dt);
     P_ = F * P_ * F.transpose();
-    const double a = std::abs(dt);
+    const double a = std::max(0.0, (t_us - newest_us_) * 1e-6);
+    newest_us_ = std::max(newest_us_, t_us);
+    if (a == 0.0) {
+        roll_pseudo_measurement();
+        return;
+    }
     const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
     for (int i = 0; i < 3; ++i) {
         P_(i, i) += q_ang_ * q11;

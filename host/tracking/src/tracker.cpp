@@ -86,6 +86,10 @@ void Tracker::restart() {
     for (RigidBodyFilter& f : filters_) f.reset();
     queue_count_ = 0;
     acquire_measured_.fill(false);
+    open_queued_.fill(0);
+    have_done_.fill(false);
+    done_period_us_.fill(0.0);
+    ref_reported_ = false;
 }
 
 int Tracker::rejected_images() const {
@@ -98,15 +102,55 @@ void Tracker::push(const protocol::FieldMarkers& msg, double received_host_us) {
     if (msg.camera_id >= cameras_.size()) return;
     FieldAssembler& as = assemblers_[msg.camera_id];
     const int done = as.push(msg, received_host_us, config_.timing[msg.camera_id]);
+    const std::size_t c = msg.camera_id;
     for (int i = 0; i < done; ++i) {
-        sync_.add(as.completed(i));
+        const CameraField& f = as.completed(i);
+        sync_.add(f);
         if (config_.sync.mode != SyncMode::Async) continue;
-        if (queue_count_ == kQueue) {  // consumer too slow: the oldest field is dropped
-            queue_head_ = (queue_head_ + 1) % kQueue;
-            --queue_count_;
+        // Parts already fused while the field was open are not fused again.
+        const bool was_open = open_queued_[c] > 0 && open_counter_[c] == f.field_counter;
+        enqueue(f, was_open ? std::min(open_queued_[c], f.count) : 0, true);
+        if (open_counter_[c] == f.field_counter) open_queued_[c] = 0;
+        if (!std::isfinite(f.field_end_device_us) || !(f.field_end_device_us > 0.0)) continue;
+        if (have_done_[c]) {
+            const std::uint32_t gap = f.field_counter - done_counter_[c];
+            const double p = (f.field_end_device_us - done_end_us_[c]) / double(gap);
+            const double nominal = config_.sync.field_period_us;
+            if (gap >= 1 && gap <= 4 && p > 0.9 * nominal && p < 1.1 * nominal) done_period_us_[c] = p;
         }
-        queue_[std::size_t((queue_head_ + queue_count_++) % kQueue)] = as.completed(i);
+        done_end_us_[c] = f.field_end_device_us;
+        done_counter_[c] = f.field_counter;
+        have_done_[c] = true;
     }
+    // Low-latency mode: the open field's new images are fused now, at the field's exposure time predicted from
+    // the camera's last complete field (its end and period; the part itself carries no field time).
+    if (config_.sync.mode != SyncMode::Async || !as.open() || !(msg.flags & protocol::kFieldFlagLowLatency)) return;
+    const CameraField& b = as.building();
+    if (open_counter_[c] != b.field_counter) {
+        open_counter_[c] = b.field_counter;
+        open_queued_[c] = 0;
+    }
+    if (b.count <= open_queued_[c] || !have_done_[c]) return;
+    const std::uint32_t gap = b.field_counter - done_counter_[c];
+    if (gap < 1 || gap > 4) return;
+    const double period = done_period_us_[c] > 0.0 ? done_period_us_[c] : config_.sync.field_period_us;
+    enqueue(b, open_queued_[c], false);
+    CameraField& q = queue_[std::size_t((queue_head_ + queue_count_ - 1) % kQueue)].field;
+    q.field_end_device_us = done_end_us_[c] + double(gap) * period;
+    q.sample_device_us = q.field_end_device_us - config_.timing[c].end_to_sample_us[std::size_t(b.parity & 1)];
+    q.received_host_us = received_host_us;
+    open_queued_[c] = b.count;
+}
+
+void Tracker::enqueue(const CameraField& f, int first, bool last) {
+    if (queue_count_ == kQueue) {  // consumer too slow: the oldest entry is dropped
+        queue_head_ = (queue_head_ + 1) % kQueue;
+        --queue_count_;
+    }
+    QueuedField& q = queue_[std::size_t((queue_head_ + queue_count_++) % kQueue)];
+    q.field = f;
+    q.first = first;
+    q.last = last;
 }
 
 void Tracker::push(const protocol::PedalState& pedal, double /*received_host_us*/) {
@@ -302,15 +346,28 @@ constexpr double kNever = -1e300;
 
 bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
     while (queue_count_ > 0) {
-        const CameraField& f = queue_[std::size_t(queue_head_)];
+        const QueuedField& q = queue_[std::size_t(queue_head_)];
+        const CameraField& f = q.field;
         queue_head_ = (queue_head_ + 1) % kQueue;
         --queue_count_;
         const double t0 = steady_us();
-        fuse_field(f);
+        const int accepted = fuse_field(f, q.first, q.last);
         // Frames are reported at the reference camera's fields (where the rig's truth is sampled); every other
-        // field has already corrected the filters in between.
+        // field has already corrected the filters in between. In low-latency mode each part of the reference
+        // field that corrected a filter gives a frame at once (the pose at the field's time, as far as its
+        // image is read out); the complete field gives one more only if it brought something new.
         if (f.camera != config_.sync.reference_camera || !std::isfinite(f.sample_device_us)) continue;
-        acquire(f);
+        bool report = accepted > 0;
+        if (q.last) {
+            acquire(f);
+            report = report || acquired_this_field_ ||
+                     !(ref_reported_ && ref_reported_counter_ == f.field_counter);
+        } else {
+            acquired_this_field_ = false;
+        }
+        if (!report) continue;
+        ref_reported_ = true;
+        ref_reported_counter_ = f.field_counter;
         build_async_frame(f, out);
         const double compute = steady_us() - t0;
         out.timing.sample_host_us = f.sample_device_us - offset_us_;
@@ -323,9 +380,9 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
     return false;
 }
 
-void Tracker::fuse_field(const CameraField& f) {
+int Tracker::fuse_field(const CameraField& f, int first, bool last) {
     const int c = f.camera;
-    if (c < 0 || c >= int(cameras_.size()) || !std::isfinite(f.sample_device_us)) return;
+    if (c < 0 || c >= int(cameras_.size()) || !std::isfinite(f.sample_device_us)) return 0;
     const CameraGeometry& g = cameras_[std::size_t(c)];
     const AsyncOptions& ao = config_.async;
     const BodySet& bodies = config_.bodies;
@@ -361,7 +418,7 @@ void Tracker::fuse_field(const CameraField& f) {
             if (!flt.predict_pixel(g, ms[k].pos_body_mm, px)) continue;
             double d1 = 1e30, d2 = 1e30;
             int i1 = -1;
-            for (int i = 0; i < f.count; ++i) {
+            for (int i = first; i < f.count; ++i) {
                 const FieldImage& im = f.images[std::size_t(i)];
                 if (im.colour_class != ms[k].colour_class || !im.frame_px.allFinite()) continue;
                 const double d = (im.frame_px - px).norm();
@@ -388,8 +445,11 @@ void Tracker::fuse_field(const CameraField& f) {
     const double Rm = bodies.marker_radius_mm;
     const double trocar_sigma_mm =
         config_.pose.trocar_sigma_mm * std::sqrt(double(cameras_.size()));  // applied once per camera field
+    int accepted = 0;
     for (int b = 0; b < nb; ++b) {
         RigidBodyFilter& flt = filters_[std::size_t(b)];
+        int& field_used = field_used_[std::size_t(b)][std::size_t(c)];
+        if (first == 0) field_used = 0;  // a new field of this camera
         if (!flt.tracking()) continue;
         const auto [ms, mc] = body_markers(b);
         const InstrumentModel* model = b > 0 ? &bodies.instruments[std::size_t(b - 1)] : nullptr;
@@ -426,7 +486,11 @@ void Tracker::fuse_field(const CameraField& f) {
             ++used;
             seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c)] = T;
         }
-        if (model && used > 0 && config_.pose.trocar_constraint && model->has_trocar && filters_[0].tracking()) {
+        accepted += used;
+        field_used += used;
+        // The trocar prior once per field (at its last part), when the field gave the instrument an image.
+        if (last && model && field_used > 0 && config_.pose.trocar_constraint && model->has_trocar &&
+            filters_[0].tracking()) {
             const Eigen::Vector3d p = filters_[0].to_rig(model->trocar_eye_mm);
             const Eigen::Vector3d tip = flt.to_rig(model->tip_body_mm);
             const Eigen::Vector3d a = (flt.rotation() * model->axis_body).normalized();
@@ -435,12 +499,13 @@ void Tracker::fuse_field(const CameraField& f) {
             if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm)
                 flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
         }
-        used_last_field_[std::size_t(b)] = used;
-        if (used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = T;
+        used_last_field_[std::size_t(b)] = field_used;
+        if (field_used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = T;
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
             !flt.translation().allFinite() || !flt.rotation().coeffs().allFinite())
             flt.reset();
     }
+    return accepted;
 }
 
 void Tracker::acquire(const CameraField& f) {

@@ -33,8 +33,8 @@ fs::path sweep() {
     return d;
 }
 
-nlohmann::json validate_json(const std::string& sync) {
-    const Result r = run_eyesim("validate --recording " + sweep().string() + " --sync " + sync + " --json");
+nlohmann::json validate_json(const std::string& sync, const std::string& more = "") {
+    const Result r = run_eyesim("validate --recording " + sweep().string() + " --sync " + sync + " --json" + more);
     INFO("--sync " << sync << "\nstderr: " << r.err);
     REQUIRE(r.rc == 0);
     return nlohmann::json::parse(r.out);
@@ -64,6 +64,34 @@ TEST_CASE("validate --sync async: poses one field readout after exposure, figure
     CHECK(a["marker3d_all_rms_um"].get<double>() < 200.0);
     CHECK(a["tip_rms_um"].get<double>() < 250.0);
     CHECK(a["eye_rot_rms_deg"].get<double>() < 0.1);
+}
+
+TEST_CASE("validate --sync async --emit blob: each blob fused as it arrives, the pose long before the field ends",
+          "[host][validate]") {
+    // The device in low-latency mode sends each blob as the FPGA completes it; the filters take each part at once
+    // (at the field's exposure time, predicted from the camera's last field), and every part of the reference
+    // camera that corrected a filter gives a pose. Markers in the middle of the image are read out about 10 ms
+    // before the field's last line.
+    const nlohmann::json f = validate_json("async");
+    const nlohmann::json b = validate_json("async", " --emit blob");
+    CHECK(b["emit"] == "blob");
+    CHECK(f["emit"] == "field");
+    const double f50 = f["exposure_to_pose_us"]["p50"].get<double>(), b50 = b["exposure_to_pose_us"]["p50"].get<double>();
+    INFO("exposure -> pose p50: per field " << f50 << " us, per blob " << b50 << " us");
+    CHECK(b50 < f50 - 4000.0);
+    CHECK(b50 < 21000.0);  // the issue's target; measured 14.9 ms on this recording
+    CHECK(b50 > 5000.0);   // not before the markers' lines are read out
+    // A pose per accepting part: several per reference field.
+    CHECK(b["fpga_chain"]["frames"].get<int>() > 3 * f["fpga_chain"]["frames"].get<int>());
+    // As accurate as whole fields (measured on this recording: 3D 25.2 vs 26.8 um, tip 36.6 vs 33.6 um, eye
+    // 0.033 vs 0.031 deg); the bounds allow 30 %. A filter charged with process noise again for time it goes
+    // back over (what out-of-order parts do to it) lost 33-52 % on a 2 s sweep (seed 21).
+    for (const char* k : {"marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg"}) {
+        INFO(k << ": per field " << f[k] << ", per blob " << b[k]);
+        REQUIRE(b[k].is_number());
+        CHECK(b[k].get<double>() > 0.0);
+        CHECK(b[k].get<double>() < 1.3 * f[k].get<double>());
+    }
 }
 
 TEST_CASE("validate --sync async: the pose predicted to the next field beats the pose held, on fast motion",

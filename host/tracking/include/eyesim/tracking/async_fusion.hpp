@@ -66,8 +66,9 @@ public:
     /// True between init() and reset().
     bool tracking() const { return tracking_; }
 
-    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise). A time
-    /// before the current one (a late field) is predicted back the same way.
+    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise for the
+    /// time beyond the latest one predicted to). A time before the current one (a late field) is predicted back
+    /// the same way, without noise.
     void predict_to(double t_us);
     /// Pose at `t_us` without changing the filter: the constant-velocity model itself.
     void pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
@@ -118,6 +119,7 @@ private:
     Eigen::Vector3d roll_axis_body_ = Eigen::Vector3d::Zero();
     double q_ang_ = 1.0, q_lin_ = 1.0;
     double time_us_ = 0.0;
+    double newest_us_ = 0.0;  // the latest time predicted to (process noise is added only beyond it)
     Eigen::Quaterniond R_ = Eigen::Quaterniond::Identity();
     Eigen::Vector3d t_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
     Cov P_ = Cov::Identity();

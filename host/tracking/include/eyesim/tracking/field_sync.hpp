@@ -75,6 +75,10 @@ public:
     const CameraField& completed(int i) const { return done_[std::size_t(i)]; }
     /// Images refused so far: colour class outside 1..4 or non-finite coordinates.
     int rejected_images() const { return rejected_; }
+    /// True while a field's parts are arriving (low-latency mode: its images so far are in building()).
+    bool open() const { return active_; }
+    /// The open field (valid while open(); its times are not known until the field's last part).
+    const CameraField& building() const { return building_; }
 
 private:
     void start(const protocol::FieldMarkers& msg);

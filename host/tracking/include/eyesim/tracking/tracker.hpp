@@ -144,7 +144,9 @@ public:
 private:
     void correct_shaft_occlusion(TrackingFrame& out);
     bool pop_async(TrackingFrame& out, double now_host_us);
-    void fuse_field(const CameraField& f);
+    /// Fuses images [first, f.count) of camera field `f` (a whole field, or the newest parts of an open one in
+    /// low-latency mode); `last` when the field is complete. Returns the images a filter accepted.
+    int fuse_field(const CameraField& f, int first, bool last);
     void acquire(const CameraField& f);
     void build_async_frame(const CameraField& f, TrackingFrame& out);
 
@@ -168,9 +170,16 @@ private:
     int rejected_before_restart_ = 0;
 
     // --- SyncMode::Async ---
-    static constexpr int kQueue = 8;         ///< assembled fields waiting for pop()
+    static constexpr int kQueue = 32;        ///< fields and low-latency parts waiting for pop()
     static constexpr int kBodies = 1 + kMaxInstruments;  ///< eye, then the instruments
-    std::array<CameraField, kQueue> queue_{};
+    /// Images [first, field.count) of `field` to fuse; `last`: the field is complete.
+    struct QueuedField {
+        CameraField field;
+        int first = 0;
+        bool last = true;
+    };
+    void enqueue(const CameraField& f, int first, bool last);
+    std::array<QueuedField, kQueue> queue_{};
     int queue_head_ = 0, queue_count_ = 0;
     std::array<RigidBodyFilter, kBodies> filters_{};
     std::array<double, kBodies> last_good_us_{};
@@ -178,6 +187,18 @@ private:
     // When each body marker was last used in each camera (device µs), for the markers a frame reports.
     std::array<std::array<std::array<double, kMaxCameras>, kMaxBodyMarkers>, kBodies> seen_us_{};
     std::array<double, kMaxCameras> last_field_us_{};
+    // Low-latency parts: per camera, the open field's counter and images already queued; the last complete
+    // field's end, counter and the field period measured between two (the times of an open field).
+    std::array<std::uint32_t, kMaxCameras> open_counter_{};
+    std::array<int, kMaxCameras> open_queued_{};
+    std::array<double, kMaxCameras> done_end_us_{};
+    std::array<std::uint32_t, kMaxCameras> done_counter_{};
+    std::array<double, kMaxCameras> done_period_us_{};
+    std::array<bool, kMaxCameras> have_done_{};
+    // Images each body's filter accepted from each camera's current field so far (over its parts).
+    std::array<std::array<int, kMaxCameras>, kBodies> field_used_{};
+    std::uint32_t ref_reported_counter_ = 0;  // the reference field a frame was last reported for
+    bool ref_reported_ = false;
     std::array<std::uint32_t, kMaxCameras> last_field_counter_{};
     // Acquisition by triangulation: the last fit of each body (velocity from two in a row).
     TrackingFrame acquire_frame_{};
