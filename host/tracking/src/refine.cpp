@@ -215,6 +215,12 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
         o.dcov = ((hi < r ? 1.0 : 0.0) - (lo < r ? 1.0 : 0.0)) * k;
         o.dq = (qv(hi) - qv(lo)) * k;
     }
+    if (re + al + be <= r) {
+        // Wholly inside the outline: covered, exactly (not to rounding), so that its normal-equation rows end at
+        // the amplitude.
+        o.cov = 1.0;
+        o.dcov = 0.0;
+    }
     if constexpr (kDeriv) {
         o.drho[0] = -gx;
         o.drho[1] = -gv;
@@ -241,6 +247,9 @@ public:
         m_[0] = p_.colour.y_dn;
         m_[1] = p_.colour.cb_dn;
         m_[2] = p_.colour.cr_dn;
+        const int nx = p_.x1 - p_.x0 + 1;
+        for (int j = 0; j < p_.lines; ++j)
+            for (int x = 0; x < nx; ++x) wy_[static_cast<size_t>(j * nx + x)] = 1.0 / w_.var_y[static_cast<size_t>(j * nx + x)];
         background_moments();
     }
 
@@ -436,7 +445,7 @@ public:
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x;
                 const double r = w_.obs_y[o] - vy[x + 1];
-                sum += w_.keep_y[o] * r * r / w_.var_y[o];
+                sum += w_.keep_y[o] * r * r * wy_[static_cast<size_t>(o)];
             }
             int s = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
@@ -495,7 +504,7 @@ public:
             const double vj = vrel_[static_cast<size_t>(j)];
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x;
-                if (w_.keep_y[o]) add(mom_[0], 1.0 / w_.var_y[o], xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o]);
+                if (w_.keep_y[o]) add(mom_[0], wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o]);
             }
             int s = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
@@ -540,11 +549,14 @@ public:
             row[9] = 0.0;
             return kOffset[ch] + am[ch] * shade[k] + open * under;
         };
-        auto add = [&](int ch, const double* row, double r, double wgt, double x, double vj, double o) {
+        // Rows of an observation the marker wholly covers end at the amplitude (q1 = 6): the background's
+        // entries are multiplied by the open fraction, 0.
+        auto add = [&]<int q1>(std::integral_constant<int, q1>, int ch, const double* row, double r, double wgt, double x,
+                               double vj, double o) {
             double* m = acc[ch];
             double* gg = acc_g[ch];
             chi2 += wgt * r * r;
-            for (int q = 0; q < nr; ++q) {
+            for (int q = 0; q < q1; ++q) {
                 const double wq = wgt * row[q];
                 gg[q] += wq * r;
                 // The lower triangle rounded up to whole pairs (row[nr] is 0).
@@ -565,6 +577,8 @@ public:
             mo[8] += wgt * o * vj;
             mo[9] += wgt * o * o;
         };
+        constexpr std::integral_constant<int, nr> kFull;
+        constexpr std::integral_constant<int, 6> kCovered;
         double row[ns], crow[2][SphereFitWorkspace::kCols][ns], cval[2][SphereFitWorkspace::kCols];
         for (int j = 0; j < p_.lines; ++j) {
             const double vj = vrel_[static_cast<size_t>(j)];
@@ -573,7 +587,12 @@ public:
                 const int o = j * nx + x, i = x + 1;
                 if (!tl[i] || !w_.keep_y[o]) continue;
                 const double mod = pixel(0, i, j * p_.cols + i, vj, row);
-                add(0, row, w_.obs_y[o] - mod, 1.0 / w_.var_y[o], xrel_[static_cast<size_t>(i)], vj, w_.obs_y[o]);
+                if (cov[j * p_.cols + i] == 1.0)
+                    add(kCovered, 0, row, w_.obs_y[o] - mod, wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(i)], vj,
+                        w_.obs_y[o]);
+                else
+                    add(kFull, 0, row, w_.obs_y[o] - mod, wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(i)], vj,
+                        w_.obs_y[o]);
             }
             int s = 0, have = -1;  // model pixels up to `have` hold their chroma rows in crow
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
@@ -586,6 +605,8 @@ public:
                     cval[1][m] = pixel(2, m, j * p_.cols + m, vj, crow[1][m]);
                     have = m;
                 }
+                const int k = j * p_.cols + i;
+                const bool covered = cov[k - 1] == 1.0 && cov[k] == 1.0 && cov[k + 1] == 1.0;
                 for (int c = 0; c < 2; ++c) {
                     if (!keep[c]) continue;
                     const double* q0 = crow[c][i - 1];
@@ -594,7 +615,10 @@ public:
                     for (int q = 0; q < ns; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
                     const double mod = 0.25 * (cval[c][i - 1] + cval[c][i + 1]) + 0.5 * cval[c][i];
                     const double obs = c == 0 ? w_.obs_cb[o] : w_.obs_cr[o];
-                    add(1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
+                    if (covered)
+                        add(kCovered, 1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
+                    else
+                        add(kFull, 1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
                 }
             }
         }
@@ -629,12 +653,17 @@ public:
         const double wc = 1.0 / var_c();
         // Per channel, the normal equations over the row's compact parameters; scattered at the end.
         double acc[3][kRow * (kRow + 1)] = {}, acc_g[3][kRow] = {}, chi2 = 0;
-        auto add = [&]<int q0>(std::integral_constant<int, q0>, int ch, const double* row, double r, double wgt) {
+        // Rows over compact parameters q0 ≤ q < q1: an observation the marker does not reach has no shape or
+        // amplitude entries (q0 = 6), one it wholly covers none past the amplitude (q1 = 6: all are multiplied by
+        // the open fraction, 0).
+        auto add = [&]<int q0, int q1>(std::integral_constant<int, q0>, std::integral_constant<int, q1>, int ch,
+                                       const double* row, double r, double wgt) {
             double* am = acc[ch];
+            double* gg = acc_g[ch];
             chi2 += wgt * r * r;
-            for (int q = q0; q < nr; ++q) {
+            for (int q = q0; q < q1; ++q) {
                 const double wq = wgt * row[q];
-                acc_g[ch][q] += wq * r;
+                gg[q] += wq * r;
                 // The lower triangle rounded up to whole pairs (SIMD); row[q + 1] for q = nr − 1 is row[kRow], 0.
                 for (int u = q0; u <= q; u += 2) {
                     am[q * kRow + u] += wq * row[u];
@@ -650,8 +679,10 @@ public:
             acc[ch][11 * kRow + 11] += wgt;
         };
         const double* edge_w = w_.edge_w.data();
-        constexpr std::integral_constant<int, 0> kAll;
-        constexpr std::integral_constant<int, 6> kBackground;
+        constexpr std::integral_constant<int, 0> kFromShape;
+        constexpr std::integral_constant<int, 6> kFromBackground, kToAmplitude;
+        constexpr std::integral_constant<int, nr> kToOutline;
+        const double* cov = w_.cov.data();
         const uint8_t* touch = w_.touch.data();
         double row[kRow + 1] = {};
         double crow[2][SphereFitWorkspace::kCols][kRow];  // one line's chroma pixel rows
@@ -660,14 +691,16 @@ public:
                 const int o = j * nx + x, k = j * p_.cols + x + 1;
                 if (!w_.keep_y[o]) continue;
                 if (!touch[k] && edge_w[k] == 0.0) {
-                    add_beyond(0, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                    add_beyond(0, w_.obs_y[o] - val[k], wy_[static_cast<size_t>(o)]);
                     continue;
                 }
                 pixel_row(t, 0, x + 1, j, row);
-                if (touch[k])
-                    add(kAll, 0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                if (!touch[k])
+                    add(kFromBackground, kToOutline, 0, row, w_.obs_y[o] - val[k], wy_[static_cast<size_t>(o)]);
+                else if (cov[k] == 1.0)
+                    add(kFromShape, kToAmplitude, 0, row, w_.obs_y[o] - val[k], wy_[static_cast<size_t>(o)]);
                 else
-                    add(kBackground, 0, row, w_.obs_y[o] - val[k], 1.0 / w_.var_y[o]);
+                    add(kFromShape, kToOutline, 0, row, w_.obs_y[o] - val[k], wy_[static_cast<size_t>(o)]);
             }
             // Chroma: each model pixel's row is computed once per line and channel (a sample filters three
             // pixels, and neighbouring samples share one).
@@ -689,6 +722,7 @@ public:
                     pixel_row(t, 2, m, j, crow[1][m]);
                     have = m;
                 }
+                const bool covered = cov[k - 1] == 1.0 && cov[k] == 1.0 && cov[k + 1] == 1.0;
                 for (int ch = 1; ch <= 2; ++ch) {
                     if (!keep[ch - 1]) continue;
                     const double mod = filtered(val + ch * n + j * p_.cols, i);
@@ -697,10 +731,12 @@ public:
                     const double* q1 = crow[ch - 1][i];
                     const double* q2 = crow[ch - 1][i + 1];
                     for (int q = 0; q < nr; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
-                    if (reached)
-                        add(kAll, ch, row, res, wc);
+                    if (!reached)
+                        add(kFromBackground, kToOutline, ch, row, res, wc);
+                    else if (covered)
+                        add(kFromShape, kToAmplitude, ch, row, res, wc);
                     else
-                        add(kBackground, ch, row, res, wc);
+                        add(kFromShape, kToOutline, ch, row, res, wc);
                 }
             }
         }
@@ -834,7 +870,7 @@ public:
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x;
                 const double r = w_.obs_y[o] - val[j * p_.cols + x + 1];
-                w_.keep_y[o] = r * r / w_.var_y[o] <= k2;
+                w_.keep_y[o] = r * r * wy_[static_cast<size_t>(o)] <= k2;
                 dropped += !w_.keep_y[o];
             }
             int s = 0;
@@ -929,6 +965,7 @@ private:
     double m_[3] = {};
     std::array<std::array<double, 10>, 3> mom_{};  // background_moments()
     Vec lin_t_{};                                  // the point of the last linearise()
+    std::array<double, SphereFitWorkspace::kPx> wy_;  // 1 / var_y: the luma observations' weights
     // The box (lines, columns) raster_analytic() last wrote, with and without derivatives; the whole patch at first.
     mutable std::array<int, 4> written_[2] = {{0, p_.lines - 1, 0, p_.cols - 1}, {0, p_.lines - 1, 0, p_.cols - 1}};
 };
