@@ -63,8 +63,15 @@ bool solve_damped(const Mat& a, const Vec& g, int n, double lambda, Vec& x) {
         double* li = l + i * n;
         for (int j = 0; j <= i; ++j) {
             const double* lj = l + j * n;
-            double s = ai[j] + (i == j ? lambda * ai[i] + 1e-9 : 0.0);
-            for (int k = 0; k < j; ++k) s -= li[k] * lj[k];
+            // Two partial sums: independent chains (and SIMD pairs).
+            double s = ai[j] + (i == j ? lambda * ai[i] + 1e-9 : 0.0), s2 = 0.0;
+            int k = 0;
+            for (; k + 1 < j; k += 2) {
+                s -= li[k] * lj[k];
+                s2 -= li[k + 1] * lj[k + 1];
+            }
+            if (k < j) s -= li[k] * lj[k];
+            s += s2;
             if (i == j) {
                 if (!(s > 0)) return false;
                 const double d = std::sqrt(s);
@@ -139,7 +146,7 @@ inline double asin_01(double t, double s) {
 struct Anti {
     double s1, s2, q1, q2;
 };
-inline Anti anti(double rho, double r) {
+inline Anti anti(double rho, double r, double inv_r) {
     const double a = std::fabs(rho), sg = rho < 0 ? -1.0 : 1.0;
     constexpr double kQuarterPi = 0.78539816339744831;
     Anti o;
@@ -150,7 +157,7 @@ inline Anti anti(double rho, double r) {
         o.q2 = r * r * kQuarterPi + r * kQuarterPi * (a - r);
         return o;
     }
-    const double t = a / r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = asin_01(t, s);
+    const double t = a * inv_r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = asin_01(t, s);
     o.s1 = sg * a;
     o.s2 = 0.5 * a * a;
     o.q1 = sg * 0.5 * r * (t * s + as);
@@ -167,7 +174,7 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
     const double rho = std::sqrt(w);
     // |∇ρ| ≤ √(1 + |e|) ≤ 1.23 (|e| ≤ 0.5): a pixel whose centre is past r + its half diagonal is outside.
     if (rho > r + 0.62 * (1.0 + ap)) return false;
-    const double inv_r2 = 1.0 / (r * r);
+    const double inv_r = 1.0 / r, inv_r2 = inv_r * inv_r;
     if (rho + 0.62 * (1.0 + ap) < 0.8 * r) {
         // Interior: ρ² = w + 2(Mx)·u + uᵀMu over the pixel; mean and variance of that, q = ψ(ρ²) to second order.
         const double wm = w + ((1.0 + e1) + (1.0 - e1) * ap * ap) / 12.0;
@@ -197,8 +204,8 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
     if (al < be) std::swap(al, be);
     if (re - al - be >= r) return false;
     if (be > 1e-4) {
-        const Anti a = anti(re + al + be, r), b = anti(re + al - be, r), c = anti(re - al + be, r),
-                   d = anti(re - al - be, r);
+        const Anti a = anti(re + al + be, r, inv_r), b = anti(re + al - be, r, inv_r),
+                   c = anti(re - al + be, r, inv_r), d = anti(re - al - be, r, inv_r);
         const double k = 1.0 / (4.0 * al * be);
         o.cov = (a.s2 - b.s2 - c.s2 + d.s2) * k;
         o.q = (a.q2 - b.q2 - c.q2 + d.q2) * k;
@@ -206,7 +213,7 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
         o.dq = (a.q1 - b.q1 - c.q1 + d.q1) * k;
     } else {
         // One uniform variable: first differences of the first antiderivatives.
-        const Anti a = anti(re + al, r), b = anti(re - al, r);
+        const Anti a = anti(re + al, r, inv_r), b = anti(re - al, r, inv_r);
         const double k = 0.5 / al;
         o.cov = (a.s1 - b.s1) * k;
         o.q = (a.q1 - b.q1) * k;
@@ -940,9 +947,13 @@ private:
         const double we = w_.edge_w[k];
         const double bg = p_.outline ? we * inside + (1.0 - we) * t[kB2 + ch] : inside;
         const double open = 1.0 - w_.cov[k], under = bg - kOffset[ch], am = t[kA] * m_[ch];
-        for (int q = 0; q < kShapePar; ++q) row[q] = am * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under;
-        if (!cfg_.fit_ellipse) row[3] = row[4] = 0.0;  // e1, e2 held at 0
-        row[5] = w_.shade[k] * m_[ch];
+        if (w_.touch[k]) {
+            for (int q = 0; q < kShapePar; ++q) row[q] = am * w_.dshade[q * n + k] - w_.dcov[q * n + k] * under;
+            if (!cfg_.fit_ellipse) row[3] = row[4] = 0.0;  // e1, e2 held at 0
+            row[5] = w_.shade[k] * m_[ch];
+        } else {
+            for (int q = 0; q <= kShapePar; ++q) row[q] = 0.0;  // the marker does not reach it
+        }
         row[6] = open * we;
         row[7] = open * we * x;
         row[8] = open * we * v;
