@@ -10,6 +10,10 @@
 #include <cstring>
 #include <limits>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace eyesim::sim::collision {
 
 namespace {
@@ -21,6 +25,7 @@ constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr int kMaxCells = 192;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
+constexpr double kFrontPerBin = 8.0;  // front triangles per deformation bin (before copies into several bins)
 constexpr uint32_t kNoHint = 0xFFFFFFFFu;
 
 inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
@@ -46,21 +51,24 @@ int interval_test(const Vec3f& a0, const Vec3f& a1, const Vec3f& a2, const Vec3f
     const D3 A[3] = {a0.cast<double>(), a1.cast<double>(), a2.cast<double>()};
     const D3 B[3] = {b0.cast<double>(), b1.cast<double>(), b2.cast<double>()};
     const D3 na = (A[1] - A[0]).cross(A[2] - A[0]), nb = (B[1] - B[0]).cross(B[2] - B[0]);
-    const double la = na.norm(), lb = nb.norm();
-    if (la == 0.0 || lb == 0.0) return -1;
+    // Squared lengths and squared margins throughout: no square root on this path (it runs once per colliding
+    // triangle at least).
+    const double la2 = na.squaredNorm(), lb2 = nb.squaredNorm();
+    if (la2 == 0.0 || lb2 == 0.0) return -1;
     double da[3], db[3];
     for (int i = 0; i < 3; ++i) {
         da[i] = nb.dot(A[i] - B[0]);  // A's vertices against B's plane (× |nb|)
         db[i] = na.dot(B[i] - A[0]);
     }
-    constexpr double kTolDist_mm = 1e-7, kTolLine_mm = 1e-6;
+    constexpr double kTolDist2 = 1e-7 * 1e-7, kTolLine2 = 1e-6 * 1e-6;  // (mm)²
+    const double near_b = kTolDist2 * lb2, near_a = kTolDist2 * la2;
     for (int i = 0; i < 3; ++i)
-        if (std::fabs(da[i]) < kTolDist_mm * lb || std::fabs(db[i]) < kTolDist_mm * la) return -1;
+        if (da[i] * da[i] < near_b || db[i] * db[i] < near_a) return -1;
     if ((da[0] > 0) == (da[1] > 0) && (da[1] > 0) == (da[2] > 0)) return 0;
     if ((db[0] > 0) == (db[1] > 0) && (db[1] > 0) == (db[2] > 0)) return 0;
     const D3 dir = na.cross(nb);
-    const double ld = dir.norm();
-    if (ld < 1e-6 * la * lb) return -1;  // nearly parallel planes
+    const double ld2 = dir.squaredNorm();
+    if (ld2 < 1e-12 * la2 * lb2) return -1;  // nearly parallel planes
     // Interval of a triangle on the line: the vertex alone on its side, and the edges to it.
     auto interval = [&](const D3* v, const double* d, double& lo, double& hi) {
         const int k = ((d[0] > 0) == (d[1] > 0)) ? 2 : (((d[0] > 0) == (d[2] > 0)) ? 1 : 0);
@@ -74,10 +82,9 @@ int interval_test(const Vec3f& a0, const Vec3f& a1, const Vec3f& a2, const Vec3f
     double alo, ahi, blo, bhi;
     interval(A, da, alo, ahi);
     interval(B, db, blo, bhi);
-    const double gap = std::max(alo, blo) - std::min(ahi, bhi), tol = kTolLine_mm * ld;
-    if (gap < -tol) return 1;
-    if (gap > tol) return 0;
-    return -1;
+    const double gap = std::max(alo, blo) - std::min(ahi, bhi);
+    if (gap * gap <= kTolLine2 * ld2) return -1;  // the intervals nearly touch
+    return gap < 0 ? 1 : 0;
 }
 
 }  // namespace
@@ -91,10 +98,11 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     tri_part_.reserve(ni);
     inst_stamp_.reserve(ni);
     cell_items_.reserve(ni * 8);
+    cell_box_.reserve(ni * 8 * 6);
     for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
-    keep_.reserve(ni);
+    kept_.reserve(ni);
     front_.reserve(ni);
-    bin_items_.reserve(ni * 4);
+    for (auto& f : bf_) f.reserve(ni * 4);
     bin_begin_.reserve(kMaxBins * kMaxBins + 1);
     bin_fill_.reserve(kMaxBins * kMaxBins);
 }
@@ -112,12 +120,15 @@ void ExactContact::set_membrane(const TriangleMesh& membrane) {
         vt_items_ = std::move(copy.vertex_triangles);
     }
     const size_t nt = triangles_.size(), nv = vertex_count_;
-    local_.resize(nv);
+    lx_.resize(nv);
+    ly_.resize(nv);
+    lz_.resize(nv);
     code_.resize(nv);
     tri_stamp_.assign(nt, 0);
     tri_state_.assign(nt, 0);
     hint_.assign(nt, kNoHint);
     vert_stamp_.assign(nv, 0);
+    vscan_stamp_.assign(nv, 0);
     vert_inside_.assign(nv, 0);
     vdepth_.assign(nv, 0.0f);
     vdepth_stamp_.assign(nv, 0);
@@ -126,6 +137,7 @@ void ExactContact::set_membrane(const TriangleMesh& membrane) {
     node_stamp_.assign(nv, 0);
     out_.reserve(nt);
     queue_.reserve(nt);
+    merged_.reserve(nt);
     contacts_.reserve(nt);
     nodes_.reserve(nv);
     grabbed_.reserve(nv);
@@ -141,7 +153,7 @@ void ExactContact::reset_result() {
     nodes_.clear();
     grabbed_.clear();
     push_.clear();
-    bump(query_, tri_stamp_, vert_stamp_, vdepth_stamp_, node_stamp_);
+    bump(query_, tri_stamp_, vert_stamp_, vscan_stamp_, vdepth_stamp_, node_stamp_);
 }
 
 bool ExactContact::instrument_changed(const MeshRef& ins, std::span<const uint32_t> parts) const {
@@ -211,9 +223,18 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
     for (size_t t = 0; t < nt; ++t) for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { ++cell_begin_[c + 1]; });
     for (size_t c = 0; c < ncell; ++c) cell_begin_[c + 1] += cell_begin_[c];
     cell_items_.resize(cell_begin_[ncell]);
+    cell_box_.resize(size_t(cell_begin_[ncell]) * 6);
     cell_fill_.assign(cell_begin_.begin(), cell_begin_.end() - 1);
     for (size_t t = 0; t < nt; ++t)
-        for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { cell_items_[cell_fill_[c]++] = uint32_t(t); });
+        for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) {
+            const uint32_t k = cell_fill_[c]++;
+            cell_items_[k] = uint32_t(t);
+            float* box = &cell_box_[size_t(k) * 6];
+            for (int i = 0; i < 3; ++i) {
+                box[i] = tris_[t].lo[i];
+                box[3 + i] = tris_[t].hi[i];
+            }
+        });
     inst_stamp_.assign(nt, 0);
     inst_query_ = 0;
     std::fill(hint_.begin(), hint_.end(), kNoHint);  // they name triangles of the previous structure
@@ -225,7 +246,7 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
     tnx_.resize(nt);
     tny_.resize(nt);
     tnz_.resize(nt);
-    keep_.resize(nt);
+    kept_.reserve(nt);
     for (size_t t = 0; t < nt; ++t) {
         const InstTri& T = tris_[t];
         const Vec3f c = (T.a + T.b + T.c) / 3.0f;
@@ -242,7 +263,7 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
 
 bool ExactContact::intersects_any(uint32_t mt) {
     const auto& tr = triangles_[mt];
-    const Vec3f &a = local_[tr[0]], &b = local_[tr[1]], &c = local_[tr[2]];
+    const Vec3f a = local(tr[0]), b = local(tr[1]), c = local(tr[2]);
     // Plain float arithmetic in this loop: GCC at -O2 does not inline Eigen's small reductions.
     const float ax = a.x(), ay = a.y(), az = a.z(), bx = b.x(), by = b.y(), bz = b.z(), cx = c.x(), cy = c.y(),
                 cz = c.z();
@@ -254,14 +275,20 @@ bool ExactContact::intersects_any(uint32_t mt) {
     const int x0 = cell_of(lox, 0), x1 = cell_of(hix, 0), y0 = cell_of(loy, 1), y1 = cell_of(hiy, 1),
               z0 = cell_of(loz, 2), z1 = cell_of(hiz, 2);
     const uint32_t q = bump(inst_query_, inst_stamp_);
-    // The membrane triangle's plane (unnormalised) for the second filter.
-    const float e1x = bx - ax, e1y = by - ay, e1z = bz - az, e2x = cx - ax, e2y = cy - ay, e2z = cz - az;
-    const float nmx = e1y * e2z - e1z * e2y, nmy = e1z * e2x - e1x * e2z, nmz = e1x * e2y - e1y * e2x;
-    const float dm = nmx * ax + nmy * ay + nmz * az;
-    const float epsm = kEps_mm * std::sqrt(nmx * nmx + nmy * nmy + nmz * nmz);
-    auto pair_hits = [&](const InstTri& T) {
-        if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() || loz > T.hi.z())
-            return false;
+    // The membrane triangle's plane (unnormalised) for the second filter, computed when a pair first gets there.
+    bool plane = false;
+    float nmx = 0, nmy = 0, nmz = 0, dm = 0, epsm = 0;
+    // The pair test after the bounds test (the grid walk reads the bounds from the cell's own copy).
+    auto pair_after_bounds = [&](const InstTri& T) {
+        if (!plane) {
+            plane = true;
+            const float e1x = bx - ax, e1y = by - ay, e1z = bz - az, e2x = cx - ax, e2y = cy - ay, e2z = cz - az;
+            nmx = e1y * e2z - e1z * e2y;
+            nmy = e1z * e2x - e1x * e2z;
+            nmz = e1x * e2y - e1y * e2x;
+            dm = nmx * ax + nmy * ay + nmz * az;
+            epsm = kEps_mm * std::sqrt(nmx * nmx + nmy * nmy + nmz * nmz);
+        }
         // Plane filters (float, conservative margin): all of one triangle strictly on one side of the other's
         // plane → disjoint.
         const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
@@ -276,6 +303,11 @@ bool ExactContact::intersects_any(uint32_t mt) {
         ++result_.pair_tests;
         const int fast = interval_test(a, b, c, T.a, T.b, T.c);
         return fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c));
+    };
+    auto pair_hits = [&](const InstTri& T) {
+        if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() || loz > T.hi.z())
+            return false;
+        return pair_after_bounds(T);
     };
     // Coherence: first the instrument triangle that hit this membrane triangle in the previous query (small
     // motion between frames), then the one that hit the previous membrane triangle (neighbours in the mesh).
@@ -294,10 +326,13 @@ bool ExactContact::intersects_any(uint32_t mt) {
             for (int x = x0; x <= x1; ++x) {
                 const size_t cidx = (size_t(z) * size_t(dims_[1]) + size_t(y)) * size_t(dims_[0]) + size_t(x);
                 for (uint32_t k = cell_begin_[cidx]; k < cell_begin_[cidx + 1]; ++k) {
+                    const float* box = &cell_box_[size_t(k) * 6];
+                    if (hix < box[0] || hiy < box[1] || hiz < box[2] || lox > box[3] || loy > box[4] || loz > box[5])
+                        continue;
                     const uint32_t it = cell_items_[k];
                     if (inst_stamp_[it] == q) continue;
                     inst_stamp_[it] = q;
-                    if (pair_hits(tris_[it])) {
+                    if (pair_after_bounds(tris_[it])) {
                         hint_[mt] = last_hit_ = it;
                         return true;
                     }
@@ -346,14 +381,45 @@ float ExactContact::front_depth(float u, float w) const {
     const int bu = int((u - bu0_) * binv_u_), bw = int((w - bw0_) * binv_w_);
     if (bu < 0 || bw < 0 || bu >= bins_ || bw >= bins_) return kInf;
     const size_t b = size_t(bw) * size_t(bins_) + size_t(bu);
-    float best = kInf;
     constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
-    for (uint32_t k = bin_begin_[b]; k < bin_begin_[b + 1]; ++k) {
-        const FrontTri& f = front_[bin_items_[k]];
-        const float du = u - f.u0, dw = w - f.w0;
-        const float l1 = f.a11 * du + f.a12 * dw, l2 = f.a21 * du + f.a22 * dw;
+    const float* __restrict U0 = bf_[0].data();
+    const float* __restrict W0 = bf_[1].data();
+    const float* __restrict A11 = bf_[2].data();
+    const float* __restrict A12 = bf_[3].data();
+    const float* __restrict A21 = bf_[4].data();
+    const float* __restrict A22 = bf_[5].data();
+    const float* __restrict S0 = bf_[6].data();
+    const float* __restrict DS1 = bf_[7].data();
+    const float* __restrict DS2 = bf_[8].data();
+    uint32_t k = bin_begin_[b];
+    const uint32_t end = bin_begin_[b + 1];
+    float best = kInf;
+#if defined(__SSE2__)
+    // Four items per step, the same single-precision operations as the scalar loop below (so the same values).
+    if (end - k >= 4) {
+        const __m128 vu = _mm_set1_ps(u), vw = _mm_set1_ps(w), tol = _mm_set1_ps(kTol), one = _mm_set1_ps(1.0f);
+        const __m128 inf = _mm_set1_ps(kInf);
+        __m128 vbest = inf;
+        for (; k + 4 <= end; k += 4) {
+            const __m128 du = _mm_sub_ps(vu, _mm_loadu_ps(U0 + k)), dw = _mm_sub_ps(vw, _mm_loadu_ps(W0 + k));
+            const __m128 l1 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A11 + k), du), _mm_mul_ps(_mm_loadu_ps(A12 + k), dw));
+            const __m128 l2 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A21 + k), du), _mm_mul_ps(_mm_loadu_ps(A22 + k), dw));
+            const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
+            const __m128 in = _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
+            const __m128 s = _mm_add_ps(_mm_add_ps(_mm_loadu_ps(S0 + k), _mm_mul_ps(l1, _mm_loadu_ps(DS1 + k))),
+                                        _mm_mul_ps(l2, _mm_loadu_ps(DS2 + k)));
+            vbest = _mm_min_ps(vbest, _mm_or_ps(_mm_and_ps(in, s), _mm_andnot_ps(in, inf)));
+        }
+        alignas(16) float lanes[4];
+        _mm_store_ps(lanes, vbest);
+        best = std::min(std::min(lanes[0], lanes[1]), std::min(lanes[2], lanes[3]));
+    }
+#endif
+    for (; k < end; ++k) {
+        const float du = u - U0[k], dw = w - W0[k];
+        const float l1 = A11[k] * du + A12[k] * dw, l2 = A21[k] * du + A22[k] * dw;
         if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
-        best = std::min(best, f.s0 + l1 * f.ds1 + l2 * f.ds2);
+        best = std::min(best, S0[k] + l1 * DS1[k] + l2 * DS2[k]);
     }
     return best;
 }
@@ -365,14 +431,16 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     const Vec3f hint = std::fabs(ps_.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
     pu_ = ps_.cross(hint).normalized();
     pw_ = ps_.cross(pu_);
+    const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
+    const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
     // Region ⊥ π covered by the colliding triangles, and their deepest point along π.
     float u_lo = kInf, u_hi = -kInf, w_lo = kInf, w_hi = -kInf, s_hi = -kInf;
     for (uint32_t t : out_)
         for (uint32_t v : triangles_[t]) {
-            const Vec3f& p = local_[v];
-            const float u = pu_.x() * p.x() + pu_.y() * p.y() + pu_.z() * p.z();
-            const float w = pw_.x() * p.x() + pw_.y() * p.y() + pw_.z() * p.z();
-            const float s = ps_.x() * p.x() + ps_.y() * p.y() + ps_.z() * p.z();
+            const float px = lx_[v], py = ly_[v], pz = lz_[v];
+            const float u = ux * px + uy * py + uz * pz;
+            const float w = wx * px + wy * py + wz * pz;
+            const float s = sx * px + sy * py + sz * pz;
             u_lo = std::min(u_lo, u);
             u_hi = std::max(u_hi, u);
             w_lo = std::min(w_lo, w);
@@ -381,10 +449,9 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         }
     // Cull by bounding spheres: only triangles facing the camera (−π; the first surface a line along π meets on
     // a closed part with outward normals faces it) over the region and reaching in front of the deepest sample.
-    const size_t nit = tris_.size();
+    const uint32_t nit = uint32_t(tris_.size());
+    kept_.clear();
     {
-        const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
-        const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
         const float* __restrict cx = tcx_.data();
         const float* __restrict cy = tcy_.data();
         const float* __restrict cz = tcz_.data();
@@ -392,20 +459,39 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         const float* __restrict nx = tnx_.data();
         const float* __restrict ny = tny_.data();
         const float* __restrict nz = tnz_.data();
-        uint8_t* __restrict keep = keep_.data();
-        for (size_t t = 0; t < nit; ++t) {
+        uint32_t t = 0;
+#if defined(__SSE2__)
+        // Four triangles per step; the kept ones are listed straight from the lane mask.
+        const __m128 vux = _mm_set1_ps(ux), vuy = _mm_set1_ps(uy), vuz = _mm_set1_ps(uz);
+        const __m128 vwx = _mm_set1_ps(wx), vwy = _mm_set1_ps(wy), vwz = _mm_set1_ps(wz);
+        const __m128 vsx = _mm_set1_ps(sx), vsy = _mm_set1_ps(sy), vsz = _mm_set1_ps(sz);
+        const __m128 vulo = _mm_set1_ps(u_lo), vuhi = _mm_set1_ps(u_hi), vwlo = _mm_set1_ps(w_lo),
+                     vwhi = _mm_set1_ps(w_hi), vshi = _mm_set1_ps(s_hi), zero = _mm_setzero_ps();
+        for (; t + 4 <= nit; t += 4) {
+            const __m128 X = _mm_loadu_ps(cx + t), Y = _mm_loadu_ps(cy + t), Z = _mm_loadu_ps(cz + t);
+            const __m128 r = _mm_loadu_ps(rad + t);
+            const __m128 facing = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vsx, _mm_loadu_ps(nx + t)), _mm_mul_ps(vsy, _mm_loadu_ps(ny + t))),
+                                             _mm_mul_ps(vsz, _mm_loadu_ps(nz + t)));
+            __m128 keep = _mm_cmplt_ps(facing, zero);
+            const __m128 u = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vux, X), _mm_mul_ps(vuy, Y)), _mm_mul_ps(vuz, Z));
+            keep = _mm_and_ps(keep, _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(u, r), vulo), _mm_cmple_ps(_mm_sub_ps(u, r), vuhi)));
+            const __m128 w = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vwx, X), _mm_mul_ps(vwy, Y)), _mm_mul_ps(vwz, Z));
+            keep = _mm_and_ps(keep, _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(w, r), vwlo), _mm_cmple_ps(_mm_sub_ps(w, r), vwhi)));
+            const __m128 s = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vsx, X), _mm_mul_ps(vsy, Y)), _mm_mul_ps(vsz, Z));
+            keep = _mm_and_ps(keep, _mm_cmple_ps(_mm_sub_ps(s, r), vshi));
+            for (int m = _mm_movemask_ps(keep); m; m &= m - 1) kept_.push_back(t + uint32_t(__builtin_ctz(unsigned(m))));
+        }
+#endif
+        for (; t < nit; ++t) {
             const float u = ux * cx[t] + uy * cy[t] + uz * cz[t], w = wx * cx[t] + wy * cy[t] + wz * cz[t];
             const float s = sx * cx[t] + sy * cy[t] + sz * cz[t], r = rad[t];
             const float facing = sx * nx[t] + sy * ny[t] + sz * nz[t];
-            keep[t] = uint8_t((facing < 0.0f) & (u + r >= u_lo) & (u - r <= u_hi) & (w + r >= w_lo) & (w - r <= w_hi) &
-                              (s - r <= s_hi));
+            if ((facing < 0.0f) & (u + r >= u_lo) & (u - r <= u_hi) & (w + r >= w_lo) & (w - r <= w_hi) & (s - r <= s_hi))
+                kept_.push_back(t);
         }
     }
     front_.clear();
-    const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
-    const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
-    for (size_t t = 0; t < nit; ++t) {
-        if (!keep_[t]) continue;
+    for (uint32_t t : kept_) {
         const InstTri& T = tris_[t];
         const float a0 = T.a.x(), a1 = T.a.y(), a2 = T.a.z(), b0 = T.b.x(), b1 = T.b.y(), b2 = T.b.z();
         const float c0 = T.c.x(), c1 = T.c.y(), c2 = T.c.z();
@@ -437,7 +523,8 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         front_.push_back(f);
     }
     result_.front_triangles = front_.size();
-    bins_ = std::clamp(int(std::sqrt(double(front_.size()) / 2.0)), 1, kMaxBins);
+    // Coarse bins: a lookup streams through its bin four items at a time, so fewer copies beat shorter lists.
+    bins_ = std::clamp(int(std::sqrt(double(front_.size()) / kFrontPerBin)), 1, kMaxBins);
     const float eu = std::max(u_hi - u_lo, 1e-6f), ew = std::max(w_hi - w_lo, 1e-6f);
     bu0_ = u_lo;
     bw0_ = w_lo;
@@ -445,27 +532,34 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     binv_w_ = float(bins_) / ew * (1.0f - 1e-6f);
     const size_t nb = size_t(bins_) * size_t(bins_);
     bin_begin_.assign(nb + 1, 0);
-    auto bin_range = [&](const FrontTri& f, int& x0, int& x1, int& y0, int& y1) {
-        x0 = std::clamp(int((f.ulo - bu0_) * binv_u_), 0, bins_ - 1);
-        x1 = std::clamp(int((f.uhi - bu0_) * binv_u_), 0, bins_ - 1);
-        y0 = std::clamp(int((f.wlo - bw0_) * binv_w_), 0, bins_ - 1);
-        y1 = std::clamp(int((f.whi - bw0_) * binv_w_), 0, bins_ - 1);
-    };
-    for (const FrontTri& f : front_) {
-        int x0, x1, y0, y1;
-        bin_range(f, x0, x1, y0, y1);
-        for (int y = y0; y <= y1; ++y)
-            for (int x = x0; x <= x1; ++x) ++bin_begin_[size_t(y) * size_t(bins_) + size_t(x) + 1];
+    for (FrontTri& f : front_) {
+        f.x0 = std::clamp(int((f.ulo - bu0_) * binv_u_), 0, bins_ - 1);
+        f.x1 = std::clamp(int((f.uhi - bu0_) * binv_u_), 0, bins_ - 1);
+        f.y0 = std::clamp(int((f.wlo - bw0_) * binv_w_), 0, bins_ - 1);
+        f.y1 = std::clamp(int((f.whi - bw0_) * binv_w_), 0, bins_ - 1);
+        for (int y = f.y0; y <= f.y1; ++y)
+            for (int x = f.x0; x <= f.x1; ++x) ++bin_begin_[size_t(y) * size_t(bins_) + size_t(x) + 1];
     }
-    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] += bin_begin_[b];
-    bin_items_.resize(bin_begin_[nb]);
+    // Each bin padded to a multiple of four items (the padding never matches: its u0 is NaN), so a lookup runs
+    // whole SIMD steps only.
+    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
+    bf_[0].assign(bin_begin_[nb], std::numeric_limits<float>::quiet_NaN());
+    for (int i = 1; i < 9; ++i) bf_[i].assign(bin_begin_[nb], 0.0f);
     bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
-    for (uint32_t i = 0; i < front_.size(); ++i) {
-        int x0, x1, y0, y1;
-        bin_range(front_[i], x0, x1, y0, y1);
-        for (int y = y0; y <= y1; ++y)
-            for (int x = x0; x <= x1; ++x) bin_items_[bin_fill_[size_t(y) * size_t(bins_) + size_t(x)]++] = i;
-    }
+    for (const FrontTri& f : front_)
+        for (int y = f.y0; y <= f.y1; ++y)
+            for (int x = f.x0; x <= f.x1; ++x) {
+                const uint32_t k = bin_fill_[size_t(y) * size_t(bins_) + size_t(x)]++;
+                bf_[0][k] = f.u0;
+                bf_[1][k] = f.w0;
+                bf_[2][k] = f.a11;
+                bf_[3][k] = f.a12;
+                bf_[4][k] = f.a21;
+                bf_[5][k] = f.a22;
+                bf_[6][k] = f.s0;
+                bf_[7][k] = f.ds1;
+                bf_[8][k] = f.ds2;
+            }
     // ZI − ZM at a membrane point: the front-most instrument surface on its line minus its own depth, ≤ 0.
     auto delta_at = [&](const Vec3f& p) {
         const float u = ux * p.x() + uy * p.y() + uz * p.z(), w = wx * p.x() + wy * p.y() + wz * p.z();
@@ -481,14 +575,14 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         for (uint32_t v : tr) {
             if (vdepth_stamp_[v] != query_) {
                 vdepth_stamp_[v] = query_;
-                vdepth_[v] = delta_at(local_[v]);
+                vdepth_[v] = delta_at(local(v));
             }
             if (vdepth_[v] < c.depth_delta_mm) {
                 c.depth_delta_mm = vdepth_[v];
                 c.point_eye_mm = verts_eye[v];
             }
         }
-        const float centre = delta_at((local_[tr[0]] + local_[tr[1]] + local_[tr[2]]) / 3.0f);
+        const float centre = delta_at((local(tr[0]) + local(tr[1]) + local(tr[2])) / 3.0f);
         if (centre < c.depth_delta_mm) {
             c.depth_delta_mm = centre;
             c.point_eye_mm = (verts_eye[tr[0]] + verts_eye[tr[1]] + verts_eye[tr[2]]) / 3.0f;
@@ -526,35 +620,106 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
     const float hx = hi_.x() + kEps_mm, hy = hi_.y() + kEps_mm, hz = hi_.z() + kEps_mm;
     const size_t nv = verts.size();
     const float* __restrict in = verts.data()->data();
-    float* __restrict out = local_.data()->data();
+    float* __restrict ox = lx_.data();
+    float* __restrict oy = ly_.data();
+    float* __restrict oz = lz_.data();
     uint8_t* __restrict code = code_.data();
-    for (size_t i = 0; i < nv; ++i) {
+    size_t i = 0;
+#if defined(__SSE2__)
+    {
+        // Four vertices per step: three loads de-interleaved into x, y, z lanes; the same single-precision
+        // operations in the same order as the scalar loop below.
+        const __m128 R00 = _mm_set1_ps(r00), R01 = _mm_set1_ps(r01), R02 = _mm_set1_ps(r02);
+        const __m128 R10 = _mm_set1_ps(r10), R11 = _mm_set1_ps(r11), R12 = _mm_set1_ps(r12);
+        const __m128 R20 = _mm_set1_ps(r20), R21 = _mm_set1_ps(r21), R22 = _mm_set1_ps(r22);
+        const __m128 T0 = _mm_set1_ps(t0), T1 = _mm_set1_ps(t1), T2 = _mm_set1_ps(t2);
+        const __m128 LX = _mm_set1_ps(lx), LY = _mm_set1_ps(ly), LZ = _mm_set1_ps(lz);
+        const __m128 HX = _mm_set1_ps(hx), HY = _mm_set1_ps(hy), HZ = _mm_set1_ps(hz);
+        const __m128i b0 = _mm_set1_epi32(1), b1 = _mm_set1_epi32(2), b2 = _mm_set1_epi32(4), b3 = _mm_set1_epi32(8),
+                      b4 = _mm_set1_epi32(16), b5 = _mm_set1_epi32(32);
+        auto bit = [](__m128 mask, __m128i b) { return _mm_and_si128(_mm_castps_si128(mask), b); };
+        for (; i + 4 <= nv; i += 4) {
+            const __m128 v0 = _mm_loadu_ps(in + 3 * i), v1 = _mm_loadu_ps(in + 3 * i + 4), v2 = _mm_loadu_ps(in + 3 * i + 8);
+            const __m128 xy = _mm_shuffle_ps(v1, v2, _MM_SHUFFLE(2, 1, 3, 2));  // x2 y2 x3 y3
+            const __m128 yz = _mm_shuffle_ps(v0, v1, _MM_SHUFFLE(1, 0, 2, 1));  // y0 z0 y1 z1
+            const __m128 X = _mm_shuffle_ps(v0, xy, _MM_SHUFFLE(2, 0, 3, 0));
+            const __m128 Y = _mm_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
+            const __m128 Z = _mm_shuffle_ps(yz, v2, _MM_SHUFFLE(3, 0, 3, 1));
+            const __m128 px = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R00, X), _mm_mul_ps(R01, Y)), _mm_mul_ps(R02, Z)), T0);
+            const __m128 py = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R10, X), _mm_mul_ps(R11, Y)), _mm_mul_ps(R12, Z)), T1);
+            const __m128 pz = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R20, X), _mm_mul_ps(R21, Y)), _mm_mul_ps(R22, Z)), T2);
+            _mm_storeu_ps(ox + i, px);
+            _mm_storeu_ps(oy + i, py);
+            _mm_storeu_ps(oz + i, pz);
+            const __m128i c = _mm_or_si128(
+                _mm_or_si128(_mm_or_si128(bit(_mm_cmplt_ps(px, LX), b0), bit(_mm_cmpgt_ps(px, HX), b1)),
+                             _mm_or_si128(bit(_mm_cmplt_ps(py, LY), b2), bit(_mm_cmpgt_ps(py, HY), b3))),
+                _mm_or_si128(bit(_mm_cmplt_ps(pz, LZ), b4), bit(_mm_cmpgt_ps(pz, HZ), b5)));
+            const __m128i c16 = _mm_packs_epi32(c, c);
+            const int c8 = _mm_cvtsi128_si32(_mm_packus_epi16(c16, c16));
+            std::memcpy(code + i, &c8, 4);
+        }
+    }
+#endif
+    for (; i < nv; ++i) {
         const float x = in[3 * i], y = in[3 * i + 1], z = in[3 * i + 2];
         const float px = r00 * x + r01 * y + r02 * z + t0;
         const float py = r10 * x + r11 * y + r12 * z + t1;
         const float pz = r20 * x + r21 * y + r22 * z + t2;
-        out[3 * i] = px;
-        out[3 * i + 1] = py;
-        out[3 * i + 2] = pz;
+        ox[i] = px;
+        oy[i] = py;
+        oz[i] = pz;
         code[i] = uint8_t((px < lx) | ((px > hx) << 1) | ((py < ly) << 2) | ((py > hy) << 3) | ((pz < lz) << 4) |
                           ((pz > hz) << 5));
     }
     const uint32_t q = query_;
     const size_t nt = triangles_.size();
-    enum : uint8_t { kMiss = 0, kHit = 1, kInside = 2 };
+    // kOutside: reached the grid but lies outside options.within (as if culled). `within` is asked lazily, of the
+    // hits and of the triangles the containment growth reaches, not of every triangle near the instrument.
+    enum : uint8_t { kMiss = 0, kHit = 1, kInside = 2, kVisited = 3, kOutside = 4 };
+    // box_overlaps_aabb(*options.within, triangle bounds), with the box's own terms computed once per query and
+    // the same single-precision operations in the same order (Eigen sums a 3-term dot product as p0 + (p1 + p2)).
+    const OrientedBox* vbox = options.within;
+    float ar[3][3] = {}, rb[3] = {}, rc[3][3] = {}, he[3] = {}, bc[3] = {};
+    if (vbox) {
+        for (int row = 0; row < 3; ++row) {
+            he[row] = vbox->half_extent_mm[row];
+            bc[row] = vbox->centre_eye_mm[row];
+            for (int col = 0; col < 3; ++col) {
+                rc[row][col] = vbox->box_to_eye(row, col);
+                ar[row][col] = std::fabs(rc[row][col]);
+            }
+        }
+        for (int k = 0; k < 3; ++k) rb[k] = ar[k][0] * he[0] + (ar[k][1] * he[1] + ar[k][2] * he[2]);
+    }
     auto within = [&](uint32_t t) {
-        if (!options.within) return true;
+        if (!vbox) return true;
         const auto& tri = triangles_[t];
         const Vec3f &a = verts[tri[0]], &b = verts[tri[1]], &c = verts[tri[2]];
-        return box_overlaps_aabb(*options.within, a.cwiseMin(b).cwiseMin(c), a.cwiseMax(b).cwiseMax(c));
+        float h[3], d[3];
+        for (int k = 0; k < 3; ++k) {
+            const float lo = std::min(std::min(a[k], b[k]), c[k]), hi = std::max(std::max(a[k], b[k]), c[k]);
+            h[k] = 0.5f * (hi - lo);
+            d[k] = bc[k] - 0.5f * (lo + hi);
+            if (std::fabs(d[k]) > h[k] + rb[k]) return false;
+        }
+        for (int k = 0; k < 3; ++k) {
+            const float ra = ar[0][k] * h[0] + (ar[1][k] * h[1] + ar[2][k] * h[2]);
+            const float dk = rc[0][k] * d[0] + (rc[1][k] * d[1] + rc[2][k] * d[2]);
+            if (std::fabs(dk) > ra + he[k]) return false;
+        }
+        return true;
     };
     for (size_t mt = 0; mt < nt; ++mt) {
         const auto& tri = triangles_[mt];
         if (code[tri[0]] & code[tri[1]] & code[tri[2]]) continue;
-        if (!within(uint32_t(mt))) continue;
         ++result_.candidate_triangles;
         tri_stamp_[mt] = q;
         const bool hit = intersects_any(uint32_t(mt));
+        if (hit && !within(uint32_t(mt))) {
+            tri_state_[mt] = kOutside;
+            continue;
+        }
         tri_state_[mt] = hit ? kHit : kMiss;
         if (hit) out_.push_back(uint32_t(mt));
     }
@@ -562,18 +727,26 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
         // A membrane triangle inside a part without touching its surface shares a vertex with a hit or another
         // such triangle: grow from the hits. A triangle that meets no instrument triangle is wholly inside or
         // wholly outside, and so are its vertices: one parity test classifies a whole run of neighbours.
+        const size_t hits = out_.size();  // ascending
         queue_.assign(out_.begin(), out_.end());
         for (size_t qi = 0; qi < queue_.size(); ++qi) {
             for (uint32_t v : triangles_[queue_[qi]]) {
+                // A vertex's triangles need one look: none of them can become undecided again.
+                if (vscan_stamp_[v] == q) continue;
+                vscan_stamp_[v] = q;
                 for (uint32_t k = vt_begin_[v]; k < vt_begin_[v + 1]; ++k) {
                     const uint32_t t = vt_items_[k];
                     if (tri_stamp_[t] != q || tri_state_[t] != kMiss) continue;  // outside the bounds, or decided
-                    tri_state_[t] = 3;  // visited
+                    if (!within(t)) {
+                        tri_state_[t] = kOutside;
+                        continue;
+                    }
+                    tri_state_[t] = kVisited;
                     const auto& tri = triangles_[t];
                     int known = -1;
                     for (uint32_t w : tri)
                         if (vert_stamp_[w] == q) known = vert_inside_[w];
-                    if (known < 0) known = inside_any_part(local_[tri[0]]) ? 1 : 0;
+                    if (known < 0) known = inside_any_part(local(tri[0])) ? 1 : 0;
                     for (uint32_t w : tri) {
                         vert_stamp_[w] = q;
                         vert_inside_[w] = uint8_t(known);
@@ -586,7 +759,13 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
                 }
             }
         }
-        std::sort(out_.begin(), out_.end());
+        if (out_.size() > hits) {  // merge the contained ones into the ascending hits
+            std::sort(out_.begin() + std::ptrdiff_t(hits), out_.end());
+            merged_.resize(out_.size());
+            std::merge(out_.begin(), out_.begin() + std::ptrdiff_t(hits), out_.begin() + std::ptrdiff_t(hits), out_.end(),
+                       merged_.begin());
+            out_.swap(merged_);
+        }
     }
     result_.colliding_triangles = out_;
     result_.colliding = !out_.empty();

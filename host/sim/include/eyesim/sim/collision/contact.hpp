@@ -8,14 +8,16 @@
 /// The instrument is rigid per articulation: its acceleration structure (a uniform grid over its triangles,
 /// triangle planes, part bounds) is built in the instrument frame once and rebuilt only when the articulated
 /// vertices change (forceps opening). Per query the membrane vertices are moved into the instrument frame
-/// (one affine transform each) and culled by outcodes against the instrument's bounds; the few remaining
-/// membrane triangles are tested against the grid's instrument triangles (coherence hints first: the
+/// (one affine transform each, four at a time with SSE2) and culled by outcodes against the instrument's bounds;
+/// the few remaining membrane triangles are tested against the grid's instrument triangles (each cell keeps a
+/// copy of its triangles' bounds, so the walk reads them in order; coherence hints first: the
 /// instrument triangle that hit the same membrane triangle last query or the previous membrane triangle; float
 /// plane filters with a conservative margin; Möller's interval test in double, falling back to the predicates
 /// of `triangles_intersect` near degeneracy). Containment is grown
 /// from the intersecting triangles over the membrane's adjacency (ray parity, one test per inside/outside
 /// region of non-intersecting triangles). Deformation: the instrument's triangles over the contact are binned
-/// in the plane ⊥ π; each sample point looks up the front-most instrument surface on its line along π.
+/// in the plane ⊥ π (each bin's triangles copied contiguously); each sample point looks up the front-most
+/// instrument surface on its line along π, scanning its bin four triangles at a time.
 
 #include "eyesim/sim/collision/instrument.hpp"
 #include "eyesim/sim/collision/raster_backend.hpp"
@@ -98,10 +100,10 @@ public:
 
 private:
     struct InstTri {
-        Vec3f a, b, c;   // instrument frame
+        Vec3f lo, hi;    // bounds (first: the filters read these, then the plane, then the corners)
         Vec3f n;         // unit normal
         float d;         // n · a
-        Vec3f lo, hi;    // bounds
+        Vec3f a, b, c;   // instrument frame
     };
     bool instrument_changed(const MeshRef& instrument, std::span<const uint32_t> parts) const;
     void build_instrument(const MeshRef& instrument, std::span<const uint32_t> parts);
@@ -126,27 +128,33 @@ private:
     Vec3f lo_{0, 0, 0}, hi_{0, 0, 0}, inv_cell_{1, 1, 1};
     int dims_[3] = {1, 1, 1};
     std::vector<uint32_t> cell_begin_, cell_items_, cell_fill_;
+    std::vector<float> cell_box_;  // per cell item: its triangle's bounds (lo xyz, hi xyz), read in cell order
     bool built_ = false;
-    // Per query: membrane in the instrument frame, outcodes, stamps.
-    std::vector<Vec3f> local_;
+    // Per query: membrane in the instrument frame (structure of arrays), outcodes, stamps.
+    std::vector<float> lx_, ly_, lz_;
+    Vec3f local(uint32_t v) const { return {lx_[v], ly_[v], lz_[v]}; }
     std::vector<uint8_t> code_;
-    std::vector<uint32_t> inst_stamp_, tri_stamp_, vert_stamp_;
+    std::vector<uint32_t> inst_stamp_, tri_stamp_, vert_stamp_, vscan_stamp_;
     std::vector<uint8_t> tri_state_, vert_inside_;
     uint32_t inst_query_ = 0, query_ = 0;
     std::vector<uint32_t> hint_;  // per membrane triangle: the instrument triangle that last intersected it
     uint32_t last_hit_ = 0xFFFFFFFFu;
-    std::vector<uint32_t> out_, queue_;
+    std::vector<uint32_t> out_, queue_, merged_;
     // Deformation: bounding spheres and normals of the instrument triangles (structure of arrays, built with
     // the grid), the front-facing triangles over the contact as planes over (u, w) ⊥ π, binned.
     std::vector<float> tcx_, tcy_, tcz_, trad_, tnx_, tny_, tnz_;
-    std::vector<uint8_t> keep_;
+    std::vector<uint32_t> kept_;
     struct FrontTri {
         float u0, w0, a11, a12, a21, a22;  // (u, w) → barycentric (l1, l2)
         float s0, ds1, ds2;                // depth along π at the corners
         float ulo, uhi, wlo, whi;          // bounds ⊥ π
+        int x0, x1, y0, y1;                // bins covered
     };
     std::vector<FrontTri> front_;
-    std::vector<uint32_t> bin_begin_, bin_items_, bin_fill_;
+    std::vector<uint32_t> bin_begin_, bin_fill_;
+    // The front triangles copied into bin order, one array per FrontTri field (a bin's items are contiguous, so
+    // a lookup streams through them four at a time).
+    std::vector<float> bf_[9];
     float bu0_ = 0, bw0_ = 0, binv_u_ = 1, binv_w_ = 1;
     int bins_ = 1;
     Vec3f pu_{1, 0, 0}, pw_{0, 1, 0}, ps_{0, 0, 1};  // u, w, π in the instrument frame
