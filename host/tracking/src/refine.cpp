@@ -691,6 +691,31 @@ public:
         constexpr std::integral_constant<int, nr> kToOutline;
         const double* cov = w_.cov.data();
         const uint8_t* touch = w_.touch.data();
+        // An observation inside the outline and off its ramp that the marker does not reach (most of them): its
+        // row is D_ch·u with u = (1, x, v, P′·∂dist/∂φ, P′, P′·∂dist/∂κ, P) the same in every channel and
+        // D_ch = diag(1, 1, 1, −G, G, −G, 1), G the channel's limb gain (compact parameters 6–10, 12, 13; 11 is 0).
+        // Their outer products are summed once for the luma and once for both chroma channels (a sample's Cb and
+        // Cr share u), and scaled by D at the end.
+        constexpr int kU = 7;
+        constexpr int kUIdx[kU] = {6, 7, 8, 9, 10, 12, 13};
+        double uu[2][kU * kU] = {}, ug[3][kU] = {};  // Σ w·u·uᵀ (lower; luma, chroma), Σ w·r·u per channel
+        auto shared_u = [&](int i, int j, double* u) {
+            const int k = j * p_.cols + i;
+            const double dp = w_.edge_dp[k];
+            u[0] = 1.0;
+            u[1] = xrel_[static_cast<size_t>(i)];
+            u[2] = vrel_[static_cast<size_t>(j)];
+            u[3] = dp * w_.edge_dphi[k];
+            u[4] = dp;
+            u[5] = dp * w_.edge_dkappa[k];
+            u[6] = w_.edge_p[k];
+        };
+        auto add_shared = [&](double* m, const double* u, double wgt) {
+            for (int q = 0; q < kU; ++q) {
+                const double wq = wgt * u[q];
+                for (int v = 0; v <= q; ++v) m[q * kU + v] += wq * u[v];
+            }
+        };
         double row[kRow + 1] = {};
         double crow[2][SphereFitWorkspace::kCols][kRow];  // one line's chroma pixel rows
         for (int j = 0; j < p_.lines; ++j) {
@@ -699,6 +724,15 @@ public:
                 if (!w_.keep_y[o]) continue;
                 if (!touch[k] && edge_w[k] == 0.0) {
                     add_beyond(0, w_.obs_y[o] - val[k], wy_[static_cast<size_t>(o)]);
+                    continue;
+                }
+                if (!touch[k] && edge_w[k] == 1.0) {
+                    double u[kU];
+                    shared_u(x + 1, j, u);
+                    const double r = w_.obs_y[o] - val[k], wgt = wy_[static_cast<size_t>(o)];
+                    chi2 += wgt * r * r;
+                    add_shared(uu[0], u, wgt);
+                    for (int q = 0; q < kU; ++q) ug[0][q] += wgt * r * u[q];
                     continue;
                 }
                 pixel_row(t, 0, x + 1, j, row);
@@ -724,6 +758,20 @@ public:
                                        wc);
                     continue;
                 }
+                if (!reached && keep[0] && keep[1] && edge_w[k - 1] == 1.0 && edge_w[k] == 1.0 && edge_w[k + 1] == 1.0) {
+                    double u0[kU], u1[kU], u2[kU], u[kU];
+                    shared_u(i - 1, j, u0);
+                    shared_u(i, j, u1);
+                    shared_u(i + 1, j, u2);
+                    for (int q = 0; q < kU; ++q) u[q] = 0.25 * (u0[q] + u2[q]) + 0.5 * u1[q];
+                    add_shared(uu[1], u, wc);
+                    for (int ch = 1; ch <= 2; ++ch) {
+                        const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(val + ch * n + j * p_.cols, i);
+                        chi2 += wc * r * r;
+                        for (int q = 0; q < kU; ++q) ug[ch][q] += wc * r * u[q];
+                    }
+                    continue;
+                }
                 for (int m = std::max(i - 1, have + 1); m <= i + 1; ++m) {
                     pixel_row(t, 1, m, j, crow[0][m]);
                     pixel_row(t, 2, m, j, crow[1][m]);
@@ -745,6 +793,14 @@ public:
                     else
                         add(kFromShape, kToOutline, ch, row, res, wc);
                 }
+            }
+        }
+        for (int ch = 0; ch < 3; ++ch) {
+            const double gain = t[kG + ch], d[kU] = {1.0, 1.0, 1.0, -gain, gain, -gain, 1.0};
+            const double* m = uu[ch == 0 ? 0 : 1];
+            for (int q = 0; q < kU; ++q) {
+                acc_g[ch][kUIdx[q]] += d[q] * ug[ch][q];
+                for (int v = 0; v <= q; ++v) acc[ch][kUIdx[q] * kRow + kUIdx[v]] += d[q] * d[v] * m[q * kU + v];
             }
         }
         scatter(acc[0], sizeof acc[0] / sizeof(double), kRow, acc_g[0], kRow, nr, a, g);
