@@ -294,18 +294,19 @@ bool ExactContact::intersects_any(uint32_t mt) {
         const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
         const float da = nx * ax + ny * ay + nz * az - T.d, db = nx * bx + ny * by + nz * bz - T.d,
                     dc = nx * cx + ny * cy + nz * cz - T.d;
-        if ((da > kEps_mm && db > kEps_mm && dc > kEps_mm) || (da < -kEps_mm && db < -kEps_mm && dc < -kEps_mm))
+        if (((da > kEps_mm) & (db > kEps_mm) & (dc > kEps_mm)) | ((da < -kEps_mm) & (db < -kEps_mm) & (dc < -kEps_mm)))
             return false;
         const float ea = nmx * T.a.x() + nmy * T.a.y() + nmz * T.a.z() - dm,
                     eb = nmx * T.b.x() + nmy * T.b.y() + nmz * T.b.z() - dm,
                     ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
-        if ((ea > epsm && eb > epsm && ec > epsm) || (ea < -epsm && eb < -epsm && ec < -epsm)) return false;
+        if (((ea > epsm) & (eb > epsm) & (ec > epsm)) | ((ea < -epsm) & (eb < -epsm) & (ec < -epsm))) return false;
         ++result_.pair_tests;
         const int fast = interval_test(a, b, c, T.a, T.b, T.c);
         return fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c));
     };
     auto pair_hits = [&](const InstTri& T) {
-        if (hix < T.lo.x() || hiy < T.lo.y() || hiz < T.lo.z() || lox > T.hi.x() || loy > T.hi.y() || loz > T.hi.z())
+        if ((hix < T.lo.x()) | (hiy < T.lo.y()) | (hiz < T.lo.z()) | (lox > T.hi.x()) | (loy > T.hi.y()) |
+            (loz > T.hi.z()))
             return false;
         return pair_after_bounds(T);
     };
@@ -327,7 +328,9 @@ bool ExactContact::intersects_any(uint32_t mt) {
                 const size_t cidx = (size_t(z) * size_t(dims_[1]) + size_t(y)) * size_t(dims_[0]) + size_t(x);
                 for (uint32_t k = cell_begin_[cidx]; k < cell_begin_[cidx + 1]; ++k) {
                     const float* box = &cell_box_[size_t(k) * 6];
-                    if (hix < box[0] || hiy < box[1] || hiz < box[2] || lox > box[3] || loy > box[4] || loz > box[5])
+                    // One branch, not six (the outcome is hard to predict).
+                    if ((hix < box[0]) | (hiy < box[1]) | (hiz < box[2]) | (lox > box[3]) | (loy > box[4]) |
+                        (loz > box[5]))
                         continue;
                     const uint32_t it = cell_items_[k];
                     if (inst_stamp_[it] == q) continue;
@@ -405,7 +408,8 @@ float ExactContact::front_depth(float u, float w) const {
             const __m128 l1 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A11 + k), du), _mm_mul_ps(_mm_loadu_ps(A12 + k), dw));
             const __m128 l2 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A21 + k), du), _mm_mul_ps(_mm_loadu_ps(A22 + k), dw));
             const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
-            const __m128 in = _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
+            const __m128 in =
+                _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
             const __m128 s = _mm_add_ps(_mm_add_ps(_mm_loadu_ps(S0 + k), _mm_mul_ps(l1, _mm_loadu_ps(DS1 + k))),
                                         _mm_mul_ps(l2, _mm_loadu_ps(DS2 + k)));
             vbest = _mm_min_ps(vbest, _mm_or_ps(_mm_and_ps(in, s), _mm_andnot_ps(in, inf)));
@@ -470,29 +474,116 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         for (; t + 4 <= nit; t += 4) {
             const __m128 X = _mm_loadu_ps(cx + t), Y = _mm_loadu_ps(cy + t), Z = _mm_loadu_ps(cz + t);
             const __m128 r = _mm_loadu_ps(rad + t);
-            const __m128 facing = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vsx, _mm_loadu_ps(nx + t)), _mm_mul_ps(vsy, _mm_loadu_ps(ny + t))),
-                                             _mm_mul_ps(vsz, _mm_loadu_ps(nz + t)));
+            const __m128 facing =
+                _mm_add_ps(_mm_add_ps(_mm_mul_ps(vsx, _mm_loadu_ps(nx + t)), _mm_mul_ps(vsy, _mm_loadu_ps(ny + t))),
+                           _mm_mul_ps(vsz, _mm_loadu_ps(nz + t)));
             __m128 keep = _mm_cmplt_ps(facing, zero);
             const __m128 u = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vux, X), _mm_mul_ps(vuy, Y)), _mm_mul_ps(vuz, Z));
-            keep = _mm_and_ps(keep, _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(u, r), vulo), _mm_cmple_ps(_mm_sub_ps(u, r), vuhi)));
+            keep = _mm_and_ps(keep,
+                              _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(u, r), vulo), _mm_cmple_ps(_mm_sub_ps(u, r), vuhi)));
             const __m128 w = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vwx, X), _mm_mul_ps(vwy, Y)), _mm_mul_ps(vwz, Z));
-            keep = _mm_and_ps(keep, _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(w, r), vwlo), _mm_cmple_ps(_mm_sub_ps(w, r), vwhi)));
+            keep = _mm_and_ps(keep,
+                              _mm_and_ps(_mm_cmpge_ps(_mm_add_ps(w, r), vwlo), _mm_cmple_ps(_mm_sub_ps(w, r), vwhi)));
             const __m128 s = _mm_add_ps(_mm_add_ps(_mm_mul_ps(vsx, X), _mm_mul_ps(vsy, Y)), _mm_mul_ps(vsz, Z));
             keep = _mm_and_ps(keep, _mm_cmple_ps(_mm_sub_ps(s, r), vshi));
-            for (int m = _mm_movemask_ps(keep); m; m &= m - 1) kept_.push_back(t + uint32_t(__builtin_ctz(unsigned(m))));
+            for (int m = _mm_movemask_ps(keep); m; m &= m - 1)
+                kept_.push_back(t + uint32_t(__builtin_ctz(unsigned(m))));
         }
 #endif
         for (; t < nit; ++t) {
             const float u = ux * cx[t] + uy * cy[t] + uz * cz[t], w = wx * cx[t] + wy * cy[t] + wz * cz[t];
             const float s = sx * cx[t] + sy * cy[t] + sz * cz[t], r = rad[t];
             const float facing = sx * nx[t] + sy * ny[t] + sz * nz[t];
-            if ((facing < 0.0f) & (u + r >= u_lo) & (u - r <= u_hi) & (w + r >= w_lo) & (w - r <= w_hi) & (s - r <= s_hi))
+            if ((facing < 0.0f) & (u + r >= u_lo) & (u - r <= u_hi) & (w + r >= w_lo) & (w - r <= w_hi) &
+                (s - r <= s_hi))
                 kept_.push_back(t);
         }
     }
     front_.clear();
-    for (uint32_t t : kept_) {
-        const InstTri& T = tris_[t];
+    size_t first = 0;  // kept triangles before this one went through the SIMD path
+#if defined(__SSE2__)
+    {
+        // Four kept triangles per step (the same single-precision operations as the scalar loop below, so the
+        // same values): corners projected on u, w and π, the exact bounds test, the (u, w) → barycentric map.
+        const __m128 vux = _mm_set1_ps(ux), vuy = _mm_set1_ps(uy), vuz = _mm_set1_ps(uz);
+        const __m128 vwx = _mm_set1_ps(wx), vwy = _mm_set1_ps(wy), vwz = _mm_set1_ps(wz);
+        const __m128 vsx = _mm_set1_ps(sx), vsy = _mm_set1_ps(sy), vsz = _mm_set1_ps(sz);
+        const __m128 vulo = _mm_set1_ps(u_lo), vuhi = _mm_set1_ps(u_hi), vwlo = _mm_set1_ps(w_lo),
+                     vwhi = _mm_set1_ps(w_hi), vshi = _mm_set1_ps(s_hi);
+        const __m128 tiny = _mm_set1_ps(1e-12f), one = _mm_set1_ps(1.0f), sign = _mm_set1_ps(-0.0f);
+        // std::min(a, b) is (b < a ? b : a), which is MINPS with the operands swapped; likewise for max.
+        auto mn3 = [](__m128 a, __m128 b, __m128 c) { return _mm_min_ps(c, _mm_min_ps(b, a)); };
+        auto mx3 = [](__m128 a, __m128 b, __m128 c) { return _mm_max_ps(c, _mm_max_ps(b, a)); };
+        auto dot = [](__m128 x, __m128 y, __m128 z, __m128 X, __m128 Y, __m128 Z) {
+            return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, X), _mm_mul_ps(y, Y)), _mm_mul_ps(z, Z));
+        };
+        const size_t nk = kept_.size();
+        for (; first + 4 <= nk; first += 4) {
+            const InstTri& T0 = tris_[kept_[first]];
+            const InstTri& T1 = tris_[kept_[first + 1]];
+            const InstTri& T2 = tris_[kept_[first + 2]];
+            const InstTri& T3 = tris_[kept_[first + 3]];
+            // Corner `corner` (0 a, 1 b, 2 c), coordinate `axis` of the four triangles.
+            auto lanes = [&](int corner, int axis) {
+                auto get = [&](const InstTri& T) { return (corner == 0 ? T.a : corner == 1 ? T.b : T.c)[axis]; };
+                return _mm_setr_ps(get(T0), get(T1), get(T2), get(T3));
+            };
+            const __m128 a0 = lanes(0, 0), a1 = lanes(0, 1), a2 = lanes(0, 2);
+            const __m128 b0 = lanes(1, 0), b1 = lanes(1, 1), b2 = lanes(1, 2);
+            const __m128 c0 = lanes(2, 0), c1 = lanes(2, 1), c2 = lanes(2, 2);
+            const __m128 u0 = dot(vux, vuy, vuz, a0, a1, a2), w0 = dot(vwx, vwy, vwz, a0, a1, a2);
+            const __m128 u1 = dot(vux, vuy, vuz, b0, b1, b2), w1 = dot(vwx, vwy, vwz, b0, b1, b2);
+            const __m128 u2 = dot(vux, vuy, vuz, c0, c1, c2), w2 = dot(vwx, vwy, vwz, c0, c1, c2);
+            const __m128 s0 = dot(vsx, vsy, vsz, a0, a1, a2), s1 = dot(vsx, vsy, vsz, b0, b1, b2),
+                         s2 = dot(vsx, vsy, vsz, c0, c1, c2);
+            const __m128 ulo = mn3(u0, u1, u2), uhi = mx3(u0, u1, u2), wlo = mn3(w0, w1, w2), whi = mx3(w0, w1, w2);
+            __m128 out = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(mn3(s0, s1, s2), vshi), _mm_cmplt_ps(uhi, vulo)),
+                                   _mm_or_ps(_mm_cmpgt_ps(ulo, vuhi), _mm_cmplt_ps(whi, vwlo)));
+            out = _mm_or_ps(out, _mm_cmpgt_ps(wlo, vwhi));
+            const __m128 m00 = _mm_sub_ps(u1, u0), m01 = _mm_sub_ps(u2, u0), m10 = _mm_sub_ps(w1, w0),
+                         m11 = _mm_sub_ps(w2, w0);
+            const __m128 det = _mm_sub_ps(_mm_mul_ps(m00, m11), _mm_mul_ps(m01, m10));
+            out = _mm_or_ps(out, _mm_cmplt_ps(_mm_andnot_ps(sign, det), tiny));
+            int keep = ~_mm_movemask_ps(out) & 0xF;
+            if (!keep) continue;
+            const __m128 inv = _mm_div_ps(one, det);
+            alignas(16) float f[13][4];
+            _mm_store_ps(f[0], u0);
+            _mm_store_ps(f[1], w0);
+            _mm_store_ps(f[2], _mm_mul_ps(m11, inv));
+            _mm_store_ps(f[3], _mm_mul_ps(_mm_xor_ps(m01, sign), inv));
+            _mm_store_ps(f[4], _mm_mul_ps(_mm_xor_ps(m10, sign), inv));
+            _mm_store_ps(f[5], _mm_mul_ps(m00, inv));
+            _mm_store_ps(f[6], s0);
+            _mm_store_ps(f[7], _mm_sub_ps(s1, s0));
+            _mm_store_ps(f[8], _mm_sub_ps(s2, s0));
+            _mm_store_ps(f[9], ulo);
+            _mm_store_ps(f[10], uhi);
+            _mm_store_ps(f[11], wlo);
+            _mm_store_ps(f[12], whi);
+            for (; keep; keep &= keep - 1) {
+                const int l = __builtin_ctz(unsigned(keep));
+                FrontTri ft;
+                ft.u0 = f[0][l];
+                ft.w0 = f[1][l];
+                ft.a11 = f[2][l];
+                ft.a12 = f[3][l];
+                ft.a21 = f[4][l];
+                ft.a22 = f[5][l];
+                ft.s0 = f[6][l];
+                ft.ds1 = f[7][l];
+                ft.ds2 = f[8][l];
+                ft.ulo = f[9][l];
+                ft.uhi = f[10][l];
+                ft.wlo = f[11][l];
+                ft.whi = f[12][l];
+                front_.push_back(ft);
+            }
+        }
+    }
+#endif
+    for (size_t k = first; k < kept_.size(); ++k) {
+        const InstTri& T = tris_[kept_[k]];
         const float a0 = T.a.x(), a1 = T.a.y(), a2 = T.a.z(), b0 = T.b.x(), b1 = T.b.y(), b2 = T.b.z();
         const float c0 = T.c.x(), c1 = T.c.y(), c2 = T.c.z();
         const float u0 = ux * a0 + uy * a1 + uz * a2, w0 = wx * a0 + wy * a1 + wz * a2;
@@ -543,8 +634,7 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     // Each bin padded to a multiple of four items (the padding never matches: its u0 is NaN), so a lookup runs
     // whole SIMD steps only.
     for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
-    bf_[0].assign(bin_begin_[nb], std::numeric_limits<float>::quiet_NaN());
-    for (int i = 1; i < 9; ++i) bf_[i].assign(bin_begin_[nb], 0.0f);
+    for (auto& a : bf_) a.resize(bin_begin_[nb]);
     bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
     for (const FrontTri& f : front_)
         for (int y = f.y0; y <= f.y1; ++y)
@@ -560,6 +650,11 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
                 bf_[7][k] = f.ds1;
                 bf_[8][k] = f.ds2;
             }
+    for (size_t b = 0; b < nb; ++b)
+        for (uint32_t k = bin_fill_[b]; k < bin_begin_[b + 1]; ++k) {
+            bf_[0][k] = std::numeric_limits<float>::quiet_NaN();
+            for (int i = 1; i < 9; ++i) bf_[i][k] = 0.0f;
+        }
     // ZI − ZM at a membrane point: the front-most instrument surface on its line minus its own depth, ≤ 0.
     auto delta_at = [&](const Vec3f& p) {
         const float u = ux * p.x() + uy * p.y() + uz * p.z(), w = wx * p.x() + wy * p.y() + wz * p.z();
@@ -639,15 +734,17 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
                       b4 = _mm_set1_epi32(16), b5 = _mm_set1_epi32(32);
         auto bit = [](__m128 mask, __m128i b) { return _mm_and_si128(_mm_castps_si128(mask), b); };
         for (; i + 4 <= nv; i += 4) {
-            const __m128 v0 = _mm_loadu_ps(in + 3 * i), v1 = _mm_loadu_ps(in + 3 * i + 4), v2 = _mm_loadu_ps(in + 3 * i + 8);
+            const __m128 v0 = _mm_loadu_ps(in + 3 * i), v1 = _mm_loadu_ps(in + 3 * i + 4),
+                         v2 = _mm_loadu_ps(in + 3 * i + 8);
             const __m128 xy = _mm_shuffle_ps(v1, v2, _MM_SHUFFLE(2, 1, 3, 2));  // x2 y2 x3 y3
             const __m128 yz = _mm_shuffle_ps(v0, v1, _MM_SHUFFLE(1, 0, 2, 1));  // y0 z0 y1 z1
             const __m128 X = _mm_shuffle_ps(v0, xy, _MM_SHUFFLE(2, 0, 3, 0));
             const __m128 Y = _mm_shuffle_ps(yz, xy, _MM_SHUFFLE(3, 1, 2, 0));
             const __m128 Z = _mm_shuffle_ps(yz, v2, _MM_SHUFFLE(3, 0, 3, 1));
-            const __m128 px = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R00, X), _mm_mul_ps(R01, Y)), _mm_mul_ps(R02, Z)), T0);
-            const __m128 py = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R10, X), _mm_mul_ps(R11, Y)), _mm_mul_ps(R12, Z)), T1);
-            const __m128 pz = _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(R20, X), _mm_mul_ps(R21, Y)), _mm_mul_ps(R22, Z)), T2);
+            auto row = [&](__m128 a, __m128 b, __m128 c, __m128 t) {
+                return _mm_add_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(a, X), _mm_mul_ps(b, Y)), _mm_mul_ps(c, Z)), t);
+            };
+            const __m128 px = row(R00, R01, R02, T0), py = row(R10, R11, R12, T1), pz = row(R20, R21, R22, T2);
             _mm_storeu_ps(ox + i, px);
             _mm_storeu_ps(oy + i, py);
             _mm_storeu_ps(oz + i, pz);
@@ -762,8 +859,8 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
         if (out_.size() > hits) {  // merge the contained ones into the ascending hits
             std::sort(out_.begin() + std::ptrdiff_t(hits), out_.end());
             merged_.resize(out_.size());
-            std::merge(out_.begin(), out_.begin() + std::ptrdiff_t(hits), out_.begin() + std::ptrdiff_t(hits), out_.end(),
-                       merged_.begin());
+            const auto mid = out_.begin() + std::ptrdiff_t(hits);
+            std::merge(out_.begin(), mid, mid, out_.end(), merged_.begin());
             out_.swap(merged_);
         }
     }
