@@ -8,8 +8,9 @@
 // ones included), error is the RMS (and the mean, the bias) over matched markers of the fit's centroid where it
 // accepts and the pipeline's where it refuses.
 //
-// Usage: bench_refine [--seeds N=6] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20] [--no-reference]
-//                     [--json]
+// Usage: bench_refine [--seeds N=6] [--first-seed K=1] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20]
+//                     [--no-reference] [--json]
+// Seeds K .. K + N − 1 (a range no parameter was tuned on: --first-seed 21).
 #include "field_gen.hpp"
 
 #include "eyesim/fpga/pipeline.hpp"
@@ -122,7 +123,7 @@ std::vector<fpga::Blob> blobs_of(fpga::Pipeline& p, const uint8_t* field, int he
 }  // namespace
 
 int main(int argc, char** argv) {
-    int seeds = 6, disc_fields = 20;
+    int seeds = 6, disc_fields = 20, first_seed = 1;
     double seconds = 0.4;
     std::string scenario = "sweep";
     bool json = false, reference = true;
@@ -131,6 +132,7 @@ int main(int argc, char** argv) {
         if (!std::strcmp(argv[i], "--json")) json = true;
         else if (!std::strcmp(argv[i], "--no-reference")) reference = false;
         else if (!std::strcmp(argv[i], "--seeds") && has) seeds = std::max(1, std::atoi(argv[++i]));
+        else if (!std::strcmp(argv[i], "--first-seed") && has) first_seed = std::max(1, std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--seconds") && has) seconds = std::atof(argv[++i]);
         else if (!std::strcmp(argv[i], "--scenario") && has) scenario = argv[++i];
         else if (!std::strcmp(argv[i], "--disc-fields") && has) disc_fields = std::max(1, std::atoi(argv[++i]));
@@ -189,7 +191,7 @@ int main(int argc, char** argv) {
         return rows.back();
     };
     std::vector<uint64_t> seed_list;
-    for (int s = 1; s <= seeds; ++s) seed_list.push_back(static_cast<uint64_t>(s));
+    for (int s = first_seed; s < first_seed + seeds; ++s) seed_list.push_back(static_cast<uint64_t>(s));
 
     try {
         for (double noise : {1.0, 2.0}) {
@@ -311,10 +313,10 @@ int main(int argc, char** argv) {
     j["rows"] = nlohmann::json::array();
     if (!json)
         std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched, unoccluded markers; the "
-                    "pipeline's centroid where a fit refuses). Seeds 1-%d; rig: %s, %.2f s per seed.\n\n"
+                    "pipeline's centroid where a fit refuses). Seeds %d-%d; rig: %s, %.2f s per seed.\n\n"
                     "| data | noise σ DN | method | size px | markers | refined | RMS px | bias x / y px | iterations | µs/blob p50 | µs/blob p99 |\n"
                     "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
-                    seeds, scenario.c_str(), seconds);
+                    first_seed, first_seed + seeds - 1, scenario.c_str(), seconds);
     for (const Row& r : rows) {
         for (int b = 0; b < 3; ++b) {
             const Cell& c = r.bins[b];
