@@ -453,6 +453,8 @@ int main(int argc, char** argv) {
         owned.push_back(std::move(c));
     };
     model("pipeline", "pipeline: reset registers (chroma weight 8 bit, edge ring, BG_TRACK 4)", [](RegisterMap&) {});
+    model("pipeline_bg_offset", "pipeline: reset + BG_OFFSET (x corrected by the band beside the runs)",
+          [](RegisterMap& r) { r.write(reg::kBgOffset, 1); });
     model("pipeline_map11", "pipeline: BG_TRACK off, levels 3/3/3/5 (map 1.1 reset)", [](RegisterMap& r) {
         r.write(reg::kBgTrack, 0);
         r.write(reg::kWeightBg, 0x05030303u);
@@ -639,16 +641,20 @@ int main(int argc, char** argv) {
 
     // Accuracy by marker size and noise: pipeline (reset) beside the fair peer, same fields.
     if (!json)
-        std::printf("\nCentroid RMS (px) by marker diameter (frame px) and noise, %d fields each: pipeline (reset) "
-                    "vs fair OpenCV peer\n\n| diameter px | noise sigma | markers | pipeline px | peer px | "
-                    "pipeline missed / extra | peer missed / extra |\n|---:|---:|---:|---:|---:|---:|---:|\n",
+        std::printf("\nCentroid RMS (px) by marker diameter (frame px) and noise, %d fields each: pipeline (reset), "
+                    "pipeline with BG_OFFSET, fair OpenCV peer\n\n| diameter px | noise sigma | markers | pipeline px | "
+                    "BG_OFFSET px | peer px | pipeline missed / extra | peer missed / extra |\n"
+                    "|---:|---:|---:|---:|---:|---:|---:|---:|\n",
                     n_fields);
     {
         Pipeline pm{RegisterMap{}};
+        RegisterMap with_offset;
+        with_offset.write(reg::kBgOffset, 1);
+        Pipeline po{with_offset};
         OpenCvPeer ps;
         for (double sigma : {1.0, 2.0})
             for (double d : {4.0, 6.0, 8.0, 10.0, 12.0, 16.0}) {
-                ErrorStats em, ep;
+                ErrorStats em, eo, ep;
                 int nm = 0;
                 for (int i = 0; i < n_fields; ++i) {
                     const Scene s = make_scene(5000 + static_cast<uint32_t>(i), sigma, d, d);
@@ -657,15 +663,20 @@ int main(int argc, char** argv) {
                     pm.set_sink(push_blob, &blobs);
                     pm.process_field(s.field.bytes.data(), 288, 0, 0);
                     score(s, blobs_to_detections(blobs), em);
+                    blobs.clear();
+                    po.set_sink(push_blob, &blobs);
+                    po.process_field(s.field.bytes.data(), 288, 0, 0);
+                    score(s, blobs_to_detections(blobs), eo);
                     score(s, ps.run(s.field.bytes.data(), 288), ep);
                 }
                 if (!json)
-                    std::printf("| %.0f | %.0f | %d | %.4f | %.4f | %d / %d | %d / %d |\n", d, sigma, nm, em.rms(),
-                                ep.rms(), em.missed, em.extra, ep.missed, ep.extra);
+                    std::printf("| %.0f | %.0f | %d | %.4f | %.4f | %.4f | %d / %d | %d / %d |\n", d, sigma, nm, em.rms(),
+                                eo.rms(), ep.rms(), em.missed, em.extra, ep.missed, ep.extra);
                 out["by_size"].push_back({{"diameter_px", d},
                                           {"noise_sigma", sigma},
                                           {"markers", nm},
                                           {"pipeline", error_json(em)},
+                                          {"pipeline_bg_offset", error_json(eo)},
                                           {"opencv_peer", error_json(ep)}});
             }
     }

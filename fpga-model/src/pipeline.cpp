@@ -347,12 +347,13 @@ uint16_t Pipeline::weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7
     // Mode 1: projection of the chroma minus the background on the class hue direction, Q1.9 coefficients,
     // rounded (chroma ×2 as the datapath keeps it, scaled to the background's ×128). Mode 2: luma. Both minus
     // the background level WEIGHT_BG, clamped to 0..255.
-    const int v = params_.weight_mode == 2
-                      ? y
-                      : ((64 * cb2 - bg_cb_q7) * dir_cb_q9_[cls] + (64 * cr2 - bg_cr_q7) * dir_cr_q9_[cls] +
-                         (1 << 15)) >> 16;
+    const int v = params_.weight_mode == 2 ? y : band_residual(cls, cb2, cr2, bg_cb_q7, bg_cr_q7);
     const int w = std::clamp(v - static_cast<int>(params_.weight_bg[cls]), 0, 255);
     return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
+}
+
+int Pipeline::band_residual(uint8_t cls, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const {
+    return ((64 * cb2 - bg_cb_q7) * dir_cb_q9_[cls] + (64 * cr2 - bg_cr_q7) * dir_cr_q9_[cls] + (1 << 15)) >> 16;
 }
 
 // Background chroma ×128 (×16 per cell, ×8 from the interpolation) at pixel x.
@@ -518,6 +519,8 @@ inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
         r.sum_w = o.sw;
         r.sum_wx = o.swx;
         r.sum_wxx = o.swxx;
+        r.pos_n = o.pn;
+        r.pos_sx = o.psx;
         r.ref_w = o.rw;
         r.ref_wx = o.rwx;
         r.ref_wxx = o.rwxx;
@@ -561,6 +564,10 @@ inline void Pipeline::classify_pixel(const uint8_t* line, int px, OpenRun& o, Ru
         o.sw += w;
         o.swx += w * static_cast<uint32_t>(px);
         o.swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
+        if (w != 0) {
+            ++o.pn;
+            o.psx += static_cast<uint32_t>(px);
+        }
         if constexpr (kRef) {
             const double wr = weight_reference_at(c, luma, 0.5 * cb2, 0.5 * cr2, px);
             o.rw += wr;
@@ -946,6 +953,10 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     s.swxx += w * ux * ux;
     s.swyy += w * uy * uy;
     s.swxy += w * ux * uy;
+    if (w != 0) {
+        ++s.pn;
+        s.psx += ux;
+    }
     if (config_.float_reference) {
         const double wr = weight_reference_at(s.cls, luma, 0.5 * cb2, 0.5 * cr2, x);
         s.rw += wr;
@@ -961,8 +972,8 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
 void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y) {
     uint64_t* occ = occupied_[cur_buf_].data();
     uint64_t* clm = claimed_[cur_buf_].data();
-    uint64_t sw = 0, swx = 0, swxx = 0;
-    uint32_t count = 0;
+    uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
+    uint32_t count = 0, pn = 0;
     const uint8_t cls = slots_[root].cls;
     for (int w = xa >> 6; w <= xb >> 6; ++w) {
         uint64_t range = ~0ull;
@@ -985,6 +996,8 @@ void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb,
             sw += wt;
             swx += wt * ux;
             swxx += wt * ux * ux;
+            pn += wt != 0;
+            psx += wt != 0 ? ux : 0;
             ++count;
         }
     }
@@ -996,7 +1009,24 @@ void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb,
     s.swxx += swxx;
     s.swyy += sw * uy * uy;
     s.swxy += swx * uy;
+    s.pn += pn;
+    s.psx += psx;
     stats_.ring_pixels += count;
+}
+
+// BG_OFFSET: adds the background residual of every chroma sample (even pixel) of [xa, xb] on line y that is not
+// classified and inside the ROI to blob `root`'s band sums; the same state of the background as the line's weights.
+void Pipeline::add_band_span(uint16_t root, const uint8_t* line, int xa, int xb, int y) {
+    Slot& s = slots_[root];
+    const uint64_t* occ = occupied_[cur_buf_].data();
+    for (int x = xa + (xa & 1); x <= xb; x += 2) {
+        if (((occ[static_cast<size_t>(x >> 6)] >> (x & 63)) & 1) || !in_roi(x, y)) continue;
+        const uint8_t* q = line + 2 * x;
+        int bcb, bcr;
+        background_at(x, bcb, bcr);
+        s.band_r += band_residual(s.cls, 2 * q[0], 2 * q[2], bcb, bcr);
+        ++s.band_n;
+    }
 }
 
 uint16_t Pipeline::find_root(uint16_t s) {
@@ -1042,6 +1072,10 @@ void Pipeline::merge_into(uint16_t dst, uint16_t src) {
     d.swxx += s.swxx;
     d.swyy += s.swyy;
     d.swxy += s.swxy;
+    d.pn += s.pn;
+    d.psx += s.psx;
+    d.band_r += s.band_r;
+    d.band_n += s.band_n;
     d.rw += s.rw;
     d.rwx += s.rwx;
     d.rwy += s.rwy;
@@ -1109,6 +1143,8 @@ void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
         s.swxx += r.sum_wxx;
         s.swyy += static_cast<uint64_t>(r.sum_w) * yy * yy;
         s.swxy += static_cast<uint64_t>(r.sum_wx) * yy;
+        s.pn += r.pos_n;
+        s.psx += r.pos_sx;
         s.rw += r.ref_w;
         s.rwx += r.ref_wx;
         s.rwy += r.ref_w * y;
@@ -1175,6 +1211,21 @@ void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
                     add_ring_pixel(root, prev_line_, x, y - 1);
             }
             cur_buf_ ^= 1;
+        }
+    }
+
+    // BG_OFFSET: the chroma samples kBandNearColumns..kBandFarColumns columns beside each run of this line (not
+    // classified on this line) give the blob's band: the mean of their residuals against the tracked background
+    // estimates what the background under the blob is off by, on its own lines (emit corrects x with it).
+    if (params_.bg_offset && params_.weight_mode == 1 && line != nullptr) {
+        const int xmax = static_cast<int>(kActivePixelsPerLine) - 1;
+        for (int i = 0; i < n_cur; ++i) {
+            if (cur[i].label == kNoLabel) continue;
+            const uint16_t root = find_root(cur[i].label);
+            if (cur[i].x0 >= kBandNearColumns)
+                add_band_span(root, line, std::max(0, cur[i].x0 - kBandFarColumns), cur[i].x0 - kBandNearColumns, y);
+            if (cur[i].x1 + kBandNearColumns <= xmax)
+                add_band_span(root, line, cur[i].x1 + kBandNearColumns, std::min(xmax, cur[i].x1 + kBandFarColumns), y);
         }
     }
 
@@ -1263,8 +1314,20 @@ void Pipeline::emit(uint16_t slot, uint32_t decision_cycle, bool end_of_field) {
     b.sum_wxx = s.swxx;
     b.sum_wyy = s.swyy;
     b.sum_wxy = s.swxy;
+    b.pos_count = s.pn;
+    b.pos_sum_x = s.psx;
+    b.band_sum_r = static_cast<int32_t>(s.band_r);
+    b.band_count = s.band_n;
+    // BG_OFFSET: x from the weights less the band's mean residual on every pixel of positive weight (the same
+    // divider, operands scaled by the band count): (Σwx·n − Σr·Σx₊) / (Σw·n − Σr·n₊). Kept uncorrected where that
+    // would leave no positive weight.
+    __extension__ using i128 = __int128;
+    const i128 num = static_cast<i128>(s.swx) * s.band_n - static_cast<i128>(s.band_r) * static_cast<i128>(s.psx);
+    const i128 den = static_cast<i128>(s.sw) * s.band_n - static_cast<i128>(s.band_r) * s.pn;
+    const bool offset = p.bg_offset && p.weight_mode == 1 && s.band_n != 0 && den > 0 && num >= 0;
     if (s.sw != 0) {
-        b.cx_q16 = static_cast<uint32_t>(((s.swx << kCentroidFracBits) + s.sw / 2) / s.sw);
+        b.cx_q16 = offset ? static_cast<uint32_t>(((num << kCentroidFracBits) + den / 2) / den)
+                          : static_cast<uint32_t>(((s.swx << kCentroidFracBits) + s.sw / 2) / s.sw);
         b.cy_q16 = static_cast<uint32_t>(((s.swy << kCentroidFracBits) + s.sw / 2) / s.sw);
     } else {
         b.flags |= kBlobZeroWeight;
@@ -1323,9 +1386,13 @@ StorageBits Pipeline::storage_bits() const {
     // occupied bits (the hold mask looks at the lines above and below the one it learns from).
     s.line_buffer += static_cast<uint64_t>(kBgCells) * (2 * (8 + kBgFracBits) + 1) + kActivePixelsPerLine;
     // Per slot: parent, class, flags, live, seen, bbox, last line + its rightmost x, area, six moment sums.
-    const uint64_t slot_bits = label_bits + 3 + 6 + 2 + 2 * x_bits + 2 * y_bits + y_bits + x_bits +
+    uint64_t slot_bits = label_bits + 3 + 6 + 2 + 2 * x_bits + 2 * y_bits + y_bits + x_bits +
                                bits_for(kActivePixelsPerLine * kMaxFieldLines) + kSumWBits + kSumWxBits +
                                kSumWyBits + kSumWxxBits + kSumWyyBits + kSumWxyBits;
+    // BG_OFFSET: positive-weight pixel count and their Σx; band residual sum (signed) and sample count.
+    const uint64_t px_count_bits = bits_for(kActivePixelsPerLine * kMaxFieldLines);
+    const uint64_t band_n_bits = bits_for(kActivePixelsPerLine / 2 * kMaxFieldLines);
+    slot_bits += px_count_bits + kSumWxBits + (band_n_bits + 9) + band_n_bits;
     s.blob_table = cap * slot_bits;
     // Output FIFO entry: class, flags, area, bbox, centroid (26-bit Q10.16 each), Σw, three second moments, cycle.
     const uint64_t fifo_bits = 3 + 6 + bits_for(kActivePixelsPerLine * kMaxFieldLines) + 2 * x_bits + 2 * y_bits + 2 * 26 + kSumWBits + kSumWxxBits +

@@ -16,7 +16,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
     std::array<RegisterInfo, kNumRegisters> t{};
     int i = 0;
     t[i++] = {reg::kId, 32, false, 0x45594650u, "ID"};
-    t[i++] = {reg::kVersion, 16, false, 0x0103u, "VERSION"};
+    t[i++] = {reg::kVersion, 16, false, 0x0104u, "VERSION"};
     t[i++] = {reg::kEnable, 1, true, 1u, "ENABLE"};
     t[i++] = {reg::kClassEnable, 4, true, 0xFu, "CLASS_ENABLE"};
     t[i++] = {reg::kWeightMode, 2, true, 1u, "WEIGHT_MODE"};
@@ -39,6 +39,7 @@ constexpr std::array<RegisterInfo, kNumRegisters> make_table() {
         t[i++] = {reg::roi_x(w), 26, true, pack2(0, 719, 16), roi_names[2 * w]};
         t[i++] = {reg::roi_y(w), 25, true, pack2(0, 287, 16), roi_names[2 * w + 1]};
     }
+    t[i++] = {reg::kBgOffset, 1, true, 0u, "BG_OFFSET"};
     const char* class_names[3 * kNumClasses] = {"CLASS1_HUE", "CLASS1_SAT", "CLASS1_LUMA", "CLASS2_HUE",
                                                 "CLASS2_SAT", "CLASS2_LUMA", "CLASS3_HUE", "CLASS3_SAT",
                                                 "CLASS3_LUMA", "CLASS4_HUE", "CLASS4_SAT", "CLASS4_LUMA"};
@@ -167,6 +168,7 @@ PipelineParams decode(const RegisterMap& m) {
     p.edge_ring = m.get(reg::kEdgeRing) != 0;
     p.bg_track_shift = static_cast<uint8_t>(m.get(reg::kBgTrack));
     p.patch_enable = static_cast<uint8_t>(m.get(reg::kPatchEnable));
+    p.bg_offset = m.get(reg::kBgOffset) != 0;
     for (int w = 0; w < kNumRoiWindows; ++w) {
         const uint32_t x = m.get(reg::roi_x(w)), y = m.get(reg::roi_y(w));
         p.roi_x0[w] = static_cast<uint16_t>(x & 0x3FFu);

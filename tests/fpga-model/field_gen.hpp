@@ -95,6 +95,10 @@ struct RefBlob {
     int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
     uint64_t sw = 0, swx = 0, swy = 0, swxx = 0, swyy = 0, swxy = 0;
     double rw = 0, rwx = 0, rwy = 0;
+    uint32_t pn = 0;           ///< pixels with w > 0 (component and ring)
+    uint64_t psx = 0;          ///< their Σx
+    int64_t band_r = 0;        ///< BG_OFFSET band: Σ residual of the chroma samples beside the component's runs
+    uint32_t band_n = 0;       ///< and their number
     int ring_pixels = 0;
     bool ring_shared = false;  ///< a ring pixel also touches another blob: the first claim decides, sums skipped
     bool operator<(const RefBlob& o) const {
@@ -201,6 +205,10 @@ inline void add_pixel(const Pipeline& p, const Field& f, int c, int x, int y, Re
     b.swxx += w * ux * ux;
     b.swyy += w * uy * uy;
     b.swxy += w * ux * uy;
+    if (w != 0) {
+        ++b.pn;
+        b.psx += ux;
+    }
     // Floating reference: exact mean of the neighbouring chroma pairs, minus the floating background.
     const uint8_t* q = f.line(y) + 4 * (x >> 1);
     double cbd = q[0], crd = q[2];
@@ -245,6 +253,32 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
             }
     }
     const PipelineParams& par = p.params();
+    // BG_OFFSET: every maximal span of one component on a line (a run) takes the unclassified chroma samples (even
+    // x, inside the ROI) kBandNearColumns..kBandFarColumns columns beside it, weighed against line y's background.
+    if (par.bg_offset && par.weight_mode == 1) {
+        for (int y = 0; y < f.height; ++y)
+            for (int x = 0; x < W;) {
+                const int id = comp(y, x);
+                if (id < 0) {
+                    ++x;
+                    continue;
+                }
+                int x1 = x;
+                while (x1 + 1 < W && comp(y, x1 + 1) == id) ++x1;
+                RefBlob& b = out[static_cast<size_t>(id)];
+                for (int xx = std::max(0, x - kBandFarColumns); xx <= std::min(W - 1, x1 + kBandFarColumns); ++xx) {
+                    if ((xx & 1) || (xx > x - kBandNearColumns && xx < x1 + kBandNearColumns)) continue;
+                    if (cls_mask(y, xx) != 0 || !roi_contains(par, xx, y)) continue;
+                    const uint8_t* q = f.line(y) + 2 * xx;
+                    int bcb = 128 * 128, bcr = 128 * 128;
+                    double dcb, dcr;
+                    if (bg.on) bg.at(y, xx, bcb, bcr, dcb, dcr);
+                    b.band_r += p.band_residual(static_cast<uint8_t>(b.cls), 2 * q[0], 2 * q[2], bcb, bcr);
+                    ++b.band_n;
+                }
+                x = x1 + 1;
+            }
+    }
     if (par.edge_ring && par.weight_mode != 0) {
         for (int y = 0; y < f.height; ++y)
             for (int x = 0; x < W; ++x) {

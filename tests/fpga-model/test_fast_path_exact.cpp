@@ -51,6 +51,9 @@ std::vector<Setting> settings() {
                                    {reg::class_sat(4), 0xFF28}, {reg::kPatchEnable, 0xF}}},
         {"SAT_MIN 5 (narrow box)", {{reg::class_sat(1), 0xFF05}, {reg::class_sat(2), 0xFF05}}},
         {"classes 2, 4 only, MIN_AREA 1", {{reg::kClassEnable, 0xA}, {reg::kMinArea, 1}}},
+        {"BG_OFFSET", {{reg::kBgOffset, 1}, {reg::kPatchEnable, 0x3}}},
+        {"BG_OFFSET, ROI windows", {{reg::kBgOffset, 1}, {reg::kRoiEnable, 0x3}, {reg::roi_x(0), roi_a}, {reg::roi_y(0), roi_a_y},
+                                    {reg::roi_x(1), roi_b}, {reg::roi_y(1), roi_b_y}}},
         {"ROI windows", {{reg::kRoiEnable, 0x3}, {reg::roi_x(0), roi_a}, {reg::roi_y(0), roi_a_y},
                          {reg::roi_x(1), roi_b}, {reg::roi_y(1), roi_b_y}, {reg::kPatchEnable, 0xF}}},
     };
@@ -159,6 +162,10 @@ std::string blob_diff(const Blob& a, const Blob& b) {
     f("sum_wxx", a.sum_wxx, b.sum_wxx);
     f("sum_wyy", a.sum_wyy, b.sum_wyy);
     f("sum_wxy", a.sum_wxy, b.sum_wxy);
+    f("pos_count", a.pos_count, b.pos_count);
+    f("pos_sum_x", a.pos_sum_x, b.pos_sum_x);
+    f("band_sum_r", a.band_sum_r, b.band_sum_r);
+    f("band_count", a.band_count, b.band_count);
     f("cx_q16", a.cx_q16, b.cx_q16);
     f("cy_q16", a.cy_q16, b.cy_q16);
     f("last_pixel_cycle", a.last_pixel_cycle, b.last_pixel_cycle);

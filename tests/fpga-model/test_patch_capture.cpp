@@ -104,7 +104,7 @@ TEST_CASE("PATCH_ENABLE: per-class bits, reset off, four bits wide", "[fpga][pat
     CHECK(r.write(reg::kPatchEnable, 0x10) == RegWriteResult::kTooWide);
     CHECK(r.write(reg::kPatchEnable, 0xB) == RegWriteResult::kOk);
     CHECK(decode(r).patch_enable == 0xB);
-    CHECK(r.get(reg::kVersion) == 0x0103);
+    CHECK(r.get(reg::kVersion) == 0x0104);  // 1.3 added PATCH_ENABLE, 1.4 BG_OFFSET
 }
 
 TEST_CASE("patch_rect: halo, clipping and whole pixel pairs", "[fpga][patch]") {

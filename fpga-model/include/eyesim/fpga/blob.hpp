@@ -8,7 +8,8 @@
 /// docs/fpga-pipeline.md; enough for one blob covering a whole 720×512 field): Σw 27 bits, Σwx 37, Σwy 36,
 /// Σwx² 46, Σwy² 45, Σwxy 45. The centroid is the divider's
 /// output: round(Σwx · 2^16 / Σw), i.e. fixed point with scale 1/65536 px (kCentroidFracBits), the scale of the
-/// wire protocol's marker coordinates.
+/// wire protocol's marker coordinates. With BG_OFFSET and band samples, x is corrected for the band's mean
+/// residual r̄ = band_sum_r / band_count: cx = (Σwx − r̄·pos_sum_x) / (Σw − r̄·pos_count).
 
 #include <cstdint>
 
@@ -49,6 +50,10 @@ struct Blob {
     uint64_t sum_wxx = 0;           ///< Σw·x²
     uint64_t sum_wyy = 0;           ///< Σw·y²
     uint64_t sum_wxy = 0;           ///< Σw·x·y
+    uint32_t pos_count = 0;         ///< pixels (blob and ring) with w > 0
+    uint64_t pos_sum_x = 0;         ///< Σx over those pixels
+    int32_t band_sum_r = 0;         ///< BG_OFFSET: Σ background residual (projection) of the beside-band samples
+    uint32_t band_count = 0;        ///< BG_OFFSET: number of beside-band samples (0: no correction)
     uint32_t cx_q16 = 0;            ///< centroid x · 65536 (round half up)
     uint32_t cy_q16 = 0;            ///< centroid y · 65536 (round half up)
     uint32_t last_pixel_cycle = 0;  ///< cycle of the blob's last pixel on the wire (see timing.hpp)

@@ -51,6 +51,10 @@ inline constexpr int kBgCells = static_cast<int>(kActivePixelsPerLine) / kBgCell
 /// A cell learns only from lines whose pixels within this many columns of it are unclassified on that line and
 /// the lines above and below (so a marker's own colour and its ring never reach its background).
 inline constexpr int kBgHoldColumns = kRingColumns + 1;
+/// BG_OFFSET band: the chroma samples (even pixels) kBandNearColumns..kBandFarColumns columns beside each run.
+inline constexpr int kBandNearColumns = kRingColumns + 1;
+/// Outer edge of the BG_OFFSET band (columns beside a run).
+inline constexpr int kBandFarColumns = 7;
 /// Fractional bits of a cell's background chroma (12-bit values: 8.4).
 inline constexpr int kBgFracBits = 4;
 /// Modelled clocks from a pixel on the wire to its run being labelled (classify 3, run close 1, label 4).
@@ -166,6 +170,10 @@ public:
     /// at pixel x is the linear interpolation of the two nearest cells' values (see docs/fpga-pipeline.md).
     uint16_t weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const;
 
+    /// Background residual of a chroma sample for class `cls` (BG_OFFSET): the projection of weight2_bg, signed,
+    /// without level, clamp or WEIGHT_BITS.
+    int band_residual(uint8_t cls, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const;
+
     /// Floating reference weight for the same pixel (no quantisation of direction, weight or width).
     double weight_reference(uint8_t cls, double y, double cb, double cr) const;
 
@@ -190,6 +198,7 @@ private:
         uint32_t sum_w;       // Σw over the run (18 bits)
         uint32_t sum_wx;      // Σw·x (28 bits)
         uint64_t sum_wxx;     // Σw·x² (38 bits)
+        uint32_t pos_n, pos_sx;  // pixels with w > 0 and their Σx
         double ref_w, ref_wx, ref_wxx;  // floating reference sums
     };
     struct OpenRun {          // the run being extracted on the current line
@@ -197,6 +206,7 @@ private:
         int x0 = 0;
         uint32_t sw = 0, swx = 0;
         uint64_t swxx = 0;
+        uint32_t pn = 0, psx = 0;
         double rw = 0, rwx = 0, rwxx = 0;
     };
     struct Slot {
@@ -210,6 +220,10 @@ private:
         uint16_t last_line_x_max; // rightmost pixel on last_y
         uint32_t area;
         uint64_t sw, swx, swy, swxx, swyy, swxy;
+        uint32_t pn;          // pixels with w > 0 (runs and ring), their Σx
+        uint64_t psx;
+        int64_t band_r;       // BG_OFFSET: Σ residual and count of the beside-band samples
+        uint32_t band_n;
         double rw, rwx, rwy;
     };
     static constexpr uint16_t kNoLabel = 0xFFFF;
@@ -228,6 +242,7 @@ private:
     PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
     void add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y);
     void add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y);
+    void add_band_span(uint16_t root, const uint8_t* line, int xa, int xb, int y);
     int processed_spans(int y, uint16_t* x0, uint16_t* x1) const;
     void update_background(const uint8_t* line, int y);
     void background_at(int x, int& cb_q7, int& cr_q7) const;

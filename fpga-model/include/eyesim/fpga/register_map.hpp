@@ -25,7 +25,7 @@ inline constexpr int kNumRoiWindows = 4;
 /// Register byte addresses.
 namespace reg {
 inline constexpr uint16_t kId = 0x000;            ///< RO 32: 0x45594650 ("EYFP")
-inline constexpr uint16_t kVersion = 0x004;       ///< RO 16: register map version 0x0103
+inline constexpr uint16_t kVersion = 0x004;       ///< RO 16: register map version 0x0104
 inline constexpr uint16_t kEnable = 0x008;        ///< RW 1: pipeline enable (0: fields produce no blobs)
 inline constexpr uint16_t kClassEnable = 0x00C;   ///< RW 4: bit c-1 enables class c
 inline constexpr uint16_t kWeightMode = 0x010;    ///< RW 2: 0 binary, 1 chroma projection − bg, 2 luma − bg
@@ -46,6 +46,9 @@ inline constexpr uint16_t kBgTrack = 0x038;       ///< RW 3: 0 off; n = 1..7: th
                                                   ///<      lines with gain 2^-n (weight mode 1 only)
 inline constexpr uint16_t kPatchEnable = 0x03C;   ///< RW 4: bit c-1: send class c blobs' pixel patches
                                                   ///<      (box + 2-px halo; precision mode); 0 off
+inline constexpr uint16_t kBgOffset = 0x060;      ///< RW 1: chroma weight (mode 1): each blob's x centroid is
+                                                  ///<      corrected for the mean background residual of the
+                                                  ///<      chroma samples 3..7 columns beside its runs
 /// ROI window i, X: bits [9:0] x0, [25:16] x1 (inclusive, x0 ≤ x1 ≤ 719).
 constexpr uint16_t roi_x(int i) { return static_cast<uint16_t>(0x040 + 8 * i); }
 /// ROI window i, Y: bits [8:0] y0, [24:16] y1 (inclusive active field lines, y0 ≤ y1 ≤ 511).
@@ -82,7 +85,7 @@ struct RegisterInfo {
 };
 
 /// Number of registers in the map.
-inline constexpr int kNumRegisters = 16 + 2 * kNumRoiWindows + 3 * kNumClasses;
+inline constexpr int kNumRegisters = 17 + 2 * kNumRoiWindows + 3 * kNumClasses;
 
 /// The register table (address order), for documentation, host tools and tests.
 const std::array<RegisterInfo, kNumRegisters>& register_table();
@@ -135,6 +138,7 @@ struct PipelineParams {
     bool edge_ring = true;                               ///< ring pixels add to the moments
     uint8_t bg_track_shift = 0;                          ///< background tracking gain 2^-n; 0 off
     uint8_t patch_enable = 0;                            ///< bit c-1: capture class c blobs' patches
+    bool bg_offset = false;                              ///< BG_OFFSET: beside-band offset correction of x
     std::array<uint16_t, kNumRoiWindows> roi_x0{}, roi_x1{}, roi_y0{}, roi_y1{};  ///< inclusive bounds
     std::array<uint8_t, kNumClasses> hue_centre{}, hue_half_width{};               ///< 1/256 turn
     std::array<uint8_t, kNumClasses> sat_min{}, sat_max{};                         ///< chroma radius
