@@ -72,7 +72,6 @@ void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen
                            const Eigen::Vector3d& omega, const Eigen::Vector3d& v, double s_rot, double s_pos,
                            double s_omega, double s_v) {
     time_us_ = t_us;
-    newest_us_ = t_us;
     R_ = R.normalized();
     w_ = omega;
     P_.setZero();
@@ -113,20 +112,12 @@ void RigidBodyFilter::predict_to(double t_us) {
     if (dt == 0.0) return;
     pose_at(t_us, R_, t_);
     time_us_ = t_us;
-    // δθ' = δθ + dt·δω, δt' = δt + dt·δv. White acceleration noise only for time not covered before: observations
-    // that arrive out of time order (low-latency parts of cameras whose fields overlap) move the state back and
-    // forth within what it has already been predicted through, and charging the noise on every such step would
-    // throw away what the filter knows.
+    // δθ' = δθ + dt·δω, δt' = δt + dt·δv; white acceleration noise (its magnitude whichever way time runs).
     Cov F = Cov::Identity();
     F.block<3, 3>(0, 6).diagonal().setConstant(dt);
     if (!rotation_only_) F.block<3, 3>(3, 9).diagonal().setConstant(dt);
     P_ = F * P_ * F.transpose();
-    const double a = std::max(0.0, (t_us - newest_us_) * 1e-6);
-    newest_us_ = std::max(newest_us_, t_us);
-    if (a == 0.0) {
-        roll_pseudo_measurement();
-        return;
-    }
+    const double a = std::abs(dt);
     const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
     for (int i = 0; i < 3; ++i) {
         P_(i, i) += q_ang_ * q11;
@@ -204,8 +195,12 @@ void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen:
     roll_pseudo_measurement();
 }
 
-bool RigidBodyFilter::predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b, Eigen::Vector2d& px) const {
-    const Eigen::Vector3d Xc = cam.R_cam_rig * to_rig(b) + cam.t_cam_rig_mm;
+bool RigidBodyFilter::predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b, Eigen::Vector2d& px,
+                                    double age_us) const {
+    Eigen::Quaterniond R = R_;
+    Eigen::Vector3d t = t_;
+    if (age_us > 0.0) pose_at(time_us_ - age_us, R, t);
+    const Eigen::Vector3d Xc = cam.R_cam_rig * (R * b + t) + cam.t_cam_rig_mm;
     if (!(Xc.z() > 1e-6)) return false;
     px = detail::to_pixel(cam, Eigen::Vector2d(Xc.x() / Xc.z(), Xc.y() / Xc.z()));
     return px.allFinite();

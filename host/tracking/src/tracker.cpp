@@ -398,6 +398,9 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
     // Association: each predicted marker takes the nearest image of its class within the gate unless a second
     // image is nearly as near; an image wanted by two predicted markers at nearly the same distance (two markers
     // merged in this view) goes to neither.
+    std::array<double, kBodies> age_us{};
+    std::uint32_t& tried = field_images_tried_[std::size_t(c)];  // images of this field a filter was offered
+    if (first == 0) tried = 0;
     std::array<std::array<std::int8_t, kMaxBodyMarkers>, kBodies> cand{};
     std::array<float, kMaxMarkersPerCamera> claim_d{}, claim_d2{};
     std::array<std::int16_t, kMaxMarkersPerCamera> claim_by{};
@@ -411,14 +414,20 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         // A filter that went without images for this long is not trusted to find them again: re-acquire.
         if (flt.tracking() && T - last_good_us_[std::size_t(b)] > ao.lost_after_us) flt.reset();
         if (!flt.tracking()) continue;
-        flt.predict_to(T);
+        // A field older than the filter's state (low-latency parts of cameras whose fields overlap arrive out
+        // of time order) is fused as an aged observation; the state never goes back.
+        age_us[std::size_t(b)] = std::max(0.0, flt.time_us() - T);
+        if (age_us[std::size_t(b)] == 0.0) flt.predict_to(T);
         const auto [ms, mc] = body_markers(b);
         for (int k = 0; k < mc; ++k) {
             Eigen::Vector2d px;
-            if (!flt.predict_pixel(g, ms[k].pos_body_mm, px)) continue;
+            if (!flt.predict_pixel(g, ms[k].pos_body_mm, px, age_us[std::size_t(b)])) continue;
             double d1 = 1e30, d2 = 1e30;
             int i1 = -1;
-            for (int i = first; i < f.count; ++i) {
+            // Over every image of the field so far (earlier parts included, so that ambiguity is judged as on a
+            // whole field): an image an earlier part left unused (two predicted markers wanted it while the other
+            // one's image was not read out yet) is taken now.
+            for (int i = 0; i < f.count; ++i) {
                 const FieldImage& im = f.images[std::size_t(i)];
                 if (im.colour_class != ms[k].colour_class || !im.frame_px.allFinite()) continue;
                 const double d = (im.frame_px - px).norm();
@@ -431,7 +440,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                 }
             }
             if (i1 < 0 || d1 > ao.gate_px || (d2 < ao.gate_px && d2 < ao.ambiguity_ratio * d1)) continue;
-            cand[std::size_t(b)][std::size_t(k)] = std::int8_t(i1);
+            if (!(tried & (1u << i1))) cand[std::size_t(b)][std::size_t(k)] = std::int8_t(i1);
             const float d = float(d1);
             if (d < claim_d[std::size_t(i1)]) {
                 claim_d2[std::size_t(i1)] = claim_d[std::size_t(i1)];
@@ -459,6 +468,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             if (i < 0 || claim_by[std::size_t(i)] != b * kMaxBodyMarkers + k ||
                 claim_d2[std::size_t(i)] < float(ao.ambiguity_ratio) * claim_d[std::size_t(i)])
                 continue;
+            tried |= 1u << i;
             const FieldImage& im = f.images[std::size_t(i)];
             const Eigen::Vector3d X = flt.to_rig(ms[k].pos_body_mm);
             const double z = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
@@ -473,14 +483,16 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                 ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
                                       [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
                                           return Eigen::Vector2d::Zero().eval();
-                                      });
+                                      },
+                                      nullptr, age_us[std::size_t(b)]);
             } else {
                 const Eigen::Vector3d axis_body = model->axis_body.normalized();
                 const double shaft_r = model->shaft_radius_mm;
                 ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
                                       [&](const Eigen::Quaterniond& R, const Eigen::Vector3d&, const Eigen::Vector3d& Xr) {
                                           return shaft_occlusion_shift(g, Xr, R * axis_body, Rm, shaft_r);
-                                      });
+                                      },
+                                      nullptr, age_us[std::size_t(b)]);
             }
             if (!ok) continue;
             ++used;
@@ -500,7 +512,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                 flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
         }
         used_last_field_[std::size_t(b)] = field_used;
-        if (field_used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = T;
+        if (field_used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = std::max(last_good_us_[std::size_t(b)], T);
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
             !flt.translation().allFinite() || !flt.rotation().coeffs().allFinite())
             flt.reset();
@@ -618,9 +630,14 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     out.markers_unassigned = 0;
     // A tracked body with no image accepted within a field period is coasting on its prediction: held.
     const auto coasting = [&](int b) { return T - last_good_us_[std::size_t(b)] > config_.sync.field_period_us; };
+    // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
+    std::array<Eigen::Quaterniond, kBodies> R_at;
+    std::array<Eigen::Vector3d, kBodies> t_at;
+    for (int b = 0; b < nb; ++b)
+        if (filters_[std::size_t(b)].tracking()) filters_[std::size_t(b)].pose_at(T, R_at[std::size_t(b)], t_at[std::size_t(b)]);
     // Eye.
     if (filters_[0].tracking()) {
-        eye_from_filter(bodies.eye, filters_[0].rotation(), out.eye);
+        eye_from_filter(bodies.eye, R_at[0], out.eye);
         out.eye.markers_used = used_last_field_[0];
         if (coasting(0)) out.eye.flags |= kPoseHeld;
     } else if (acquired_this_field_ && acquire_frame_.eye.measured()) {
@@ -635,7 +652,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
         InstrumentPose& p = out.instruments[std::size_t(b - 1)];
         const RigidBodyFilter& flt = filters_[std::size_t(b)];
         if (flt.tracking()) {
-            instrument_from_filter(m, flt.rotation(), flt.translation(), m.markers_on_axis(), p);
+            instrument_from_filter(m, R_at[std::size_t(b)], t_at[std::size_t(b)], m.markers_on_axis(), p);
             p.markers_used = used_last_field_[std::size_t(b)];
             if (coasting(b)) p.flags |= kPoseHeld;
         } else if (acquired_this_field_ && acquire_frame_.instruments[std::size_t(b - 1)].measured()) {
@@ -661,7 +678,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
                 MatchedMarker& mk = out.markers.markers[std::size_t(out.markers.count)];
                 mk = MatchedMarker{};
                 mk.colour_class = ms[k].colour_class;
-                mk.point.X_rig_mm = flt.to_rig(ms[k].pos_body_mm);
+                mk.point.X_rig_mm = R_at[std::size_t(b)] * ms[k].pos_body_mm + t_at[std::size_t(b)];
                 mk.point.cov_mm2 = flt.covariance().block<3, 3>(3, 3);
                 mk.point.views = views;
                 mk.image_index.fill(-1);

@@ -66,9 +66,9 @@ public:
     /// True between init() and reset().
     bool tracking() const { return tracking_; }
 
-    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise for the
-    /// time beyond the latest one predicted to). A time before the current one (a late field) is predicted back
-    /// the same way, without noise.
+    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise). A time
+    /// before the current one is predicted back the same way (observations older than the state are better
+    /// given to update_point with their age, which leaves the state where it is).
     void predict_to(double t_us);
     /// Pose at `t_us` without changing the filter: the constant-velocity model itself.
     void pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
@@ -83,17 +83,24 @@ public:
     /// (R, t) → normalised-image offset added to the projection (the shaft's occlusion of a marker; may be null).
     /// Returns false (no update) when the point is behind the camera or the innovation fails `nis_gate`.
     /// `nis` receives the normalised innovation squared.
+    /// `age_us` > 0: the image was taken that long before the state's time (an out-of-sequence observation: a
+    /// low-latency part of a camera whose field began before another camera's part already fused). The state
+    /// stays at its time: the image is compared with the pose carried back by the velocities (so it corrects
+    /// them too), and the acceleration noise over `age_us` is added to the image's noise.
     template <typename Shift>
     bool update_point(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Eigen::Vector2d& px,
-                      double sigma_x_px, double sigma_y_px, double nis_gate, const Shift& shift, double* nis = nullptr);
+                      double sigma_x_px, double sigma_y_px, double nis_gate, const Shift& shift, double* nis = nullptr,
+                      double age_us = 0.0);
 
     /// Pulls the body's line through `b_body_mm` along `axis_body` through the rig point `p_rig_mm` (a trocar),
     /// with 1σ `sigma_mm` across the line.
     void update_line_through(const Eigen::Vector3d& b_body_mm, const Eigen::Vector3d& axis_body,
                              const Eigen::Vector3d& p_rig_mm, double sigma_mm);
 
-    /// Predicted pixel of body point `b` in `cam` at the filter's time (false behind the camera).
-    bool predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, Eigen::Vector2d& px) const;
+    /// Predicted pixel of body point `b` in `cam` at the filter's time, or `age_us` before it (false behind the
+    /// camera).
+    bool predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, Eigen::Vector2d& px,
+                       double age_us = 0.0) const;
 
     /// Current time (device µs).
     double time_us() const { return time_us_; }
@@ -111,6 +118,9 @@ public:
     double position_sigma_mm() const { return std::sqrt(std::max(0.0, P_.block<3, 3>(3, 3).trace())); }
 
 private:
+    template <typename Shift>
+    bool update_point_aged(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px, double sx,
+                           double sy, double nis_gate, const Shift& shift, double* nis, double age_us);
     void apply(const State& dx);
     void roll_pseudo_measurement();
 
@@ -119,7 +129,6 @@ private:
     Eigen::Vector3d roll_axis_body_ = Eigen::Vector3d::Zero();
     double q_ang_ = 1.0, q_lin_ = 1.0;
     double time_us_ = 0.0;
-    double newest_us_ = 0.0;  // the latest time predicted to (process noise is added only beyond it)
     Eigen::Quaterniond R_ = Eigen::Quaterniond::Identity();
     Eigen::Vector3d t_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
     Cov P_ = Cov::Identity();
@@ -147,7 +156,9 @@ Eigen::Quaterniond exp_rotation(const Eigen::Vector3d& theta);
 
 template <typename Shift>
 bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
-                                   double sx, double sy, double nis_gate, const Shift& shift, double* nis) {
+                                   double sx, double sy, double nis_gate, const Shift& shift, double* nis,
+                                   double age_us) {
+    if (age_us > 0.0) return update_point_aged(cam, b, px, sx, sy, nis_gate, shift, nis, age_us);
     // h(δθ, δt): projected pixel (plus the occlusion shift) of the perturbed pose; Jacobian by central differences
     // (fixed 2×6, cheap next to the rest).
     auto h = [&](const Eigen::Matrix<double, 6, 1>& d, Eigen::Vector2d& out) {
@@ -189,6 +200,65 @@ bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vecto
     // Joseph form keeps P symmetric and positive.
     Eigen::Matrix<double, 12, 12> IKH = Eigen::Matrix<double, 12, 12>::Identity();
     IKH.leftCols<6>() -= K * J;
+    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
+    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    roll_pseudo_measurement();
+    return true;
+}
+
+template <typename Shift>
+bool RigidBodyFilter::update_point_aged(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
+                                        double sx, double sy, double nis_gate, const Shift& shift, double* nis,
+                                        double age_us) {
+    // h(δx): the projection of the pose carried back by age (constant velocity) from the perturbed state, so the
+    // Jacobian (2×12, central differences) reaches the velocities: δθ − age·δω, δt − age·δv to first order.
+    const double a = age_us * 1e-6;
+    auto h = [&](const State& d, Eigen::Vector2d& out) {
+        const Eigen::Vector3d w = w_ + d.segment<3>(6);
+        const Eigen::Quaterniond R = detail::exp_rotation(-a * w) * (detail::exp_rotation(d.head<3>()) * R_);
+        Eigen::Vector3d t = t_;
+        if (!rotation_only_) t += d.segment<3>(3) - a * (v_ + d.segment<3>(9));
+        const Eigen::Vector3d X = R * b + t;
+        const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
+        if (!(Xc.z() > 1e-6)) return false;
+        Eigen::Vector2d xn(Xc.x() / Xc.z(), Xc.y() / Xc.z());
+        xn += shift(R, t, X);
+        out = detail::to_pixel(cam, xn);
+        return out.allFinite();
+    };
+    Eigen::Vector2d z0;
+    State d = State::Zero();
+    if (!h(d, z0)) return false;
+    Eigen::Matrix<double, 2, 12> J = Eigen::Matrix<double, 2, 12>::Zero();
+    for (int i = 0; i < 12; ++i) {
+        if (rotation_only_ && ((i >= 3 && i < 6) || i >= 9)) continue;
+        const double eps = (i < 3 || (i >= 6 && i < 9)) ? 1e-6 : 1e-4;
+        Eigen::Vector2d zp, zm;
+        d.setZero();
+        d[i] = eps;
+        if (!h(d, zp)) return false;
+        d[i] = -eps;
+        if (!h(d, zm)) return false;
+        J.col(i) = (zp - zm) / (2.0 * eps);
+    }
+    const Eigen::Vector2d r = px - z0;
+    // The acceleration over the age moves the true pose away from the constant-velocity one: its pose part
+    // (a³/3 times the spectral densities) joins the image noise.
+    Eigen::Matrix<double, 6, 6> Qp = Eigen::Matrix<double, 6, 6>::Zero();
+    Qp.topLeftCorner<3, 3>().diagonal().setConstant(q_ang_ * a * a * a / 3.0);
+    if (!rotation_only_) Qp.bottomRightCorner<3, 3>().diagonal().setConstant(q_lin_ * a * a * a / 3.0);
+    Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
+    Rn(0, 0) = sx * sx;
+    Rn(1, 1) = sy * sy;
+    Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
+    const Eigen::Matrix2d S = J * P_ * J.transpose() + Rn;
+    const Eigen::Matrix2d Si = S.inverse();
+    const double q = r.dot(Si * r);
+    if (nis) *nis = q;
+    if (!(q <= nis_gate) || !std::isfinite(q)) return false;
+    const Eigen::Matrix<double, 12, 2> K = P_ * J.transpose() * Si;
+    apply(K * r);
+    Cov IKH = Cov::Identity() - K * J;
     P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
     P_ = 0.5 * (P_ + P_.transpose()).eval();
     roll_pseudo_measurement();

@@ -197,6 +197,8 @@ private:
     std::array<bool, kMaxCameras> have_done_{};
     // Images each body's filter accepted from each camera's current field so far (over its parts).
     std::array<std::array<int, kMaxCameras>, kBodies> field_used_{};
+    std::array<std::uint32_t, kMaxCameras> field_images_tried_{};  // bit i: image i was offered to a filter
+    static_assert(kMaxMarkersPerCamera <= 32, "field_images_tried_ holds one bit per image");
     std::uint32_t ref_reported_counter_ = 0;  // the reference field a frame was last reported for
     bool ref_reported_ = false;
     std::array<std::uint32_t, kMaxCameras> last_field_counter_{};
