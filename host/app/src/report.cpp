@@ -61,9 +61,11 @@ nlohmann::json latency_json(const RunStats& s) {
     j["latency_us"] = pct(s.latency_us);
     j["transfer_us"] = pct(s.transfer_us);
     j["ready_after_receive_us"] = pct(s.ready_us);
+    j["exposure_to_pose_us"] = pct(s.exposure_to_pose_us);
     j["latency_clocks"] = "latency_us: device field end (placed on the host clock through the ping offset) -> poses "
                           "ready (host clock); transfer_us: field end -> last packet received; ready_after_receive_us: "
-                          "last packet received -> poses ready (host clock)";
+                          "last packet received -> poses ready (host clock); exposure_to_pose_us: exposure mid of the "
+                          "frame's reference field (device clock placed on the host clock) -> poses ready";
     if (!s.latency_note.empty()) j["latency_note"] = s.latency_note;
     if (s.device_clock_rate != 0.0) j["device_clock_rate"] = s.device_clock_rate;
     return j;

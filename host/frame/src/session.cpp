@@ -191,6 +191,7 @@ void HostRun::finish() {
             stats_.device_clock_rate);
         stats_.latency_us.clear();
         stats_.transfer_us.clear();
+        stats_.exposure_to_pose_us.clear();
     } else if (stats_.frames > 0 && stats_.latency_us.empty()) {
         stats_.latency_note = "no ping replies: the device clock could not be placed on the host clock";
     }
@@ -206,6 +207,7 @@ void HostRun::drain(double now_us) {
         const auto& t = frame_.timing;
         stats_.compute_us.add(t.compute_us);
         if (t.received_host_us > 0) stats_.ready_us.add(t.poses_ready_host_us - t.received_host_us);
+        if (clock_known_ && t.sample_host_us > 0) stats_.exposure_to_pose_us.add(t.poses_ready_host_us - t.sample_host_us);
         if (clock_known_ && t.field_end_host_us > 0) {
             stats_.latency_us.add(t.poses_ready_host_us - t.field_end_host_us);
             stats_.transfer_us.add(t.received_host_us - t.field_end_host_us);

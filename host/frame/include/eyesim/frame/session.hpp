@@ -71,6 +71,8 @@ struct RunStats {
     /// at real-time pace: see latency_note).
     Samples latency_us;
     Samples transfer_us;              ///< per frame: field end → its last packet received (same clocks)
+    /// Per frame: the frame's instant (exposure mid of its reference field, placed on the host clock) → poses ready.
+    Samples exposure_to_pose_us;
     Samples ready_us;                 ///< per frame: last packet received → poses ready (host clock only)
     Samples compute_us;               ///< per frame: tracking stage wall time
     std::string latency_note;         ///< why latency_us is empty, when it is
