@@ -86,8 +86,7 @@ void run_core(const Streams& streams, bool low_latency, CoreRun& out) {
                 std::memcpy(o, s->data() + k * kFieldBytes, kFieldBytes);
                 parity = static_cast<std::uint8_t>(k % 2);
                 return true;
-            },
-            &clock));
+            }));
         hal.cameras[c] = cams.back().get();
     }
     ByteCounter sink;

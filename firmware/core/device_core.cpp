@@ -68,42 +68,67 @@ DeviceCore::DeviceCore(const DeviceHal& hal, const CoreConfig& config) noexcept
 StepStatus DeviceCore::step_cameras() noexcept {
     bool any = false;
     std::size_t finished = 0;
-    for (std::size_t c = 0; c < kCameras; ++c) {
-        Camera& cam = cams_[c];
-        if (cam.finished || hal_.cameras[c] == nullptr) {
-            ++finished;
-            continue;
+    for (std::size_t c = 0; c < kCameras; ++c)
+        if (cams_[c].finished || hal_.cameras[c] == nullptr) ++finished;
+    for (std::size_t step = 0; step < kCameras && finished < kCameras; ++step) {
+        // Fill every camera's slot, then run the earliest item (a field end or end of stream right after its
+        // camera's last line).
+        std::size_t pick = kCameras;
+        for (std::size_t c = 0; c < kCameras; ++c) {
+            Camera& cam = cams_[c];
+            if (cam.finished || hal_.cameras[c] == nullptr) continue;
+            HeldItem& h = held_[c];
+            if (!h.valid) {
+                h.status = hal_.cameras[c]->next_line(h.line);
+                if (h.status == LineStatus::idle) continue;
+                h.valid = true;
+                h.t_ns = h.status == LineStatus::line
+                             ? cycle_time_ns(h.line.field_start_us, fpga::active_line_end_cycle(h.line.line))
+                             : last_line_ns_[c] + 1;
+            }
+            if (pick == kCameras || h.t_ns < held_[pick].t_ns) pick = c;
         }
-        CameraLine line;
-        switch (hal_.cameras[c]->next_line(line)) {
-            case LineStatus::line:
-                any = true;
-                if (!cam.in_field || line.field != cam.field) {
-                    if (cam.in_field) end_field(c);  // the source skipped the field end: close it anyway
-                    begin_field(c, line);
-                }
-                if (line.width_px == fpga::kActivePixelsPerLine && line.uyvy != nullptr) {
-                    sink_camera_ = c;
-                    // The patch buffers take the line first: a blob the pipeline completes on it finds it there.
-                    cam.capture.push_line(line.uyvy, line.line);
-                    cam.pipeline.push_line(line.uyvy, line.line);
-                }
-                break;
-            case LineStatus::field_end:
-                any = true;
-                if (cam.in_field) end_field(c);
-                break;
-            case LineStatus::idle: break;
-            case LineStatus::end_of_stream:
-                if (cam.in_field) end_field(c);
-                cam.finished = true;
-                ++finished;
-                break;
+        if (pick == kCameras) break;  // every camera idle
+        const HeldItem item = held_[pick];
+        held_[pick].valid = false;
+        if (item.status == LineStatus::line) {
+            last_line_ns_[pick] = item.t_ns;
+            if (hal_.clock != nullptr) hal_.clock->line_run_us(item.t_ns / 1000u);
         }
+        run_item(pick, item, finished);
+        any = true;
     }
     flush_low_latency();
     if (finished == kCameras) return StepStatus::finished;
     return any ? StepStatus::active : StepStatus::idle;
+}
+
+void DeviceCore::run_item(std::size_t c, const HeldItem& item, std::size_t& finished) noexcept {
+    Camera& cam = cams_[c];
+    const CameraLine& line = item.line;
+    switch (item.status) {
+        case LineStatus::line:
+            if (!cam.in_field || line.field != cam.field) {
+                if (cam.in_field) end_field(c);  // the source skipped the field end: close it anyway
+                begin_field(c, line);
+            }
+            if (line.width_px == fpga::kActivePixelsPerLine && line.uyvy != nullptr) {
+                sink_camera_ = c;
+                // The patch buffers take the line first: a blob the pipeline completes on it finds it there.
+                cam.capture.push_line(line.uyvy, line.line);
+                cam.pipeline.push_line(line.uyvy, line.line);
+            }
+            break;
+        case LineStatus::field_end:
+            if (cam.in_field) end_field(c);
+            break;
+        case LineStatus::idle: break;
+        case LineStatus::end_of_stream:
+            if (cam.in_field) end_field(c);
+            cam.finished = true;
+            ++finished;
+            break;
+    }
 }
 
 void DeviceCore::begin_field(std::size_t camera, const CameraLine& line) noexcept {

@@ -200,7 +200,7 @@ int run(const Options& opt) {
                        static_cast<std::uint64_t>(std::llround(std::max(0.0, t.start_us + (t.parity ? 32.0 : 0.0))));
             return true;
         };
-        sources.push_back(std::make_unique<pc::FieldSource>(loader, &clock));
+        sources.push_back(std::make_unique<pc::FieldSource>(loader));
         hal.cameras[c] = sources.back().get();
     }
     pc::LatencyLog latency(1u << 20);

@@ -5,9 +5,8 @@
 
 namespace eyesim::firmware::pc {
 
-FieldSource::FieldSource(FieldLoader loader, ModelledClock* clock, std::uint64_t epoch_us, int lines)
+FieldSource::FieldSource(FieldLoader loader, std::uint64_t epoch_us, int lines)
     : loader_(std::move(loader)),
-      clock_(clock),
       epoch_us_(epoch_us),
       lines_(lines),
       field_(static_cast<std::size_t>(lines) * fpga::kActivePixelsPerLine * 2),
@@ -48,7 +47,6 @@ LineStatus FieldSource::next_line(CameraLine& out) noexcept {
     out.field = static_cast<std::uint32_t>(index_);
     out.parity = parity_;
     out.field_start_us = start_us;
-    if (clock_) clock_->advance_to(start_us + fpga::cycles_to_ns(fpga::active_line_end_cycle(static_cast<std::uint32_t>(y))) / 1000u);
     return LineStatus::line;
 }
 

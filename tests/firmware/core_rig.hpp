@@ -39,8 +39,7 @@ struct CoreRig {
                     std::memcpy(out, s->data() + k * kFieldBytes, kFieldBytes);
                     parity = static_cast<std::uint8_t>(k % 2);
                     return true;
-                },
-                &clock));
+                }));
             hal.cameras[c] = cams.back().get();
         }
         hal.sink = &sink;

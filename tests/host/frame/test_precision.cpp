@@ -73,8 +73,7 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
                 parity = std::uint8_t(t.parity);
                 start_us = std::uint64_t(std::llround(std::max(0.0, t.start_us)));
                 return true;
-            },
-            &clock));
+            }));
         hal.cameras[std::size_t(c)] = sources.back().get();
     }
     auto [host_end, device_end] = transport::make_inproc_pair(1u << 22);

@@ -45,7 +45,7 @@ struct DeviceHal {
     std::array<CameraSource*, kCameras> cameras{};  ///< one field source per camera
     ByteSink* sink = nullptr;                       ///< towards the host
     ByteSource* source = nullptr;                   ///< from the host
-    const Clock* clock = nullptr;                   ///< device time
+    Clock* clock = nullptr;                         ///< device time
     const PedalInput* pedal = nullptr;              ///< foot pedal, or nullptr (no PedalState then)
     LatencyObserver* latency = nullptr;             ///< per-blob latency records, or nullptr
 };
@@ -80,8 +80,10 @@ public:
     DeviceCore(const DeviceCore&) = delete;
     DeviceCore& operator=(const DeviceCore&) = delete;
 
-    /// Pulls one item (line or field end) from every camera and runs it through that camera's pipeline; blobs
-    /// are packetised as they complete (low-latency mode) or at the field end.
+    /// Runs up to one item (line or field end) per camera through that camera's pipeline, in device-time order
+    /// across the cameras: each camera's next item waits until no other camera has an earlier one, as on a board
+    /// where unsynchronised cameras' lines arrive when they are read out. Blobs are packetised as they complete
+    /// (low-latency mode) or at the field end.
     StepStatus step_cameras() noexcept;
 
     /// Reads and executes host commands, sends pedal and periodic status messages, writes queued bytes.
@@ -175,6 +177,16 @@ private:
     CoreConfig config_;
     std::array<Camera, kCameras> cams_;
     std::size_t sink_camera_ = 0;  // camera whose pipeline is calling blob_sink right now
+    // Each camera's next item, taken from its source but not yet run (the time order across cameras).
+    struct HeldItem {
+        bool valid = false;
+        LineStatus status = LineStatus::idle;
+        CameraLine line{};
+        std::uint64_t t_ns = 0;  // device time: the line's end, or just after the camera's last line
+    };
+    std::array<HeldItem, kCameras> held_{};
+    std::array<std::uint64_t, kCameras> last_line_ns_{};
+    void run_item(std::size_t camera, const HeldItem& item, std::size_t& finished) noexcept;
 
     bool streaming_ = false;
     bool low_latency_ = false;

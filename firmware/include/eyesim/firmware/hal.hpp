@@ -61,6 +61,9 @@ public:
     virtual ~Clock() = default;
     /// Current device time, µs.
     virtual std::uint64_t now_us() const noexcept = 0;
+    /// The core has run a camera line that ended at device time `t_us` (lines of the cameras in time order). A
+    /// board's free-running clock ignores it; a modelled clock (PC build) follows it.
+    virtual void line_run_us(std::uint64_t t_us) noexcept { (void)t_us; }
 };
 
 /// One reading of the foot pedal, in PedalState's units.

@@ -3,7 +3,7 @@
 /// CameraSource of the PC build: fields come from a loader (recording file, synthetic renderer, memory), one
 /// field buffer at a time, and are delivered line by line with PAL timing: field k of the stream starts at device
 /// time epoch + k·20 000 µs and active line y ends at cycle active_line_end_cycle(y) of it (fpga/timing.hpp).
-/// Delivering a line advances the shared ModelledClock to the end of that line.
+/// Each line's device time follows from its field's start (PAL timing model).
 
 #include "eyesim/firmware/hal.hpp"
 #include "eyesim/firmware/pc/modelled_clock.hpp"
@@ -20,11 +20,12 @@ namespace eyesim::firmware::pc {
 using FieldLoader =
     std::function<bool(std::uint64_t index, std::uint8_t* uyvy, std::uint8_t& parity, std::uint64_t& start_us)>;
 
-/// A camera's field stream, paced by the PAL model on a ModelledClock.
+/// A camera's field stream with PAL timing (each line's time follows from its field's start; the core tells a
+/// ModelledClock when it has run a line: Clock::line_run_us).
 class FieldSource final : public CameraSource {
 public:
     /// `lines` active lines of 720 px per field (288 for PAL); `epoch_us` is the device time of field 0's start.
-    FieldSource(FieldLoader loader, ModelledClock* clock, std::uint64_t epoch_us = 0, int lines = 288);
+    explicit FieldSource(FieldLoader loader, std::uint64_t epoch_us = 0, int lines = 288);
 
     /// The next line of the current field, its field end, or the end of the stream (loader returned false).
     LineStatus next_line(CameraLine& out) noexcept override;
@@ -36,7 +37,6 @@ public:
 
 private:
     FieldLoader loader_;
-    ModelledClock* clock_;
     std::uint64_t epoch_us_;
     int lines_;
     std::vector<std::uint8_t> field_;  // one field, allocated at construction

@@ -18,6 +18,8 @@ public:
     void advance_to(std::uint64_t t_us) noexcept {
         if (t_us > now_us_) now_us_ = t_us;
     }
+    /// Follows the lines the core runs (PAL pixel clock).
+    void line_run_us(std::uint64_t t_us) noexcept override { advance_to(t_us); }
 
 private:
     std::uint64_t now_us_ = 0;
