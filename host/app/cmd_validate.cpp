@@ -175,8 +175,10 @@ private:
         s.images_unmatched += frame_.markers.unmatched_images;
         s.markers_unassigned += frame_.markers_unassigned;
         s.compute_us.push_back(frame_.timing.compute_us);
-        s.latency_end_to_ready_us.push_back(frame_.timing.poses_ready_host_us - frame_.timing.field_end_host_us);
-        s.latency_end_to_received_us.push_back(frame_.timing.received_host_us - frame_.timing.field_end_host_us);
+        if (frame_.timing.field_end_host_us > 0) {  // 0: a frame from a part of a field still being read out
+            s.latency_end_to_ready_us.push_back(frame_.timing.poses_ready_host_us - frame_.timing.field_end_host_us);
+            s.latency_end_to_received_us.push_back(frame_.timing.received_host_us - frame_.timing.field_end_host_us);
+        }
         s.latency_sample_to_ready_us.push_back(frame_.timing.poses_ready_host_us - frame_.timing.sample_host_us);
         if (frame_.reference_field >= truth_.size()) return;
         const rig::FieldTruth& truth = truth_[frame_.reference_field];

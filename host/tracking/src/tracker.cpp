@@ -371,7 +371,8 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         build_async_frame(f, out);
         const double compute = steady_us() - t0;
         out.timing.sample_host_us = f.sample_device_us - offset_us_;
-        out.timing.field_end_host_us = f.field_end_device_us - offset_us_;
+        // A frame from a part of a field still being read out has no field end yet (0).
+        out.timing.field_end_host_us = q.last ? f.field_end_device_us - offset_us_ : 0.0;
         out.timing.received_host_us = f.received_host_us;
         out.timing.compute_us = compute;
         out.timing.poses_ready_host_us = now_host_us + compute;

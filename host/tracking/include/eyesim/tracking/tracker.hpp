@@ -60,7 +60,8 @@ enum FrameFlag : std::uint32_t {
 /// Host-side timing of one frame (host clock, µs). The chain is sample → field end → received → poses ready.
 struct FrameTiming {
     double sample_host_us = 0;       ///< the frame's instant (reference exposure mid-time)
-    double field_end_host_us = 0;    ///< last pixel of the latest field the frame needed
+    double field_end_host_us = 0;    ///< last pixel of the latest field the frame needed (0: a frame from a part
+                                     ///< of a field still being read out, low-latency mode)
     double received_host_us = 0;     ///< the latest of those fields' last packets arrived
     double poses_ready_host_us = 0;  ///< poses computed (`now_host_us` passed to pop, + compute time)
     double compute_us = 0;           ///< wall time spent in the tracking stage for this frame
