@@ -28,16 +28,20 @@ struct CoreRig {
     firmware::pc::LatencyLog latency{1u << 16};
     std::unique_ptr<firmware::DeviceCore> core;
 
-    CoreRig(int fields, int markers, const firmware::CoreConfig& config = {}) {
+    /// `camera_offset_us`: each camera's field starts that much after the genlocked time (unsynchronised cameras).
+    CoreRig(int fields, int markers, const firmware::CoreConfig& config = {},
+            const std::array<std::uint64_t, 3>& camera_offset_us = {}) {
         for (int c = 0; c < 3; ++c) streams[c] = make_stream(c, fields, markers);
         firmware::DeviceHal hal;
         for (int c = 0; c < 3; ++c) {
             const std::vector<std::uint8_t>* s = &streams[c];
+            const std::uint64_t offset_us = camera_offset_us[std::size_t(c)];
             cams.push_back(std::make_unique<firmware::pc::FieldSource>(
-                [s](std::uint64_t k, std::uint8_t* out, std::uint8_t& parity, std::uint64_t&) {
+                [s, offset_us](std::uint64_t k, std::uint8_t* out, std::uint8_t& parity, std::uint64_t& start_us) {
                     if ((k + 1) * kFieldBytes > s->size()) return false;
                     std::memcpy(out, s->data() + k * kFieldBytes, kFieldBytes);
                     parity = static_cast<std::uint8_t>(k % 2);
+                    start_us += offset_us;
                     return true;
                 }));
             hal.cameras[c] = cams.back().get();

@@ -9,6 +9,8 @@
 
 #include <catch2/catch.hpp>
 
+#include <set>
+
 using namespace eyesim;
 
 namespace {
@@ -72,6 +74,38 @@ TEST_CASE("host session over the in-process pair: commands, ping offset, low-lat
         for (int i = 0; i < fm.marker_count; ++i) v.push_back(fm.markers[i]);
     }
     REQUIRE(markers == test::reference_output(rig.streams).markers);
+}
+
+TEST_CASE("unsynchronised cameras: each field leaves at its own end, not when the latest camera's lines run",
+          "[firmware][session]") {
+    // Fields of the three cameras start 0, 6.7 and 13.3 ms apart. A board takes each camera's lines as they are
+    // read out, so a field's message is queued at that field's end; running the cameras' lines in lockstep (line
+    // y of every camera together) would hold camera 0's field until camera 2 reached the same line, 13.3 ms later.
+    for (bool low_latency : {false, true}) {
+        firmware::CoreConfig cfg;
+        cfg.low_latency = low_latency;
+        test::CoreRig rig(6, 2, cfg, {0, 6667, 13333});
+        rig.command({1, static_cast<std::uint8_t>(protocol::Opcode::StreamStart), 0, 0, 0});
+        std::size_t seen = 0;
+        std::int64_t worst_lag_us = 0;
+        int fields = 0;
+        std::set<int> cameras;
+        while (rig.core->step_cameras() != firmware::StepStatus::finished) {
+            rig.core->service();
+            const auto frames = test::decode_all(rig.sink.bytes);
+            for (std::size_t i = seen; i < frames.size(); ++i)
+                if (const auto* fm = std::get_if<protocol::FieldMarkers>(&frames[i].message); fm && fm->field_end_us) {
+                    worst_lag_us = std::max(worst_lag_us, std::int64_t(rig.clock.now_us()) - std::int64_t(fm->field_end_us));
+                    cameras.insert(fm->camera_id);
+                    ++fields;
+                }
+            seen = frames.size();
+        }
+        INFO((low_latency ? "low-latency" : "per-field") << ": " << fields << " fields, worst lag " << worst_lag_us << " us");
+        CHECK(fields >= 15);
+        CHECK(cameras.size() == 3);
+        CHECK(worst_lag_us < 200);  // a few lines at most
+    }
 }
 
 TEST_CASE("pedal: sent on change and as keep-alive; status at its period; stream stop is obeyed", "[firmware][session]") {
