@@ -118,9 +118,6 @@ public:
     double position_sigma_mm() const { return std::sqrt(std::max(0.0, P_.block<3, 3>(3, 3).trace())); }
 
 private:
-    template <typename Shift>
-    bool update_point_aged(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px, double sx,
-                           double sy, double nis_gate, const Shift& shift, double* nis, double age_us);
     void apply(const State& dx);
     void roll_pseudo_measurement();
 
@@ -158,61 +155,10 @@ template <typename Shift>
 bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
                                    double sx, double sy, double nis_gate, const Shift& shift, double* nis,
                                    double age_us) {
-    if (age_us > 0.0) return update_point_aged(cam, b, px, sx, sy, nis_gate, shift, nis, age_us);
-    // h(δθ, δt): projected pixel (plus the occlusion shift) of the perturbed pose; Jacobian by central differences
-    // (fixed 2×6, cheap next to the rest).
-    auto h = [&](const Eigen::Matrix<double, 6, 1>& d, Eigen::Vector2d& out) {
-        const Eigen::Quaterniond R = detail::exp_rotation(d.head<3>()) * R_;
-        const Eigen::Vector3d t = t_ + d.tail<3>();
-        const Eigen::Vector3d X = R * b + t;
-        const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
-        if (!(Xc.z() > 1e-6)) return false;
-        Eigen::Vector2d xn(Xc.x() / Xc.z(), Xc.y() / Xc.z());
-        xn += shift(R, t, X);
-        out = detail::to_pixel(cam, xn);
-        return out.allFinite();
-    };
-    Eigen::Vector2d z0;
-    Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
-    if (!h(d, z0)) return false;
-    Eigen::Matrix<double, 2, 6> J;
-    for (int i = 0; i < 6; ++i) {
-        const double eps = i < 3 ? 1e-6 : 1e-4;
-        Eigen::Vector2d zp, zm;
-        d.setZero();
-        d[i] = eps;
-        if (!h(d, zp)) return false;
-        d[i] = -eps;
-        if (!h(d, zm)) return false;
-        J.col(i) = (zp - zm) / (2.0 * eps);
-    }
-    const Eigen::Vector2d r = px - z0;
-    Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
-    Rn(0, 0) = sx * sx;
-    Rn(1, 1) = sy * sy;
-    const Eigen::Matrix2d S = J * P_.topLeftCorner<6, 6>() * J.transpose() + Rn;
-    const Eigen::Matrix2d Si = S.inverse();
-    const double q = r.dot(Si * r);
-    if (nis) *nis = q;
-    if (!(q <= nis_gate) || !std::isfinite(q)) return false;
-    const Eigen::Matrix<double, 12, 2> K = P_.leftCols<6>() * J.transpose() * Si;
-    apply(K * r);
-    // Joseph form keeps P symmetric and positive.
-    Eigen::Matrix<double, 12, 12> IKH = Eigen::Matrix<double, 12, 12>::Identity();
-    IKH.leftCols<6>() -= K * J;
-    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
-    P_ = 0.5 * (P_ + P_.transpose()).eval();
-    roll_pseudo_measurement();
-    return true;
-}
-
-template <typename Shift>
-bool RigidBodyFilter::update_point_aged(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
-                                        double sx, double sy, double nis_gate, const Shift& shift, double* nis,
-                                        double age_us) {
-    // h(δx): the projection of the pose carried back by age (constant velocity) from the perturbed state, so the
-    // Jacobian (2×12, central differences) reaches the velocities: δθ − age·δω, δt − age·δv to first order.
-    const double a = age_us * 1e-6;
+    // h(δx): projected pixel (plus the occlusion shift) of the perturbed pose, carried back by the age (constant
+    // velocity) for an aged image, so that its Jacobian (2×12, central differences) reaches the velocities:
+    // δθ − age·δω, δt − age·δv to first order. A current image does not depend on them (zero columns).
+    const double a = std::max(0.0, age_us) * 1e-6;
     auto h = [&](const State& d, Eigen::Vector2d& out) {
         const Eigen::Vector3d w = w_ + d.segment<3>(6);
         const Eigen::Quaterniond R = detail::exp_rotation(-a * w) * (detail::exp_rotation(d.head<3>()) * R_);
@@ -232,6 +178,7 @@ bool RigidBodyFilter::update_point_aged(const CameraGeometry& cam, const Eigen::
     Eigen::Matrix<double, 2, 12> J = Eigen::Matrix<double, 2, 12>::Zero();
     for (int i = 0; i < 12; ++i) {
         if (rotation_only_ && ((i >= 3 && i < 6) || i >= 9)) continue;
+        if (a == 0.0 && i >= 6) break;
         const double eps = (i < 3 || (i >= 6 && i < 9)) ? 1e-6 : 1e-4;
         Eigen::Vector2d zp, zm;
         d.setZero();
@@ -250,7 +197,7 @@ bool RigidBodyFilter::update_point_aged(const CameraGeometry& cam, const Eigen::
     Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
     Rn(0, 0) = sx * sx;
     Rn(1, 1) = sy * sy;
-    Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
+    if (a > 0.0) Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
     const Eigen::Matrix2d S = J * P_ * J.transpose() + Rn;
     const Eigen::Matrix2d Si = S.inverse();
     const double q = r.dot(Si * r);
