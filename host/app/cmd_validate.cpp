@@ -1069,7 +1069,6 @@ int run_validate_capture(const ValidateOptions& opt) {
     j["fields"] = st.fields;
     j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
     j["sync"] = opt.sync;
-    j["emit"] = opt.emit;
     j["trocar_constraint"] = !opt.no_trocar;
     // Truth figures, and the exposure → pose latency (a capture's replay has no exposure times on the host clock).
     for (const char* k : {"centroid_rms_px", "marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg"})

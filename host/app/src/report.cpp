@@ -61,7 +61,10 @@ nlohmann::json latency_json(const RunStats& s) {
     j["latency_us"] = pct(s.latency_us);
     j["transfer_us"] = pct(s.transfer_us);
     j["ready_after_receive_us"] = pct(s.ready_us);
-    j["exposure_to_pose_us"] = pct(s.exposure_to_pose_us);
+    // Always an object with p50 / p99 (null when never measured: no clock offset, or a replay without one).
+    j["exposure_to_pose_us"] = s.exposure_to_pose_us.empty()
+                                   ? nlohmann::json{{"p50", nullptr}, {"p99", nullptr}, {"max", nullptr}, {"frames", 0}}
+                                   : pct(s.exposure_to_pose_us);
     j["latency_clocks"] = "latency_us: device field end (placed on the host clock through the ping offset) -> poses "
                           "ready (host clock); transfer_us: field end -> last packet received; ready_after_receive_us: "
                           "last packet received -> poses ready (host clock); exposure_to_pose_us: exposure mid of the "
