@@ -9,6 +9,7 @@
 // is the median over passes of the pass's thread CPU time / fields.
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/rig/recording.hpp"
+#include "thread_cpu.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -27,12 +28,6 @@ namespace fpga = eyesim::fpga;
 namespace rig = eyesim::rig;
 
 namespace {
-
-double cpu_s() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -153,12 +148,12 @@ int main(int argc, char** argv) {
         }
         std::vector<double> us;
         for (int p = 0; p < passes; ++p) {
-            const double t0 = cpu_s();
+            const double t0 = eyesim::bench::thread_cpu_s();
             for (size_t i = 0; i < fields.size(); ++i) {
                 blobs.clear();
                 pipe.process_field(fields[i].data(), rig::kFieldHeight, static_cast<uint32_t>(i), static_cast<uint8_t>(i & 1));
             }
-            us.push_back((cpu_s() - t0) / static_cast<double>(fields.size()) * 1e6);
+            us.push_back((eyesim::bench::thread_cpu_s() - t0) / static_cast<double>(fields.size()) * 1e6);
         }
         char digest[17];
         std::snprintf(digest, sizeof digest, "%016llx", static_cast<unsigned long long>(d.h));
@@ -171,7 +166,7 @@ int main(int argc, char** argv) {
     std::vector<double> us;
     uint64_t sink = 0;
     for (int p = 0; p < passes; ++p) {
-        const double t0 = cpu_s();
+        const double t0 = eyesim::bench::thread_cpu_s();
         for (const auto& f : fields) {
             uint64_t acc = 0;
             for (size_t k = 0; k + 8 <= f.size(); k += 8) {
@@ -181,7 +176,7 @@ int main(int argc, char** argv) {
             }
             sink += acc;
         }
-        us.push_back((cpu_s() - t0) / static_cast<double>(fields.size()) * 1e6);
+        us.push_back((eyesim::bench::thread_cpu_s() - t0) / static_cast<double>(fields.size()) * 1e6);
     }
     if (json) {
         out["read_pass_us_per_field"] = median(us);

@@ -19,6 +19,7 @@
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "thread_cpu.hpp"
 #endif
 
 #include <nlohmann/json.hpp>
@@ -133,12 +134,6 @@ double median(std::vector<double> v) {
     return v[v.size() / 2];
 }
 
-double cpu_s() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-
 double load_average_1min() {
     std::ifstream f("/proc/loadavg");
     double l = -1;
@@ -176,9 +171,9 @@ void time_interleaved(std::vector<Contender*>& cs, size_t n_fields, int repeats)
     for (int r = 0; r < repeats; ++r)
         for (size_t j = 0; j < cs.size(); ++j) {
             Contender& c = *cs[(j + static_cast<size_t>(r)) % cs.size()];
-            const double t0 = cpu_s();
+            const double t0 = eyesim::bench::thread_cpu_s();
             for (size_t f = 0; f < n_fields; ++f) c.work(f);
-            c.us.push_back(1e6 * (cpu_s() - t0) / static_cast<double>(n_fields));
+            c.us.push_back(1e6 * (eyesim::bench::thread_cpu_s() - t0) / static_cast<double>(n_fields));
         }
 }
 

@@ -16,6 +16,7 @@
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/tracking/refine.hpp"
+#include "thread_cpu.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -34,12 +35,6 @@ namespace rig = eyesim::rig;
 namespace tracking = eyesim::tracking;
 
 namespace {
-
-double cpu_s() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 struct Acc {
     double se = 0;
@@ -181,10 +176,10 @@ int main(int argc, char** argv) {
         methods.push_back({"naive OpenCV weighted moments", [&](const uint8_t* f) { return cvw.run(f, rig::kFieldHeight); }, {}, 0});
         methods.push_back({"naive OpenCV binary centroid", [&](const uint8_t* f) { return cvb.run(f, rig::kFieldHeight); }, {}, 0});
         for (Method& m : methods) {
-            const double t0 = cpu_s();
+            const double t0 = eyesim::bench::thread_cpu_s();
             for (size_t k = 0; k < fields.size(); ++k)
                 score(m.run(fields[k].data()), truth[static_cast<size_t>(ids[k].second)], ids[k].first, m.bins);
-            m.fields_per_s = static_cast<double>(fields.size()) / (cpu_s() - t0);
+            m.fields_per_s = static_cast<double>(fields.size()) / (eyesim::bench::thread_cpu_s() - t0);
         }
 
         std::printf("recording %s: %lld fields x %d cameras; unoccluded visible markers; fields/s per thread-CPU "
@@ -274,10 +269,10 @@ int main(int argc, char** argv) {
             }
             double best_s = 1e30;
             for (int rep = 0; rep < 3; ++rep) {
-                const double t0 = cpu_s();
+                const double t0 = eyesim::bench::thread_cpu_s();
                 for (size_t k = 0; k < fields.size(); ++k)
                     for (const fpga::Blob& b : field_blobs[k]) tracking::fit_sphere(fields[k].data(), rig::kFieldHeight, tracking::blob_box(b), cfg, *fit_work);
-                best_s = std::min(best_s, cpu_s() - t0);
+                best_s = std::min(best_s, eyesim::bench::thread_cpu_s() - t0);
             }
             std::map<int, Acc> bins;
             int ok = 0;

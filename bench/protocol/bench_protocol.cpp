@@ -3,6 +3,7 @@
 //   bench_protocol [--mb N] [--repeats N]
 #include "eyesim/protocol/codec.hpp"
 #include "eyesim/protocol/stream_parser.hpp"
+#include "thread_cpu.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -139,21 +140,15 @@ struct Result {
     std::size_t frames = 0;
 };
 
-double cpu_now() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-
 template <class Run>
 Result median_of(int repeats, Run&& run) {
     std::vector<Result> rs;
     for (int i = 0; i < repeats; ++i) {
         const auto t0 = Clock::now();
-        const double c0 = cpu_now();
+        const double c0 = eyesim::bench::thread_cpu_s();
         Result r;
         r.frames = run();
-        r.seconds = cpu_now() - c0;
+        r.seconds = eyesim::bench::thread_cpu_s() - c0;
         r.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
         rs.push_back(r);
     }

@@ -5,6 +5,7 @@
 // inflates it less than wall time; wall-time figures are printed too.
 #include "eyesim/rig/renderer.hpp"
 #include "eyesim/rig/synth.hpp"
+#include "thread_cpu.hpp"
 
 #include <Eigen/LU>
 
@@ -24,11 +25,6 @@ using namespace eyesim::rig;
 
 namespace {
 
-double cpu_s() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 double wall_s() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -237,9 +233,9 @@ int main(int argc, char** argv) {
                 std::vector<uint8_t*> ptr{buf[0].data(), buf[1].data(), buf[2].data()};
                 FieldTruth t;
                 s.render(0, ptr, t);  // warm
-                const double c0 = cpu_s(), w0 = wall_s();
+                const double c0 = eyesim::bench::thread_cpu_s(), w0 = wall_s();
                 for (int i = 1; i <= fields; ++i) s.render(i, ptr, t);
-                cpu.push_back(cpu_s() - c0);
+                cpu.push_back(eyesim::bench::thread_cpu_s() - c0);
                 wall.push_back(wall_s() - w0);
             }
             const double rate = 3.0 * fields / median(cpu), wrate = 3.0 * fields / median(wall);
@@ -265,13 +261,13 @@ int main(int argc, char** argv) {
             for (const auto& c : cams) nrs.emplace_back(c, k);
             std::vector<Eigen::Vector2d> cen;
             SceneGeometry g;
-            const double c0 = cpu_s(), w0 = wall_s();
+            const double c0 = eyesim::bench::thread_cpu_s(), w0 = wall_s();
             for (int i = 0; i < nf; ++i)
                 for (size_t c = 0; c < cams.size(); ++c) {
                     scene_geometry(sc.state_at(cams[c].field_timing(i).exposure_mid_us), bodies, markers, g);
                     nrs[c].render(g, cams[c].field_parity(i), cen);
                 }
-            cpu.push_back(cpu_s() - c0);
+            cpu.push_back(eyesim::bench::thread_cpu_s() - c0);
             wall.push_back(wall_s() - w0);
         }
         const double rate = 3.0 * nf / median(cpu), wrate = 3.0 * nf / median(wall);

@@ -21,6 +21,7 @@
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
 #include "eyesim/tracking/refine.hpp"
+#include "thread_cpu.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -42,12 +43,6 @@ namespace rig = eyesim::rig;
 namespace tracking = eyesim::tracking;
 
 namespace {
-
-double cpu_s() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // Size bins by diameter in frame px: 4–6, 6–10, 10–16 (others are not reported).
 int size_bin(double diameter_px) {
@@ -88,9 +83,9 @@ std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, c
         Out o{b.cx_px(), b.cy_px(), 0, false};
         if (m.fit) {
             const tracking::BlobBox box = tracking::blob_box(b);
-            const double t0 = cpu_s();
+            const double t0 = eyesim::bench::thread_cpu_s();
             const tracking::SphereFitResult r = tracking::fit_sphere(field, height, box, m.cfg, work);
-            o.us = 1e6 * (cpu_s() - t0);
+            o.us = 1e6 * (eyesim::bench::thread_cpu_s() - t0);
             all_us.push_back(o.us);
             o.iterations = r.iterations;
             if (r.ok) {

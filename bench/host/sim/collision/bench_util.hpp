@@ -2,20 +2,15 @@
 // What the collision benchmarks share: the thread's CPU clock and an instrument pose from its tip and direction.
 
 #include "eyesim/sim/mesh.hpp"
+#include "thread_cpu.hpp"
 
 #include <Eigen/Geometry>
 
 #include <cmath>
-#include <ctime>
 
 namespace eyesim::sim::collision::bench {
 
-/// CPU time of the calling thread, µs (immune to other jobs on a loaded machine).
-inline double thread_cpu_us() {
-    timespec ts{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return double(ts.tv_sec) * 1e6 + double(ts.tv_nsec) * 1e-3;
-}
+using eyesim::bench::thread_cpu_us;
 
 /// Pose of an instrument whose tip is at `tip` and whose +z (body frame) points along `forward`.
 inline Eigen::Isometry3f pose_at(const Vec3f& tip, const Vec3f& forward) {

@@ -4,6 +4,7 @@
 // Usage: bench_sim_tissue [--repeats N] [--quick]
 #include "eyesim/sim/tissue/stability.hpp"
 #include "eyesim/sim/tissue/tissue.hpp"
+#include "thread_cpu.hpp"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -24,13 +25,6 @@ using namespace eyesim::sim::tissue;
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-// CPU time of this thread, µs: unlike wall time it excludes time the busy shared machine gave to other processes.
-double thread_cpu_us() {
-    timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return double(ts.tv_sec) * 1e6 + double(ts.tv_nsec) * 1e-3;
-}
 
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -84,9 +78,9 @@ StepTiming time_steps(PatchSize size, IntegratorKind kind, float dt, int repeats
     std::vector<double> cpu, wall;
     for (int r = 0; r < repeats; ++r) {
         const auto t0 = Clock::now();
-        const double c0 = thread_cpu_us();
+        const double c0 = eyesim::bench::thread_cpu_us();
         for (int i = 0; i < steps; ++i) t.step(dt, 1);
-        cpu.push_back((thread_cpu_us() - c0) / steps);
+        cpu.push_back((eyesim::bench::thread_cpu_us() - c0) / steps);
         wall.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count() / steps);
     }
     return {median(cpu), median(wall), t.system().spring_count()};
@@ -204,9 +198,9 @@ void error_table(float k, int repeats) {
             double err = 0;
             for (int rep = 0; rep < std::min(repeats, 5); ++rep) {
                 Tissue t = make_scene(size, kind, TissueParams{}, k);
-                const double c0 = thread_cpu_us();
+                const double c0 = eyesim::bench::thread_cpu_us();
                 for (int s = 0; s < steps; ++s) t.step(dt, 1);
-                cpu.push_back((thread_cpu_us() - c0) * 1e-3);
+                cpu.push_back((eyesim::bench::thread_cpu_us() - c0) * 1e-3);
                 err = rms_error(t.system(), ref2.x);
             }
             const bool finite = std::isfinite(err);
@@ -256,9 +250,9 @@ void kernel_table(int repeats, bool quick) {
         auto time = [&](auto&& body) {
             std::vector<double> cpu;
             for (int rep = 0; rep < repeats; ++rep) {
-                const double c0 = thread_cpu_us();
+                const double c0 = eyesim::bench::thread_cpu_us();
                 for (int i = 0; i < evals; ++i) body();
-                cpu.push_back((thread_cpu_us() - c0) / evals);
+                cpu.push_back((eyesim::bench::thread_cpu_us() - c0) / evals);
             }
             return median(cpu);
         };
