@@ -513,7 +513,17 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                 flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
         }
         used_last_field_[std::size_t(b)] = field_used;
-        if (field_used >= ao.min_markers_good) last_good_us_[std::size_t(b)] = std::max(last_good_us_[std::size_t(b)], T);
+        // One camera alone leaves an instrument's depth to the motion model: a filter fed only by it drifts (by
+        // centimetres within 0.1 s when the other views are occluded) while its images still fit. It supports the
+        // body only while another camera has seen one of its markers within about a field period. The eye turns
+        // about a known centre, which one view determines.
+        bool other_view = b == 0;
+        for (int c2 = 0; c2 < int(cameras_.size()) && !other_view; ++c2)
+            for (int k = 0; k < mc && c2 != c && !other_view; ++k)
+                other_view = T - seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c2)] <=
+                             ao.other_view_fields * config_.sync.field_period_us;
+        if (field_used >= ao.min_markers_good && other_view)
+            last_good_us_[std::size_t(b)] = std::max(last_good_us_[std::size_t(b)], T);
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
             !flt.translation().allFinite() || !flt.rotation().coeffs().allFinite())
             flt.reset();
@@ -629,8 +639,10 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     out.assignment.body.fill(-1);
     out.assignment.marker.fill(-1);
     out.markers_unassigned = 0;
-    // A tracked body with no image accepted within a field period is coasting on its prediction: held.
-    const auto coasting = [&](int b) { return T - last_good_us_[std::size_t(b)] > config_.sync.field_period_us; };
+    // A tracked body that no field supported lately is coasting on its prediction: held.
+    const auto coasting = [&](int b) {
+        return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us;
+    };
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
     std::array<Eigen::Quaterniond, kBodies> R_at;
     std::array<Eigen::Vector3d, kBodies> t_at;
@@ -670,7 +682,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
         const RigidBodyFilter& flt = filters_[std::size_t(b)];
         const int mc = b == 0 ? bodies.eye.marker_count : bodies.instruments[std::size_t(b - 1)].marker_count;
         const BodyMarker* ms = b == 0 ? bodies.eye.markers.data() : bodies.instruments[std::size_t(b - 1)].markers.data();
-        if (flt.tracking()) {
+        if (flt.tracking() && !coasting(b)) {  // a held body's markers are where its prediction puts them: left out
             for (int k = 0; k < mc && out.markers.count < kMaxMarkersPerFrame; ++k) {
                 int views = 0;
                 for (int c = 0; c < ncam; ++c)

@@ -38,6 +38,13 @@ struct AsyncOptions {
     /// an instrument's pose underdetermined, and a filter fed only such fields drifts).
     int min_markers_good = 2;
     double lost_after_us = 100000.0;  ///< no supporting field for this long: the body is lost (re-acquired)
+    /// No supporting field for this many field periods: the body's pose is reported held (not measured) and its
+    /// markers left out. Under one, so that a frame needs a supporting field since the previous frame's: with
+    /// three cameras a third of a period apart, two that see a body give one within two thirds of a period.
+    double held_after_fields = 0.75;
+    /// A field supports an instrument only if another camera saw one of its markers within this many field
+    /// periods: one view leaves the depth along its rays to the motion model.
+    double other_view_fields = 1.05;
     double max_position_sigma_mm = 1.0;  ///< √trace of the position covariance above this: lost
     double marker_recent_us = 30000.0;   ///< a marker seen by ≥ 2 cameras within this is reported in a frame
     double min_area_ratio = 0.6;      ///< an image whose blob area is below this share of the sphere's: occluded
