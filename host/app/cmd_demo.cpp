@@ -35,6 +35,7 @@ struct DemoOptions {
     bool json = false;
     bool precision = false;
     std::string device;
+    std::string sync = "async";
 };
 
 /// Finds `eyesim-device`: beside `eyesim`, in the build tree's firmware folder, or on PATH.
@@ -49,7 +50,7 @@ std::string find_device(const std::string& given) {
 /// The device as a child process; killed and reaped on destruction.
 class DeviceChild {
 public:
-    DeviceChild(const std::string& exe, const std::string& recording) {
+    DeviceChild(const std::string& exe, const std::string& recording, bool low_latency) {
         int fds[2];
         if (::pipe(fds) != 0) throw Error("cannot create a pipe for eyesim-device");
         posix_spawn_file_actions_t fa;
@@ -57,6 +58,7 @@ public:
         posix_spawn_file_actions_adddup2(&fa, fds[1], STDOUT_FILENO);
         posix_spawn_file_actions_addclose(&fa, fds[0]);
         std::vector<std::string> args = {exe, "--recording", recording, "--port", "0", "--realtime", "--linger-ms", "3000"};
+        if (low_latency) args.push_back("--low-latency");
         std::vector<char*> argv;
         for (auto& a : args) argv.push_back(a.data());
         argv.push_back(nullptr);
@@ -134,7 +136,9 @@ int run_demo(const DemoOptions& opt) {
     if (progress) std::fprintf(stderr, "\n");
 
     // 2. The simulated device serving it over TCP loopback, at PAL pace.
-    DeviceChild device(find_device(opt.device), rec_dir);
+    // Asynchronous fusion takes each blob as the device sends it: the device in its per-blob (low-latency) mode.
+    const bool low_latency = opt.sync == "async" && !opt.precision;
+    DeviceChild device(find_device(opt.device), rec_dir, low_latency);
     if (progress) std::fprintf(stderr, "demo: eyesim-device listening on %s; tracking and simulating\n", device.uri().c_str());
 
     // 3. Track, simulate, report.
@@ -149,6 +153,7 @@ int run_demo(const DemoOptions& opt) {
     req.snapshots = 3;
     req.json = opt.json;
     req.precision = opt.precision;
+    req.sync = opt.sync;
     req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgeon '" +
                 scenario + "')";
     return eyesim::app::run_scene(req);
@@ -171,6 +176,11 @@ eyesim::app::Registrar reg{
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");
         sub.add_flag("--precision", opt->precision,
                      "precision mode: the device sends every marker's pixel patch, the host refines each centroid on it");
+        sub.add_option("--sync", opt->sync,
+                       "tracking: async (per-body filters fed each blob as the device sends it, in its per-blob "
+                       "mode) or interpolate (whole fields, the cameras interpolated to one time)")
+            ->check(CLI::IsMember({"async", "interpolate"}))
+            ->capture_default_str();
         sub.add_flag("--json", opt->json, "one JSON object on stdout");
         return [opt]() -> int { return run_demo(*opt); };
     }};

@@ -33,6 +33,11 @@ eyesim::app::Registrar reg{
         sub.add_flag("--precision", req->precision,
                      "--connect/--capture: precision mode (every camera's marker patches, each centroid refined on its "
                      "patch where the fit accepts)");
+        sub.add_option("--sync", req->sync,
+                       "tracking: interpolate (whole fields, the cameras interpolated to one time) or async (per-body "
+                       "filters fed each part as it arrives; with a device in its per-blob mode, --low-latency)")
+            ->check(CLI::IsMember({"async", "interpolate"}))
+            ->capture_default_str();
         sub.add_flag("--json", req->json, "one JSON object on stdout");
         return [req]() -> int { return eyesim::app::run_scene(*req); };
     }};

@@ -73,6 +73,7 @@ HostRun::HostRun(tr::TrackerConfig config, Simulator& sim) : HostRun(std::move(c
 }
 
 HostRun::HostRun(tr::TrackerConfig config) : adapter_(config.bodies) {
+    step_once_per_time_ = config.sync.mode == tr::SyncMode::Async;
     try {
         tracker_ = std::make_unique<tr::Tracker>(std::move(config));
     } catch (const std::invalid_argument& e) {
@@ -202,7 +203,10 @@ void HostRun::drain(double now_us) {
         frame_.timing.compute_us += refine_wall_us_;
         refine_wall_us_ = 0.0;
         adapter_.convert(frame_, poses_);
-        if (sim_) sim_->step(poses_);
+        if (sim_ && !(step_once_per_time_ && frame_.time_device_us == last_step_time_us_)) {
+            sim_->step(poses_);
+            last_step_time_us_ = frame_.time_device_us;
+        }
         ++stats_.frames;
         const auto& t = frame_.timing;
         stats_.compute_us.add(t.compute_us);

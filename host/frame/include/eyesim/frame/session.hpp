@@ -142,6 +142,10 @@ private:
     double refine_wall_us_ = 0.0;
     double push_rx_us_ = 0.0;  // receive time of the message being handled (a held part's push time)
     Simulator* sim_ = nullptr;
+    // Asynchronous fusion gives a frame per part of a reference field (low-latency parts), all at that field's
+    // time: the simulation steps once per field time, on its first frame (the pose as early as it exists).
+    bool step_once_per_time_ = false;
+    double last_step_time_us_ = -1e300;
     RunClock run_clock_ = RunClock::kHost;
     TrackingPoseAdapter adapter_;
     tracking::TrackingFrame frame_;
