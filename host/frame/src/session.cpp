@@ -204,8 +204,14 @@ void HostRun::drain(double now_us) {
         refine_wall_us_ = 0.0;
         adapter_.convert(frame_, poses_);
         if (sim_ && !(step_once_per_time_ && frame_.time_device_us == last_step_time_us_)) {
+            // The tracking stage's time includes the parts fused since the last step (the rest of the previous
+            // field's): the frame budget counts all tracking work, one step per field.
+            poses_.tracking_us += unstepped_tracking_us_;
+            unstepped_tracking_us_ = 0.0;
             sim_->step(poses_);
             last_step_time_us_ = frame_.time_device_us;
+        } else if (sim_) {
+            unstepped_tracking_us_ += poses_.tracking_us;
         }
         ++stats_.frames;
         const auto& t = frame_.timing;

@@ -146,6 +146,7 @@ private:
     // time: the simulation steps once per field time, on its first frame (the pose as early as it exists).
     bool step_once_per_time_ = false;
     double last_step_time_us_ = -1e300;
+    double unstepped_tracking_us_ = 0.0;  // tracking compute of the frames that did not step the simulation
     RunClock run_clock_ = RunClock::kHost;
     TrackingPoseAdapter adapter_;
     tracking::TrackingFrame frame_;
