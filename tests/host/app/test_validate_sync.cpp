@@ -23,21 +23,30 @@ const fs::path& scratch() {
 
 Result run_eyesim(const std::string& args) { return eyesim::test::run_cli(scratch(), EYESIM_EXE, args, 180); }
 
-/// A 1 s sweep (50 fields per camera).
-fs::path sweep() {
-    const fs::path d = scratch() / "sweep";
+/// A recording of `scenario` (made once per test run).
+fs::path recording(const std::string& scenario, double seconds, int seed) {
+    const fs::path d = scratch() / scenario;
     if (fs::exists(d / "rig.yaml")) return d;
-    const Result r = run_eyesim("synth --scenario sweep --seconds 1 --seed 3 --out " + d.string());
+    const Result r = run_eyesim("synth --scenario " + scenario + " --seconds " + std::to_string(seconds) + " --seed " +
+                                std::to_string(seed) + " --out " + d.string());
     INFO(r.err);
     REQUIRE(r.rc == 0);
     return d;
 }
 
-nlohmann::json validate_json(const std::string& sync, const std::string& more = "") {
-    const Result r = run_eyesim("validate --recording " + sweep().string() + " --sync " + sync + " --json" + more);
+/// A 1 s sweep (50 fields per camera).
+fs::path sweep() { return recording("sweep", 1, 3); }
+
+/// `validate --json` of `dir` with `--sync sync` and more options.
+nlohmann::json validate_dir_json(const fs::path& dir, const std::string& sync, const std::string& more = "") {
+    const Result r = run_eyesim("validate --recording " + dir.string() + " --sync " + sync + " --json" + more);
     INFO("--sync " << sync << "\nstderr: " << r.err);
     REQUIRE(r.rc == 0);
     return nlohmann::json::parse(r.out);
+}
+
+nlohmann::json validate_json(const std::string& sync, const std::string& more = "") {
+    return validate_dir_json(sweep(), sync, more);
 }
 
 }  // namespace
@@ -99,25 +108,15 @@ TEST_CASE("validate --sync async: the pose predicted to the next field beats the
     // A 1 s `fast` recording (seed 9, not one the prediction was looked at on): the filters' velocities, shrunk by
     // their uncertainty, carry the pose 20 ms ahead; measured on seeds 3-8: tip 305-630 um predicted vs 826-1221
     // held, eye 0.14-0.20 deg vs 0.67-0.95.
-    const fs::path d = scratch() / "fast";
-    if (!fs::exists(d / "rig.yaml")) {
-        const Result s = run_eyesim("synth --scenario fast --seconds 1 --seed 9 --out " + d.string());
-        INFO(s.err);
-        REQUIRE(s.rc == 0);
-    }
-    Result r = run_eyesim("validate --recording " + d.string() + " --sync async --json");
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
-    const nlohmann::json p = nlohmann::json::parse(r.out)["display_prediction"];
+    const fs::path d = recording("fast", 1, 9);
+    const nlohmann::json p = validate_dir_json(d, "async")["display_prediction"];
     INFO(p.dump());
     CHECK(p["horizon_us"] == 20000.0);  // the next reference field, 20 ms on
     CHECK(p["frames"].get<int>() > 40);
     CHECK(p["tip_rms_um"].get<double>() < 0.7 * p["held_tip_rms_um"].get<double>());
     CHECK(p["eye_rot_rms_deg"].get<double>() < 0.7 * p["held_eye_rot_rms_deg"].get<double>());
     // No filter to predict with: the figures are null, never 0.
-    r = run_eyesim("validate --recording " + d.string() + " --sync interpolate --json");
-    REQUIRE(r.rc == 0);
-    const nlohmann::json q = nlohmann::json::parse(r.out)["display_prediction"];
+    const nlohmann::json q = validate_dir_json(d, "interpolate")["display_prediction"];
     CHECK(q["horizon_us"].is_null());
     CHECK(q["tip_rms_um"].is_null());
     CHECK(q["frames"] == 0);
@@ -129,16 +128,7 @@ TEST_CASE("validate --sync async: an instrument that one camera alone still sees
     // while its markers leave the other cameras' views. Camera 0 looks nearly along its shaft and keeps finding two
     // markers that fit the drifting filter; before a field needed another camera's support, the filter reported
     // the tip 26 mm off as measured (tip RMS 3.8 mm, 3D 439 um; interpolation 238 um and 61 um).
-    const fs::path d = scratch() / "occlusion";
-    if (!fs::exists(d / "rig.yaml")) {
-        const Result s = run_eyesim("synth --scenario occlusion --seconds 2 --seed 22 --out " + d.string());
-        INFO(s.err);
-        REQUIRE(s.rc == 0);
-    }
-    const Result r = run_eyesim("validate --recording " + d.string() + " --sync async --json");
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
-    const nlohmann::json j = nlohmann::json::parse(r.out);
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 22), "async");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured 219 um and 101 um; the frames it could not support are counted as not measured.
