@@ -56,7 +56,11 @@ constexpr bool kSanitized = true;
 constexpr bool kSanitized = false;
 #endif
 
-TEST_CASE("the latency gate passes an unchanged run and flags a 30 % slowdown", "[bench][latency]") {
+// Real timings on a shared machine: in the `stress` label (scripts/test.sh --stress), not in the default unit run.
+// It passes alone (3 of 3 on 2026-12-02) but failed in CI with nothing else running (tracking +17-18 % in both
+// scenes on unchanged code), and once before beside sanitizer builds. The gate's logic is asserted
+// deterministically below, on made-up measurements.
+TEST_CASE("the latency gate passes an unchanged run and flags a 30 % slowdown", "[bench][latency][stress]") {
     const nlohmann::json base = run_latency_bench(small());
     const double tol = 0.15;  // the gate's defaults: 15 %, 3 measurements at most
 
