@@ -66,12 +66,14 @@ TEST_CASE("eyesim demo: the surgeon peels the membrane through eyesim-device ove
     CHECK(j["tip_rms_um"].get<double>() < 400.0);
     // Field end → poses ready on the host clock, through the ping/pong offset. eyesim-device's clock is modelled:
     // paced to wall time with up to 200 µs of slack when idle, and lagging it by milliseconds when the machine is
-    // busy (other tests run beside this one), so the figure is only as good as that pacing. What must hold is a
-    // figure of the right size: a frame waits at most for the next fields of the other cameras.
+    // busy (other tests run beside this one), so the figure is only as good as that pacing. With low-latency parts
+    // it covers only the few frames given at a field's end (a closing part that brought something new; 4 of 3,908
+    // on seed 1): its sign is the clock offset's error (seen: -1.8 ms in CI). What must hold is a figure of the
+    // right size.
     REQUIRE(j["latency_us"].is_object());  // a device at PAL pace: its clock can be placed on the host's
     const double lat_p50 = j["latency_us"]["p50"].get<double>();
-    CHECK(lat_p50 > 0.0);
-    CHECK(lat_p50 < 25000.0);
+    CHECK(j["latency_us"]["frames"].get<int>() > 0);
+    CHECK(std::abs(lat_p50) < 25000.0);
     CHECK(j["transfer_us"]["p50"].get<double>() <= lat_p50);
     CHECK(std::abs(j["device_clock_rate"].get<double>() - 1.0) < 0.02);
     // No bound on the tail: on a 2-core machine running other tests beside this one, the device process is
