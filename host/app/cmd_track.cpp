@@ -106,10 +106,7 @@ int run_track(const TrackOptions& opt) {
     if (cfg.cameras.size() < 2 || cfg.cameras.size() > std::size_t(tr::kMaxCameras))
         throw Error(opt.rig + ": camera_count: " + std::to_string(cfg.cameras.size()) + " (need 2.." +
                     std::to_string(tr::kMaxCameras) + ")");
-    cfg.sync.mode = opt.sync == "extrapolate" ? tr::SyncMode::Extrapolate
-                    : opt.sync == "nearest"   ? tr::SyncMode::Nearest
-                    : opt.sync == "async"     ? tr::SyncMode::Async
-                                              : tr::SyncMode::Interpolate;
+    cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
     const tr::BodySet body_set = cfg.bodies;
     std::unique_ptr<eyesim::frame::HostRun> run;
     try {

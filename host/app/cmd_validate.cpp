@@ -118,13 +118,6 @@ double us_now() {
     return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-tr::SyncMode parse_sync(const std::string& s) {
-    if (s == "interpolate") return tr::SyncMode::Interpolate;
-    if (s == "extrapolate") return tr::SyncMode::Extrapolate;
-    if (s == "async") return tr::SyncMode::Async;
-    return tr::SyncMode::Nearest;
-}
-
 /// One FieldMarkers message with its modelled host receive time.
 struct Timed {
     double received_us;
@@ -1012,7 +1005,7 @@ int run_validate_capture(const ValidateOptions& opt) {
     } catch (const eyesim::frame::SourceError& e) {
         throw Error(opt.rig + ": " + e.what());
     }
-    cfg.sync.mode = parse_sync(opt.sync);
+    cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
     cfg.pose.trocar_constraint = !opt.no_trocar;
     cfg.centroid_sigma_px = opt.sigma_px;
     const int ncam = int(cfg.cameras.size());
@@ -1205,7 +1198,7 @@ int run_validate(const ValidateOptions& opt) {
         t.end_to_sample_us = {end_after_start_us + 0.5 * cm.exposure_us, end_after_start_us + 0.5 * cm.exposure_us};
         cfg.timing.push_back(t);
     }
-    cfg.sync.mode = parse_sync(opt.sync);
+    cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
     cfg.pose.trocar_constraint = !opt.no_trocar;
     cfg.centroid_sigma_px = opt.sigma_px;
     for (const auto& g : cfg.cameras)

@@ -170,10 +170,11 @@ int run_scene(const SceneRunRequest& req) {
             for (const auto& it : truth[0].instruments) instruments.push_back({it.kind, it.trocar});
         if (instruments.empty()) instruments = tr::all_instruments(bodies);
         tr::TrackerConfig cfg = tracker_config(cams, bodies, instruments);
-        cfg.sync.mode = req.sync == "async"         ? tr::SyncMode::Async
-                        : req.sync == "extrapolate" ? tr::SyncMode::Extrapolate
-                        : req.sync == "nearest"     ? tr::SyncMode::Nearest
-                                                    : tr::SyncMode::Interpolate;
+        try {
+            cfg.sync.mode = tr::sync_mode_from_name(req.sync);
+        } catch (const std::invalid_argument& e) {
+            throw Error(e.what());
+        }
         const tr::BodySet tracked_bodies = cfg.bodies;  // cfg moves into the tracker
         AccuracyAccumulator acc;
         if (!truth.empty()) {

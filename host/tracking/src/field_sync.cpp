@@ -2,8 +2,18 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 namespace eyesim::tracking {
+
+SyncMode sync_mode_from_name(std::string_view name) {
+    if (name == "interpolate") return SyncMode::Interpolate;
+    if (name == "extrapolate") return SyncMode::Extrapolate;
+    if (name == "nearest") return SyncMode::Nearest;
+    if (name == "async") return SyncMode::Async;
+    throw std::invalid_argument("unknown synchronisation mode '" + std::string(name) + "'");
+}
 
 // ---------------------------------------------------------------------------------------------------------------
 // FieldAssembler

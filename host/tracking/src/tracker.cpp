@@ -518,10 +518,12 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         // body only while another camera has seen one of its markers within about a field period. The eye turns
         // about a known centre, which one view determines.
         bool other_view = b == 0;
-        for (int c2 = 0; c2 < int(cameras_.size()) && !other_view; ++c2)
-            for (int k = 0; k < mc && c2 != c && !other_view; ++k)
+        for (int c2 = 0; c2 < int(cameras_.size()) && !other_view; ++c2) {
+            if (c2 == c) continue;
+            for (int k = 0; k < mc && !other_view; ++k)
                 other_view = T - seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c2)] <=
                              ao.other_view_fields * config_.sync.field_period_us;
+        }
         if (field_used >= ao.min_markers_good && other_view)
             last_good_us_[std::size_t(b)] = std::max(last_good_us_[std::size_t(b)], T);
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||

@@ -160,3 +160,12 @@ TEST_CASE("non-finite images are refused and poses stay finite", "[tracking][tra
     tracker.track_images(fields, one, f);
     CHECK((f.flags & kFrameTooFewCameras) != 0);
 }
+
+TEST_CASE("synchronisation modes by the command lines' names; any other name is an error", "[tracking][tracker]") {
+    CHECK(sync_mode_from_name("interpolate") == SyncMode::Interpolate);
+    CHECK(sync_mode_from_name("extrapolate") == SyncMode::Extrapolate);
+    CHECK(sync_mode_from_name("nearest") == SyncMode::Nearest);
+    CHECK(sync_mode_from_name("async") == SyncMode::Async);
+    CHECK_THROWS_AS(sync_mode_from_name("later"), std::invalid_argument);
+    CHECK_THROWS_AS(sync_mode_from_name(""), std::invalid_argument);
+}

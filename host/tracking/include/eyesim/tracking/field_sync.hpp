@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <string_view>
 
 namespace eyesim::tracking {
 
@@ -53,6 +54,10 @@ struct CameraField {
 /// own exposure time as soon as it is assembled; the frame synchroniser (as Extrapolate) only serves to
 /// (re)acquire a body by triangulation.
 enum class SyncMode : std::uint8_t { Interpolate, Extrapolate, Nearest, Async };
+
+/// The mode named `name` ("interpolate", "extrapolate", "nearest", "async": the command lines' --sync); throws
+/// std::invalid_argument for any other name.
+SyncMode sync_mode_from_name(std::string_view name);
 
 /// Options of the synchroniser.
 struct SyncOptions {
