@@ -100,6 +100,19 @@ void check_all_modes(const cv::Mat1b& labels) {
 
 cv::Mat1b blank(int h = 288) { return cv::Mat1b(h, 720, uint8_t{0}); }
 
+/// `n` markers of random class, position and radius 2-8 px (half as tall in a field), from seed `seed`.
+std::vector<Marker> random_markers(unsigned seed, int n) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> ux(5, 715), uy(3, 285), ur(2.0, 8.0);
+    std::uniform_int_distribution<int> uc(1, 4);
+    std::vector<Marker> ms;
+    for (int i = 0; i < n; ++i) {
+        const double r = ur(rng);
+        ms.push_back({uc(rng), ux(rng), uy(rng), r, r / 2});
+    }
+    return ms;
+}
+
 }  // namespace
 
 TEST_CASE("random ellipses and rectangles of all classes match OpenCV", "[fpga][exact]") {
@@ -236,14 +249,7 @@ TEST_CASE("blobs on every border and corner match OpenCV and carry border flags"
 }
 
 TEST_CASE("anti-aliased noisy markers: exact sums, fast path on and off identical", "[fpga][exact]") {
-    std::mt19937 rng(7);
-    std::uniform_real_distribution<double> ux(5, 715), uy(3, 285), ur(2.0, 8.0);
-    std::uniform_int_distribution<int> uc(1, 4);
-    std::vector<Marker> ms;
-    for (int i = 0; i < 40; ++i) {
-        const double r = ur(rng);
-        ms.push_back({uc(rng), ux(rng), uy(rng), r, r / 2});
-    }
+    const std::vector<Marker> ms = random_markers(7, 40);
     const Field f = render_markers(ms, 2.0, 11);
     RegisterMap regs = open_filters(1);
     CHECK(check_exact(f, regs) <= 4);  // separated markers rarely share ring pixels
@@ -405,14 +411,7 @@ TEST_CASE("no state carries over from one field to the next (background cells, l
 TEST_CASE("BG_OFFSET: band and positive-weight sums exact, x corrected by the documented formula", "[fpga][exact]") {
     // Markers on a background whose tint steps every 24 lines (the tracker then lags under the markers below a
     // step), on each side of the field, with noise; the band sums hold for every blob, the rest as check_exact.
-    std::mt19937 rng(33);
-    std::uniform_real_distribution<double> ux(5, 715), uy(3, 285), ur(2.0, 8.0);
-    std::uniform_int_distribution<int> uc(1, 4);
-    std::vector<Marker> ms;
-    for (int i = 0; i < 28; ++i) {
-        const double r = ur(rng);
-        ms.push_back({uc(rng), ux(rng), uy(rng), r, r / 2});
-    }
+    const std::vector<Marker> ms = random_markers(33, 28);
     const Field warm = render_markers(ms, 1.5, 12, 288, 4, {236, 234, 226});
     const Field cool = render_markers(ms, 1.5, 13, 288, 4, {170, 175, 190});
     Field f = warm;

@@ -563,21 +563,9 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
             _mm_store_ps(f[12], whi);
             for (; keep; keep &= keep - 1) {
                 const int l = __builtin_ctz(unsigned(keep));
-                FrontTri ft;
-                ft.u0 = f[0][l];
-                ft.w0 = f[1][l];
-                ft.a11 = f[2][l];
-                ft.a12 = f[3][l];
-                ft.a21 = f[4][l];
-                ft.a22 = f[5][l];
-                ft.s0 = f[6][l];
-                ft.ds1 = f[7][l];
-                ft.ds2 = f[8][l];
-                ft.ulo = f[9][l];
-                ft.uhi = f[10][l];
-                ft.wlo = f[11][l];
-                ft.whi = f[12][l];
-                front_.push_back(ft);
+                // f[0..12] are FrontTri's float fields in declaration order; the bins are set when binned.
+                front_.push_back({f[0][l], f[1][l], f[2][l], f[3][l], f[4][l], f[5][l], f[6][l], f[7][l], f[8][l],
+                                  f[9][l], f[10][l], f[11][l], f[12][l], 0, 0, 0, 0});
             }
         }
     }
