@@ -69,11 +69,14 @@ int main(int argc, char** argv) {
     std::string dir;
     int passes = 5;
     bool json = false;
+    std::string only;  // --setting NAME: run that setting alone (e.g. under a profiler)
     int positional = 0;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--json") {
             json = true;
+        } else if (a == "--setting" && i + 1 < argc) {
+            only = argv[++i];
         } else if (positional == 0) {
             dir = a;
             ++positional;
@@ -87,13 +90,13 @@ int main(int argc, char** argv) {
             passes = static_cast<int>(v);
             ++positional;
         } else {
-            std::fprintf(stderr, "eyesim: error: unexpected argument %s\nusage: bench_fpga_fields RECORDING_DIR [passes=5] [--json]\n",
+            std::fprintf(stderr, "eyesim: error: unexpected argument %s\nusage: bench_fpga_fields RECORDING_DIR [passes=5] [--json] [--setting NAME]\n",
                          a.c_str());
             return 2;
         }
     }
     if (dir.empty()) {
-        std::fprintf(stderr, "eyesim: error: no recording\nusage: bench_fpga_fields RECORDING_DIR [passes=5] [--json]\n");
+        std::fprintf(stderr, "eyesim: error: no recording\nusage: bench_fpga_fields RECORDING_DIR [passes=5] [--json] [--setting NAME]\n");
         return 2;
     }
     std::vector<std::vector<uint8_t>> fields;
@@ -122,6 +125,7 @@ int main(int argc, char** argv) {
         {"map 1.1 (BG_TRACK 0, levels 3/3/3/5)", {{fpga::reg::kBgTrack, 0}, {fpga::reg::kWeightBg, 0x05030303u}}},
         {"binary", {{fpga::reg::kWeightMode, 0}}},
         {"no edge ring", {{fpga::reg::kEdgeRing, 0}}},
+        {"BG_OFFSET", {{fpga::reg::kBgOffset, 1}}},
         {"reset, per-pixel path (FAST_PATH 0)", {{fpga::reg::kFastPath, 0}}},
     };
     nlohmann::json out = {{"recording", dir}, {"fields", fields.size()}, {"passes", passes}};
@@ -132,6 +136,7 @@ int main(int argc, char** argv) {
     std::vector<fpga::Blob> blobs;
     blobs.reserve(1024);
     for (const Setting& s : settings) {
+        if (!only.empty() && only != s.name) continue;
         fpga::RegisterMap regs;
         for (const auto& [a, v] : s.writes) regs.write(a, v);
         fpga::Pipeline pipe(regs);

@@ -357,7 +357,7 @@ int Pipeline::band_residual(uint8_t cls, int cb2, int cr2, int bg_cb_q7, int bg_
 }
 
 // Background chroma ×128 (×16 per cell, ×8 from the interpolation) at pixel x.
-void Pipeline::background_at(int x, int& cb_q7, int& cr_q7) const {
+inline void Pipeline::background_at(int x, int& cb_q7, int& cr_q7) const {
     const CellLerp l = cell_lerp(x);
     cb_q7 = bg_q4_[l.i] * (kBgCellPixels - l.f) + bg_q4_[l.i1] * l.f;
     cr_q7 = bg_q4_[l.i + 1] * (kBgCellPixels - l.f) + bg_q4_[l.i1 + 1] * l.f;
@@ -369,12 +369,25 @@ void Pipeline::background_reference_at(int x, double& cb, double& cr) const {
     cr = (bg_ref_[l.i + 1] * (kBgCellPixels - l.f) + bg_ref_[l.i1 + 1] * l.f) / kBgCellPixels;
 }
 
-// Pixel weight against the tracked background at pixel x (with BG_TRACK off the cells hold neutral 128).
-uint16_t Pipeline::weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const {
-    if (params_.weight_mode != 1) return weight2(cls, luma, cb2, cr2);
+// band_residual against the tracked background at pixel x.
+inline int Pipeline::background_residual_at(uint8_t cls, int cb2, int cr2, int x) const {
     int bcb, bcr;
     background_at(x, bcb, bcr);
-    return weight2_bg(cls, luma, cb2, cr2, bcb, bcr);
+    return ((64 * cb2 - bcb) * dir_cb_q9_[cls] + (64 * cr2 - bcr) * dir_cr_q9_[cls] + (1 << 15)) >> 16;
+}
+
+// weight2_bg's level, clamp and width for a projection or luma value v.
+inline uint16_t Pipeline::weight_from_value(uint8_t cls, int v) const {
+    const int w = std::clamp(v - static_cast<int>(params_.weight_bg[cls]), 0, 255);
+    return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
+}
+
+// Pixel weight against the tracked background at pixel x (with BG_TRACK off the cells hold neutral 128): what
+// weight2_bg gives with background_at(x), inlined for the datapath's loops.
+inline uint16_t Pipeline::weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const {
+    if (params_.weight_mode == 1) return weight_from_value(cls, background_residual_at(cls, cb2, cr2, x));
+    if (params_.weight_mode == 0) return 1;
+    return weight_from_value(cls, luma);
 }
 
 double Pipeline::weight_reference(uint8_t cls, double y, double cb, double cr) const {
@@ -412,6 +425,10 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     occupied_older_ = {};
     n_runs_older_ = 0;
     occupied_ = {};  // the first line's "line above" masks are empty, not the previous field's
+    claimed_ = {};
+    claimed_dirty_ = {};
+    hold_cells_ = {};
+    hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     return PipelineStatus::kOk;
 }
@@ -431,23 +448,36 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
     // A gap: the line after the previous one is background, which completes every blob still open.
     if (last_line_ >= 0 && y > last_line_ + 1) {
         cur_buf_ ^= 1;
+        if (n_runs_[cur_buf_] != 0) {
+            occupied_[cur_buf_] = {};
+            hold_cells_[cur_buf_] = {};
+        }
         n_runs_[cur_buf_] = 0;
-        occupied_[cur_buf_] = {};
         label_line(last_line_ + 1, false, nullptr);
         prev_line_ = nullptr;
     }
     cur_buf_ ^= 1;
-    occupied_older_ = occupied_[cur_buf_];
+    // The buffer's masks have bits only where its line had runs (occupied, held cells) or ring claims: most lines
+    // have none, and nothing is copied or cleared.
     n_runs_older_ = n_runs_[cur_buf_];
-    occupied_[cur_buf_] = {};
-    claimed_[cur_buf_] = {};
+    if (n_runs_older_ != 0) {
+        occupied_older_ = occupied_[cur_buf_];
+        hold_cells_older_ = hold_cells_[cur_buf_];
+        occupied_[cur_buf_] = {};
+        hold_cells_[cur_buf_] = {};
+    }
+    if (claimed_dirty_[cur_buf_]) {
+        claimed_[cur_buf_] = {};
+        claimed_dirty_[cur_buf_] = false;
+    }
     if (cells_path_)
         classify_line_cells(uyvy_line);
     else if (config_.float_reference)
         classify_line<true>(uyvy_line, y);
     else
         classify_line<false>(uyvy_line, y);
-    label_line(y, false, uyvy_line);
+    // Nothing to connect, ring or complete when neither this line nor the previous one has a run (most lines).
+    if (n_runs_[0] != 0 || n_runs_[1] != 0) label_line(y, false, uyvy_line);
     // The background learns from the previous line once this line has shown which of its pixels are next to a
     // blob; this line's weights were computed from lines up to y - 2.
     if (params_.bg_track_shift != 0 && params_.weight_mode == 1 && prev_line_ != nullptr && last_line_ == y - 1) {
@@ -494,11 +524,6 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
         return PipelineStatus::kNullLine;
     }
     for (int y = 0; y < lines; ++y) {
-        // The field is in memory: ask for line y + 2 while this one is processed (a model speed-up only).
-        if (y + 2 < lines) {
-            const uint8_t* ahead = uyvy_field + static_cast<size_t>(y + 2) * stride_bytes;
-            for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(ahead + b);
-        }
         s = push_line_impl(uyvy_field + static_cast<size_t>(y) * stride_bytes, y, true);
         if (s != PipelineStatus::kOk) {
             end_field();
@@ -507,6 +532,17 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
     }
     return end_field();
 }
+
+namespace {
+// Sets bits [b0, b1] of a multi-word mask.
+inline void mark_bits(uint64_t* mask, int b0, int b1) {
+    for (int b = b0; b <= b1;) {
+        const int wi = b >> 6, l0 = b & 63, l1 = std::min(63, l0 + (b1 - b));
+        mask[wi] |= (l1 - l0 == 63) ? ~0ull : (((1ull << (l1 - l0 + 1)) - 1) << l0);
+        b += l1 - l0 + 1;
+    }
+}
+}  // namespace
 
 // Ends the open run (if any) at x_end: appends it to the line's runs and marks its pixels occupied.
 inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
@@ -524,13 +560,12 @@ inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
         r.ref_w = o.rw;
         r.ref_wx = o.rwx;
         r.ref_wxx = o.rwxx;
-        uint64_t* occ = occupied_[cur_buf_].data();
-        for (int xx = o.x0; xx <= x_end;) {  // mark [x0, x_end] word by word
-            const int wi = xx >> 6, b0 = xx & 63, b1 = std::min(63, b0 + (x_end - xx));
-            const uint64_t bits = (b1 - b0 == 63) ? ~0ull : (((1ull << (b1 - b0 + 1)) - 1) << b0);
-            occ[wi] |= bits;
-            xx += b1 - b0 + 1;
-        }
+        mark_bits(occupied_[cur_buf_].data(), o.x0, x_end);
+        // Cells with a pixel within kBgHoldColumns of the run: 8j - H ≤ x_end and 8j + 7 + H ≥ x0.
+        constexpr int kLo = kBgHoldColumns + kBgCellPixels - 1;
+        const int j0 = o.x0 <= kLo ? 0 : (o.x0 - kLo + kBgCellPixels - 1) / kBgCellPixels;
+        const int j1 = std::min(kBgCells - 1, (x_end + kBgHoldColumns) / kBgCellPixels);
+        mark_bits(hold_cells_[cur_buf_].data(), j0, j1);
     }
     o.cls = 0;
 }
@@ -731,8 +766,9 @@ void Pipeline::background_hold_mask(std::array<uint64_t, kMaskWords>& near, uint
     const std::array<uint64_t, kMaskWords>& b = occupied_[cur_buf_ ^ 1];
     std::array<uint64_t, kMaskWords> m;
     any = 0;
+    const uint64_t older = n_runs_older_ != 0 ? ~0ull : 0;  // the older copy is stale when its line had no run
     for (size_t i = 0; i < static_cast<size_t>(kMaskWords); ++i) {
-        m[i] = a[i] | b[i] | occupied_older_[i];
+        m[i] = a[i] | b[i] | (occupied_older_[i] & older);
         any |= m[i];
     }
     if (any == 0) {  // nothing classified on the three lines (most lines)
@@ -758,20 +794,21 @@ void Pipeline::update_background_cells() {
     const uint32_t* sums = cell_sums_[cur_buf_ ^ 1].data();  // the previous line's
     int16_t* bg = bg_q4_.data();
     const int n = params_.bg_track_shift;
-    // No run on the three lines (a line's occupied mask is empty exactly when it has no run): nothing is held.
-    if (bg_all_seeded_ && n_runs_[0] == 0 && n_runs_[1] == 0 && n_runs_older_ == 0) {
+    // Held cells: those near a run of the three lines, from the cell masks the runs set (the cell-level form of
+    // background_hold_mask).
+    std::array<uint64_t, kCellWords> held;
+    uint64_t any = 0;
+    const uint64_t older = n_runs_older_ != 0 ? ~0ull : 0;  // the older copy is stale when its line had no run
+    for (size_t w = 0; w < static_cast<size_t>(kCellWords); ++w) {
+        held[w] = hold_cells_[0][w] | hold_cells_[1][w] | (hold_cells_older_[w] & older);
+        any |= held[w];
+    }
+    if (bg_all_seeded_ && any == 0) {  // most lines: every cell steps
         bg_step_(bg, sums, n);
         return;
     }
-    std::array<uint64_t, kMaskWords> near;
-    uint64_t any = 0;
-    background_hold_mask(near, any);
     const int half = 1 << (n - 1);
-    constexpr int kCellPx = 2 * kBgCellPairs;
-    auto held = [&](int j) {
-        const int x = kCellPx * j;
-        return ((near[static_cast<size_t>(x >> 6)] >> (x & 63)) & ((1ull << kCellPx) - 1)) != 0;
-    };
+    auto is_held = [&](int j) { return ((held[static_cast<size_t>(j >> 6)] >> (j & 63)) & 1) != 0; };
     auto step_cell = [&](int j) {
         const size_t i = static_cast<size_t>(2 * j);
         const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);  // cell mean ×16
@@ -781,7 +818,7 @@ void Pipeline::update_background_cells() {
     };
     if (!bg_all_seeded_) {  // the field's first lines: cell by cell
         for (int j = 0; j < kBgCells; ++j) {
-            if (held(j)) continue;
+            if (is_held(j)) continue;
             uint64_t& seeded = bg_seeded_[static_cast<size_t>(j >> 6)];
             const uint64_t bit = 1ull << (j & 63);
             if (seeded & bit) {
@@ -797,21 +834,16 @@ void Pipeline::update_background_cells() {
         bg_all_seeded_ = all && (bg_seeded_[kBgCells / 64] | ~((1ull << (kBgCells % 64)) - 1)) == ~0ull;
         return;
     }
-    // Held cells' values, restored after the vector step: the cells of the set bits of `near`.
+    // Held cells' values, restored after the vector step.
     int n_held = 0;
     std::array<uint16_t, kBgCells> held_j;
     std::array<uint32_t, kBgCells> held_v;
-    for (int w = 0; any != 0 && w < kMaskWords; ++w) {
-        uint64_t v = near[static_cast<size_t>(w)];
-        while (v != 0) {
-            const int j = (64 * w + __builtin_ctzll(v)) / kCellPx;
-            if (j >= kBgCells) break;
+    for (int w = 0; w < kCellWords; ++w)
+        for (uint64_t v = held[static_cast<size_t>(w)]; v != 0; v &= v - 1) {
+            const int j = 64 * w + __builtin_ctzll(v);
             held_j[static_cast<size_t>(n_held)] = static_cast<uint16_t>(j);
             std::memcpy(&held_v[static_cast<size_t>(n_held++)], bg + 2 * j, 4);
-            const int e = kCellPx * (j + 1) - 64 * w;  // first bit after cell j in this word
-            v = e >= 64 ? 0 : v & (~0ull << e);
         }
-    }
     bg_step_(bg, sums, n);
     for (int h = 0; h < n_held; ++h)
         std::memcpy(bg + 2 * held_j[static_cast<size_t>(h)], &held_v[static_cast<size_t>(h)], 4);
@@ -936,6 +968,7 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     uint64_t& claimed = claimed_[cur_buf_][static_cast<size_t>(x >> 6)];
     if ((occupied_[cur_buf_][static_cast<size_t>(x >> 6)] & bit) || (claimed & bit) || !in_roi(x, y)) return;
     claimed |= bit;
+    claimed_dirty_[cur_buf_] = true;
     Slot& s = slots_[root];
     const int k = x >> 1;
     const uint8_t* q = line + 4 * k;
@@ -972,6 +1005,7 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
 void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y) {
     uint64_t* occ = occupied_[cur_buf_].data();
     uint64_t* clm = claimed_[cur_buf_].data();
+    claimed_dirty_[cur_buf_] = true;
     uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
     uint32_t count = 0, pn = 0;
     const uint8_t cls = slots_[root].cls;
@@ -1022,9 +1056,7 @@ void Pipeline::add_band_span(uint16_t root, const uint8_t* line, int xa, int xb,
     for (int x = xa + (xa & 1); x <= xb; x += 2) {
         if (((occ[static_cast<size_t>(x >> 6)] >> (x & 63)) & 1) || !in_roi(x, y)) continue;
         const uint8_t* q = line + 2 * x;
-        int bcb, bcr;
-        background_at(x, bcb, bcr);
-        s.band_r += band_residual(s.cls, 2 * q[0], 2 * q[2], bcb, bcr);
+        s.band_r += background_residual_at(s.cls, 2 * q[0], 2 * q[2], x);
         ++s.band_n;
     }
 }

@@ -248,6 +248,8 @@ private:
     void background_at(int x, int& cb_q7, int& cr_q7) const;
     void background_reference_at(int x, double& cb, double& cr) const;
     uint16_t weight_at(uint8_t cls, int luma, int cb2, int cr2, int x) const;
+    int background_residual_at(uint8_t cls, int cb2, int cr2, int x) const;
+    uint16_t weight_from_value(uint8_t cls, int v) const;
     double weight_reference_at(uint8_t cls, double luma, double cb, double cr, int x) const;
     bool in_roi(int x, int y) const;
     uint16_t find_root(uint16_t s);
@@ -288,7 +290,13 @@ private:
     std::array<uint64_t, (kBgCells + 63) / 64> bg_seeded_{};
     bool bg_all_seeded_ = false;
     std::array<uint64_t, kMaskWords> occupied_older_{};
-    int n_runs_older_ = 0;  // runs of that line (0: its occupied mask is empty)
+    int n_runs_older_ = 0;  // runs of that line (0: its occupied mask is empty and not copied)
+    // Per line buffer the cells the background holds for that line's runs (kBgHoldColumns around each run; set
+    // with the occupied bits), the line before the previous one's, and which claimed masks have bits to clear.
+    static constexpr int kCellWords = (kBgCells + 63) / 64;
+    std::array<std::array<uint64_t, kCellWords>, 2> hold_cells_{};
+    std::array<uint64_t, kCellWords> hold_cells_older_{};
+    std::array<bool, 2> claimed_dirty_{};
     // Fast line path (whole-field fields, fast path on, no floating reference): per line buffer the cells' chroma
     // sums from the line scan, which the background tracker learns from one line later.
     bool cells_path_ = false;
