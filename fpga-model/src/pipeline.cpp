@@ -141,14 +141,16 @@ __attribute__((target("avx2"))) void scan_line_avx2(const uint8_t* line, int T, 
         const __m256i* p = reinterpret_cast<const __m256i*>(line + kCellBytes * j);
         const __m256i v0 = _mm256_loadu_si256(p), v1 = _mm256_loadu_si256(p + 1), v2 = _mm256_loadu_si256(p + 2),
                       v3 = _mm256_loadu_si256(p + 3);
-        const __m256i e0 = _mm256_subs_epu8(_mm256_sub_epi8(v0, lo), range);
-        const __m256i e1 = _mm256_subs_epu8(_mm256_sub_epi8(v1, lo), range);
-        const __m256i e2 = _mm256_subs_epu8(_mm256_sub_epi8(v2, lo), range);
-        const __m256i e3 = _mm256_subs_epu8(_mm256_sub_epi8(v3, lo), range);
-        const __m256i e = _mm256_or_si256(_mm256_or_si256(e0, e1), _mm256_or_si256(e2, e3));
+        // Bytes as offsets from the box's low edge; the largest of the four vectors' (same byte kind in every
+        // lane) beyond the range means some byte is out of the box.
+        const __m256i d0 = _mm256_sub_epi8(v0, lo), d1 = _mm256_sub_epi8(v1, lo), d2 = _mm256_sub_epi8(v2, lo),
+                      d3 = _mm256_sub_epi8(v3, lo);
+        const __m256i e = _mm256_subs_epu8(_mm256_max_epu8(_mm256_max_epu8(d0, d1), _mm256_max_epu8(d2, d3)), range);
         if (!_mm256_testz_si256(e, e)) {  // some cell of the eight is out of the box (rare): which ones
-            const uint64_t bits = outside2_avx2(e0, zero) | outside2_avx2(e1, zero) << 2 |
-                                  outside2_avx2(e2, zero) << 4 | outside2_avx2(e3, zero) << 6;
+            const uint64_t bits = outside2_avx2(_mm256_subs_epu8(d0, range), zero) |
+                                  outside2_avx2(_mm256_subs_epu8(d1, range), zero) << 2 |
+                                  outside2_avx2(_mm256_subs_epu8(d2, range), zero) << 4 |
+                                  outside2_avx2(_mm256_subs_epu8(d3, range), zero) << 6;
             out[j >> 6] |= bits << (j & 63);
         }
         const __m256i a0 = _mm256_and_si256(v0, low_bytes), a1 = _mm256_and_si256(v1, low_bytes),
@@ -313,6 +315,20 @@ void Pipeline::compile() {
         luma_max_[c] = p.luma_max[c - 1];
     }
 
+    // AVX2 chunk weights' tables: the class LUT with each class's luma band, and per class the direction pair and
+    // level (classes 0 and 5..7 weigh nothing).
+    for (size_t i = 0; i < lut_band_.size(); ++i) {
+        const uint8_t c = lut_[i];
+        lut_band_[i] = c | static_cast<uint32_t>(luma_min_[c]) << 8 | static_cast<uint32_t>(luma_max_[c]) << 16;
+    }
+    dir_pair_.fill(0);
+    level_.fill(0);
+    for (int c = 1; c <= kNumClasses; ++c) {
+        dir_pair_[static_cast<size_t>(c)] = static_cast<int32_t>(static_cast<uint16_t>(dir_cb_q9_[c]) |
+                                                                 static_cast<uint32_t>(static_cast<uint16_t>(dir_cr_q9_[c])) << 16);
+        level_[static_cast<size_t>(c)] = p.weight_bg[c];
+    }
+
     // Fast path: the largest grey box |Cb-128|, |Cr-128| ≤ T whose LUT cells are all background. Chroma of an
     // odd pixel is the mean of two in-box pairs, hence in the box too: skipping is exact.
     fast_half_width_ = 0;
@@ -430,6 +446,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     hold_cells_ = {};
     hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
+    simd_weights_ = cells_path_ && scan_isa_ == ScanIsa::kAvx2 && params_.weight_mode == 1;
     return PipelineStatus::kOk;
 }
 
@@ -686,6 +703,110 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
     stats_.max_runs_per_line = std::max(stats_.max_runs_per_line, static_cast<uint32_t>(n));
 }
 
+// Chunks of the AVX2 weights: eight pixels from an even x0; their chroma reads reach 24 bytes past pixel x0, and
+// the last chunk must not hold the line's last pixel (its odd chroma has no right neighbour).
+constexpr int kSimdChunkMaxX = static_cast<int>(kActivePixelsPerLine) - 16;
+
+#if defined(EYESIM_FPGA_AVX2)
+// Pixels x0..x0+7 (x0 even, x0 <= kSimdChunkMaxX): their classes (cls < 0: each pixel's own from the LUT and its
+// luma band, as classify_pixel; else cls for all) and chroma weights against the tracked background (weight_at
+// with WEIGHT_MODE 1), the same integer arithmetic in eight lanes.
+__attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line, int x0, int cls, ChunkOut& out) const {
+    const uint8_t* q = line + 2 * x0;
+    const __m128i lo = _mm_loadu_si128(reinterpret_cast<const __m128i*>(q));  // pixels x0..x0+7: pairs and lumas
+    const __m256i both = _mm256_inserti128_si256(_mm256_castsi128_si256(lo), _mm_loadu_si128(reinterpret_cast<const __m128i*>(q + 8)), 1);
+    // Per pixel (16-bit Cb, Cr) of its own pair plus (Cb, Cr) of its own (even pixel) or the next pair (odd):
+    // chroma ×2 as the datapath keeps it. Lane 0 holds pixels x0..x0+3, lane 1 x0+4..x0+7 (from byte 8).
+    const __m256i own = _mm256_setr_epi8(0, -1, 2, -1, 0, -1, 2, -1, 4, -1, 6, -1, 4, -1, 6, -1,
+                                         0, -1, 2, -1, 0, -1, 2, -1, 4, -1, 6, -1, 4, -1, 6, -1);
+    const __m256i next = _mm256_setr_epi8(0, -1, 2, -1, 4, -1, 6, -1, 4, -1, 6, -1, 8, -1, 10, -1,
+                                          0, -1, 2, -1, 4, -1, 6, -1, 4, -1, 6, -1, 8, -1, 10, -1);
+    const __m256i c2 = _mm256_add_epi16(_mm256_shuffle_epi8(both, own), _mm256_shuffle_epi8(both, next));
+    const __m256i zero = _mm256_setzero_si256();
+    __m256i c;
+    if (cls < 0) {
+        // LUT cell ((cb2 + 1) >> 3, (cr2 + 1) >> 3): the rounded odd-pixel chroma's top kLutChromaBits bits.
+        const __m256i r = _mm256_srli_epi16(_mm256_add_epi16(c2, _mm256_set1_epi16(1)), 8 - kLutChromaBits + 1);
+        const __m256i idx = _mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(r, _mm256_set1_epi32(0xFFFF)), kLutChromaBits),
+                                            _mm256_srli_epi32(r, 16));
+        const __m256i band = _mm256_i32gather_epi32(reinterpret_cast<const int*>(lut_band_.data()), idx, 4);
+        const __m256i luma = _mm256_cvtepu8_epi32(
+            _mm_shuffle_epi8(lo, _mm_setr_epi8(1, 3, 5, 7, 9, 11, 13, 15, -1, -1, -1, -1, -1, -1, -1, -1)));
+        const __m256i byte = _mm256_set1_epi32(0xFF);
+        const __m256i outside = _mm256_or_si256(
+            _mm256_cmpgt_epi32(_mm256_and_si256(_mm256_srli_epi32(band, 8), byte), luma),
+            _mm256_cmpgt_epi32(luma, _mm256_srli_epi32(band, 16)));
+        c = _mm256_andnot_si256(outside, _mm256_and_si256(band, byte));
+    } else {
+        c = _mm256_set1_epi32(cls);
+    }
+    // Background: cell_lerp per pixel (u = x - 3 clamped at 0; cell u / 8 and weight u % 8, the last cell alone),
+    // the cells' (Cb, Cr) pairs picked from eight consecutive cells.
+    const __m256i x = _mm256_add_epi32(_mm256_set1_epi32(x0), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+    const __m256i u = _mm256_max_epi32(_mm256_sub_epi32(x, _mm256_set1_epi32(kBgCellPairs - 1)), zero);
+    __m256i j = _mm256_srli_epi32(u, 3);
+    const __m256i last = _mm256_cmpgt_epi32(j, _mm256_set1_epi32(kBgCells - 2));
+    j = _mm256_min_epi32(j, _mm256_set1_epi32(kBgCells - 1));
+    const __m256i f = _mm256_andnot_si256(last, _mm256_and_si256(u, _mm256_set1_epi32(kBgCellPixels - 1)));
+    const int jb = std::min(std::max(x0 - (kBgCellPairs - 1), 0) / kBgCellPixels, kBgCells - 1);
+    const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4_.data() + 2 * jb));
+    const __m256i rel = _mm256_sub_epi32(j, _mm256_set1_epi32(jb));
+    const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
+    const __m256i g1 = _mm256_permutevar8x32_epi32(cells, _mm256_add_epi32(rel, _mm256_set1_epi32(1)));
+    const __m256i nf = _mm256_sub_epi32(_mm256_set1_epi32(kBgCellPixels), f);
+    const __m256i bg = _mm256_add_epi16(_mm256_mullo_epi16(g0, _mm256_or_si256(nf, _mm256_slli_epi32(nf, 16))),
+                                        _mm256_mullo_epi16(g1, _mm256_or_si256(f, _mm256_slli_epi32(f, 16))));
+    // band_residual: ((64·cb2 − bcb)·dcb + (64·cr2 − bcr)·dcr + 2^15) >> 16, then level, clamp and width.
+    const __m256i d = _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
+    const __m256i dir = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(dir_pair_.data())), c);
+    const __m256i level = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(level_.data())), c);
+    const __m256i v = _mm256_srai_epi32(_mm256_add_epi32(_mm256_madd_epi16(d, dir), _mm256_set1_epi32(1 << 15)), 16);
+    __m256i w = _mm256_min_epi32(_mm256_max_epi32(_mm256_sub_epi32(v, level), zero), _mm256_set1_epi32(255));
+    w = _mm256_srl_epi32(w, _mm_cvtsi32_si128(8 - params_.weight_bits));
+    _mm256_store_si256(reinterpret_cast<__m256i*>(out.cls), c);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(out.w), w);
+    _mm256_zeroupper();
+}
+#else
+void Pipeline::chunk_weights(const uint8_t*, int, int, ChunkOut&) const {}
+#endif
+
+// classify_pixel over [x0, x1] with the classes and weights of AVX2 chunks (the line's last pixels one by one).
+void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n) {
+    OpenRun o;
+    ChunkOut c;
+    int x = x0;
+    if (x & 1) classify_pixel<false>(line, x++, o, runs, n);  // a span's odd first pixel: then whole cells
+    while (x <= x1) {
+        const int xe = x & ~1;
+        if (xe > kSimdChunkMaxX) {
+            for (; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
+            break;
+        }
+        chunk_weights(line, xe, -1, c);
+        for (const int end = std::min(x1, xe + 7); x <= end; ++x) {
+            const uint8_t cl = static_cast<uint8_t>(c.cls[x - xe]);
+            if (cl != o.cls) {
+                close_run(o, x - 1, runs, n);
+                if (cl != 0) {
+                    o = OpenRun{};
+                    o.cls = cl;
+                    o.x0 = x;
+                }
+            }
+            if (cl != 0) {
+                const uint32_t w = static_cast<uint32_t>(c.w[x - xe]), ux = static_cast<uint32_t>(x);
+                o.sw += w;
+                o.swx += w * ux;
+                o.swxx += static_cast<uint64_t>(w) * (ux * ux);
+                o.pn += w != 0;
+                o.psx += w != 0 ? ux : 0;
+            }
+        }
+    }
+    close_run(o, x1, runs, n);
+}
+
 // The fast line path (whole field, fast path on): one scan gives every 8-px cell's chroma sums and whether any of
 // its samples lies outside the grey box. A cell inside the box holds only background pixels, except possibly its
 // last (odd) pixel, whose chroma is interpolated with the next cell's first pair. So only the pixels of out-of-box
@@ -697,9 +818,13 @@ void Pipeline::classify_line_cells(const uint8_t* line) {
     scan_(line, fast_half_width_, cell_sums_[cur_buf_].data(), out);
     uint32_t examined = 0;
     auto classify_span = [&](int x0, int x1) {
-        OpenRun o;
-        for (int x = x0; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
-        close_run(o, x1, runs, n);
+        if (simd_weights_) {
+            classify_span_simd(line, x0, x1, runs, n);
+        } else {
+            OpenRun o;
+            for (int x = x0; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
+            close_run(o, x1, runs, n);
+        }
         examined += static_cast<uint32_t>(x1 - x0 + 1);
     };
     int s0 = -1, s1 = -1;  // span being collected

@@ -285,7 +285,7 @@ private:
     std::array<double, kNumClasses + 1> dir_cb_ref_{}, dir_cr_ref_{};
     // Background tracking (BG_TRACK): per chroma pair, Cb and Cr ×16 interleaved, the seeded bit, and the
     // occupied mask of the line before the previous one (pixels near a blob do not update the background).
-    std::array<int16_t, 2 * kBgCells> bg_q4_{};
+    std::array<int16_t, 2 * kBgCells + 16> bg_q4_{};  // + padding the 8-cell vector loads of the AVX2 weights read
     std::array<double, 2 * kBgCells> bg_ref_{};
     std::array<uint64_t, (kBgCells + 63) / 64> bg_seeded_{};
     bool bg_all_seeded_ = false;
@@ -304,6 +304,18 @@ private:
     LineScan scan_ = nullptr;
     BgStep bg_step_ = nullptr;
     std::array<std::array<uint32_t, kBgCells>, 2> cell_sums_{};
+    // AVX2 chunk weights (fast line path, chroma weights, CPU with AVX2): eight pixels at a time. Per chroma LUT
+    // cell the class with its luma band (class | min << 8 | max << 16); per class the Q9 direction (Cb low, Cr
+    // high 16 bits) and the level.
+    bool simd_weights_ = false;
+    std::array<uint32_t, 1u << (2 * kLutChromaBits)> lut_band_{};
+    std::array<int32_t, 8> dir_pair_{}, level_{};
+    struct ChunkOut {
+        alignas(32) int32_t cls[8];
+        alignas(32) int32_t w[8];
+    };
+    void chunk_weights(const uint8_t* line, int x0, int cls, ChunkOut& out) const;
+    void classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n);
 
     // Blob table.
     std::array<Slot, kMaxBlobSlots> slots_{};
