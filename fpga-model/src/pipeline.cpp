@@ -55,6 +55,22 @@ CellLerp cell_lerp(int x) {
     return {i, f != 0 ? i + 2 : i, f};
 }
 
+// cell_lerp of every pixel as cell · 8 + weight of the right cell.
+constexpr std::array<uint16_t, kActivePixelsPerLine> make_cell_lerp() {
+    std::array<uint16_t, kActivePixelsPerLine> t{};
+    for (int x = 0; x < static_cast<int>(kActivePixelsPerLine); ++x) {
+        const int u = x - (kBgCellPairs - 1);
+        int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
+        if (j0 >= kBgCells - 1) {
+            j0 = kBgCells - 1;
+            f = 0;
+        }
+        t[static_cast<size_t>(x)] = static_cast<uint16_t>(j0 * kBgCellPixels + f);
+    }
+    return t;
+}
+constexpr std::array<uint16_t, kActivePixelsPerLine> kCellLerp = make_cell_lerp();
+
 // Line scans (Pipeline::LineScan): per 8-px cell the sums of its four Cb and four Cr samples and whether any of
 // them lies outside the grey box |C - 128| <= T. Three implementations with identical results.
 constexpr int kCellBytes = 2 * kBgCellPixels;
@@ -373,10 +389,13 @@ int Pipeline::band_residual(uint8_t cls, int cb2, int cr2, int bg_cb_q7, int bg_
 }
 
 // Background chroma ×128 (×16 per cell, ×8 from the interpolation) at pixel x.
+// cell_lerp from a table (cell · 8 + weight per pixel); the right cell is read even where its weight is 0 (the last
+// cell's right neighbour is bg_q4_'s padding).
 inline void Pipeline::background_at(int x, int& cb_q7, int& cr_q7) const {
-    const CellLerp l = cell_lerp(x);
-    cb_q7 = bg_q4_[l.i] * (kBgCellPixels - l.f) + bg_q4_[l.i1] * l.f;
-    cr_q7 = bg_q4_[l.i + 1] * (kBgCellPixels - l.f) + bg_q4_[l.i1 + 1] * l.f;
+    const int e = kCellLerp[static_cast<size_t>(x)], f = e & (kBgCellPixels - 1);
+    const int16_t* b = bg_q4_.data() + 2 * (e >> 3);
+    cb_q7 = b[0] * (kBgCellPixels - f) + b[2] * f;
+    cr_q7 = b[1] * (kBgCellPixels - f) + b[3] * f;
 }
 
 void Pipeline::background_reference_at(int x, double& cb, double& cr) const {
@@ -1127,10 +1146,10 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
 // add_ring_pixel for every pixel of [xa, xb] on the fast line path (no ROI, no floating reference): the free
 // pixels (neither classified nor claimed) are found word by word from the line masks, their weights summed and
 // added to the blob once (integer sums: the same totals).
-void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb, int y) {
+__attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb,
+                                                                  int y) {
     uint64_t* occ = occupied_[cur_buf_].data();
     uint64_t* clm = claimed_[cur_buf_].data();
-    claimed_dirty_[cur_buf_] = true;
     uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
     uint32_t count = 0, pn = 0;
     const uint8_t cls = slots_[root].cls;
@@ -1139,6 +1158,7 @@ void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb,
         if (w == xa >> 6) range &= ~0ull << (xa & 63);
         if (w == xb >> 6 && (xb & 63) != 63) range &= (1ull << ((xb & 63) + 1)) - 1;
         uint64_t free = range & ~occ[static_cast<size_t>(w)] & ~clm[static_cast<size_t>(w)];
+        if (free == 0) continue;
         clm[static_cast<size_t>(w)] |= free;
         for (; free != 0; free &= free - 1) {
             const int x = 64 * w + __builtin_ctzll(free);
@@ -1160,6 +1180,8 @@ void Pipeline::add_ring_span(uint16_t root, const uint8_t* line, int xa, int xb,
             ++count;
         }
     }
+    if (count == 0) return;
+    claimed_dirty_[cur_buf_] = true;
     Slot& s = slots_[root];
     const uint64_t uy = static_cast<uint64_t>(y);
     s.sw += sw;
