@@ -4,6 +4,8 @@
 // double-precision triangle–triangle tests plus a winding-number inside test, computed once per pose, untimed.
 //
 // Usage: bench_collision [--poses N=1000] [--seed S=1] [--fcl-poses N=poses] [--egl] [--egl-poses N=50] [--json]
+//                        [--scene TEXT] [--method NAME]   (only the scenes whose name holds TEXT / the methods
+//                        whose name starts with NAME: a profiler's run; the published tables run them all)
 //   Prints a Markdown table (or, with --json, one JSON object): per scene the colliding-count distribution over
 //   poses; per method recall and precision over poses (min, p5, median) and thread-CPU time per query (p50, p99).
 
@@ -442,6 +444,8 @@ int main(int argc, char** argv) {
     int poses = 1000, fcl_poses = -1, egl_poses = 50;
     uint64_t seed = 1;
     bool json = false, egl = false;
+    std::string only_scene, only_method;
+    auto want = [&](const std::string& method) { return method.rfind(only_method, 0) == 0; };
     auto count_arg = [&](const char* opt, const char* v, int& out) {
         char* end = nullptr;
         const long x = std::strtol(v, &end, 10);
@@ -462,6 +466,10 @@ int main(int argc, char** argv) {
             if (!count_arg("--fcl-poses", argv[++i], fcl_poses)) return 2;
         } else if (!std::strcmp(argv[i], "--egl-poses") && has) {
             if (!count_arg("--egl-poses", argv[++i], egl_poses)) return 2;
+        } else if (!std::strcmp(argv[i], "--scene") && has) {
+            only_scene = argv[++i];
+        } else if (!std::strcmp(argv[i], "--method") && has) {
+            only_method = argv[++i];
         } else if (!std::strcmp(argv[i], "--seed") && has) {
             char* end = nullptr;
             const char* v = argv[++i];
@@ -473,7 +481,7 @@ int main(int argc, char** argv) {
         } else {
             std::fprintf(stderr, "eyesim: error: bench_collision: unknown or incomplete option %s (usage: "
                                  "bench_collision [--poses N] [--seed S] [--fcl-poses N] [--egl] [--egl-poses N] "
-                                 "[--json])\n", argv[i]);
+                                 "[--json] [--scene TEXT] [--method NAME])\n", argv[i]);
             return 2;
         }
     }
@@ -511,6 +519,7 @@ int main(int argc, char** argv) {
     std::string table;
 
     for (size_t si = 0; si < specs.size(); ++si) {
+        if (specs[si].name.find(only_scene) == std::string::npos) continue;
         Scene s;
         s.spec = specs[si];
         s.membrane = make_membrane_patch(4.0f, 4.0f, s.spec.patch.nx, s.spec.patch.ny);
@@ -532,7 +541,7 @@ int main(int argc, char** argv) {
 
         // --- exact: the exact contact query (colliding set, ZI − ZM per colliding triangle along π = the
         // membrane normal, Eq. 1 node push vectors), as the frame loop runs it: within ZCOLL's V, along its π.
-        {
+        if (want("exact")) {
             ExactContact contact(mem, ins.mesh.triangle_count());
             OrientedBox volume;
             ContactOptions opt;
@@ -549,7 +558,7 @@ int main(int argc, char** argv) {
                 [&](size_t) { return contact.query(verts, forceps, pi_eye, opt).colliding_triangles; }));
         }
         // --- exact_grid: the uniform-grid narrow phase ZCOLL falls back to (colliding set only).
-        {
+        if (want("exact_grid")) {
             ExactNarrowPhase exact(mem.triangle_count(), ins.mesh.triangle_count());
             ExactOptions opt;
             opt.vertex_triangle_begin = mem.vertex_triangle_begin;
@@ -563,6 +572,7 @@ int main(int argc, char** argv) {
 
         // --- ZCOLL push (features, Eq. 1 vectors, π-convexity check), CPU rasteriser.
         for (int r : {32, 64, 128, 256}) {
+            if (!want("zcoll_r" + std::to_string(r))) continue;
             ZcollConfig cfg;
             cfg.resolution_px = r;
             ZcollEngine engine(mem, cfg);
@@ -585,7 +595,7 @@ int main(int argc, char** argv) {
         // --- Bullet: GImpact quantized BVH over the membrane refitted per query, pair search against the
         // forceps' tree, then the exact triangle test on the candidate pairs (surface intersections only).
         std::vector<Vec3f> ins_local(forceps.vertices_local_mm().begin(), forceps.vertices_local_mm().end());
-        {
+        if (want("bullet")) {
             std::vector<int> mem_idx, ins_idx;
             for (const auto& t : mem.triangles) mem_idx.insert(mem_idx.end(), {int(t[0]), int(t[1]), int(t[2])});
             for (const auto& t : ins.mesh.triangles) ins_idx.insert(ins_idx.end(), {int(t[0]), int(t[1]), int(t[2])});
@@ -645,7 +655,7 @@ int main(int argc, char** argv) {
         // --- FCL: BVHModel<OBBRSS> of the membrane refitted per query (bottom-up), collide against the forceps'
         // model reporting every colliding triangle pair (surface intersections only). The float → double copy of
         // the vertices is untimed.
-        {
+        if (want("fcl")) {
             using Model = fcl::BVHModel<fcl::OBBRSSd>;
             std::vector<fcl::Triangle> mem_tris, ins_tris;
             for (const auto& t : mem.triangles) mem_tris.emplace_back(t[0], t[1], t[2]);
