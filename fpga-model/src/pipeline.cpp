@@ -606,6 +606,27 @@ inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
     o.cls = 0;
 }
 
+// Pixel px of class c (0: background) with weight w: extends, closes or opens the line's open run, adds w.
+inline void Pipeline::run_pixel(OpenRun& o, uint8_t c, uint32_t w, int px, Run* runs, int& n) {
+    if (c != o.cls) {
+        close_run(o, px - 1, runs, n);
+        if (c != 0) {
+            o = OpenRun{};
+            o.cls = c;
+            o.x0 = px;
+        }
+    }
+    if (c != 0) {
+        o.sw += w;
+        o.swx += w * static_cast<uint32_t>(px);
+        o.swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
+        if (w != 0) {
+            ++o.pn;
+            o.psx += static_cast<uint32_t>(px);
+        }
+    }
+}
+
 // The datapath for pixel px: classify (LUT + luma band), extend, close or open the run, add the weight.
 template <bool kRef>
 inline void Pipeline::classify_pixel(const uint8_t* line, int px, OpenRun& o, Run* runs, int& n) {
@@ -622,24 +643,9 @@ inline void Pipeline::classify_pixel(const uint8_t* line, int px, OpenRun& o, Ru
     }
     uint8_t c = lut_[static_cast<size_t>((cb >> 2) << kLutChromaBits | (cr >> 2))];
     if (c != 0 && (luma < luma_min_[c] || luma > luma_max_[c])) c = 0;
-    if (c != o.cls) {
-        close_run(o, px - 1, runs, n);
+    run_pixel(o, c, c != 0 ? weight_at(c, luma, cb2, cr2, px) : 0, px, runs, n);
+    if constexpr (kRef) {
         if (c != 0) {
-            o = OpenRun{};
-            o.cls = c;
-            o.x0 = px;
-        }
-    }
-    if (c != 0) {
-        const uint32_t w = weight_at(c, luma, cb2, cr2, px);
-        o.sw += w;
-        o.swx += w * static_cast<uint32_t>(px);
-        o.swxx += static_cast<uint64_t>(w) * static_cast<uint32_t>(px * px);
-        if (w != 0) {
-            ++o.pn;
-            o.psx += static_cast<uint32_t>(px);
-        }
-        if constexpr (kRef) {
             const double wr = weight_reference_at(c, luma, 0.5 * cb2, 0.5 * cr2, px);
             o.rw += wr;
             o.rwx += wr * px;
@@ -803,25 +809,8 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
             break;
         }
         chunk_weights(line, xe, -1, c);
-        for (const int end = std::min(x1, xe + 7); x <= end; ++x) {
-            const uint8_t cl = static_cast<uint8_t>(c.cls[x - xe]);
-            if (cl != o.cls) {
-                close_run(o, x - 1, runs, n);
-                if (cl != 0) {
-                    o = OpenRun{};
-                    o.cls = cl;
-                    o.x0 = x;
-                }
-            }
-            if (cl != 0) {
-                const uint32_t w = static_cast<uint32_t>(c.w[x - xe]), ux = static_cast<uint32_t>(x);
-                o.sw += w;
-                o.swx += w * ux;
-                o.swxx += static_cast<uint64_t>(w) * (ux * ux);
-                o.pn += w != 0;
-                o.psx += w != 0 ? ux : 0;
-            }
-        }
+        for (const int end = std::min(x1, xe + 7); x <= end; ++x)
+            run_pixel(o, static_cast<uint8_t>(c.cls[x - xe]), static_cast<uint32_t>(c.w[x - xe]), x, runs, n);
     }
     close_run(o, x1, runs, n);
 }

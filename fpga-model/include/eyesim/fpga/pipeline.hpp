@@ -235,6 +235,7 @@ private:
     template <bool kRef>
     void classify_pixel(const uint8_t* line, int px, OpenRun& o, Run* runs, int& n);
     void close_run(OpenRun& o, int x_end, Run* runs, int& n);
+    void run_pixel(OpenRun& o, uint8_t c, uint32_t w, int px, Run* runs, int& n);
     void classify_line_cells(const uint8_t* line);
     void background_hold_mask(std::array<uint64_t, (kActivePixelsPerLine + 63) / 64>& near, uint64_t& any) const;
     void update_background_cells();
