@@ -7,7 +7,7 @@
 # the Markdown table on stdout. --refine: `fpga` and `validate` with --refine (each blob's centroid from the refinement stage's
 # shaded-sphere fit on Y, Cb, Cr instead of the pipeline's chroma-only centroid).
 #
-#   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"]
+#   scripts/codec_table.sh [--seeds "1 2"] [--seconds 10] [--formats "uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 mpeg2-422 h264"]
 #                          [--refine] [--build DIR] [--eyesim PATH] [--work DIR]
 set -euo pipefail
 
@@ -15,7 +15,7 @@ here=$(cd "$(dirname "$0")/.." && pwd)
 build="$here/build/release"
 seeds="1 2"
 seconds=10
-formats="uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 h264"
+formats="uyvy ffv1 ffv1-420 ffv1-411 dv dv411 mpeg2 mpeg2-422 h264"
 work=""
 refine=()
 eyesim=""
@@ -71,6 +71,7 @@ names = {"uyvy": "raw UYVY fields", "ffv1": "FFV1 4:2:2 .mkv (lossless)",
          "ffv1-420": "FFV1 of 4:2:0 planes (lossless; subsampling alone)",
          "ffv1-411": "FFV1 of 4:1:1 planes (lossless; subsampling alone)", "dv": "DV 4:2:0 .avi (25 Mbit/s)",
          "dv411": "DVCPRO25 4:1:1 .avi (25 Mbit/s)", "mpeg2": "MPEG-2 4:2:0 .mpg (q 2, ≤ 15 Mbit/s)",
+         "mpeg2-422": "MPEG-2 4:2:2 intra .mpg (D-10 / IMX: q 2, ≤ 50 Mbit/s)",
          "h264": "H.264 4:2:0 .mp4 (CRF 8)"}
 def load(p):
     try:

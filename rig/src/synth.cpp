@@ -75,7 +75,7 @@ SynthSummary write_recording(const SynthRequest& req, const std::function<void(i
     const bool video = req.format != "uyvy";
     if (video && !parse_video_format(req.format, codec, chroma))
         throw RigError(fmt::format(
-            "synth: format: must be uyvy, ffv1 (or video), dv, dv411, mpeg2, h264, ffv1-420 or ffv1-411, got '{}'",
+            "synth: format: must be uyvy, ffv1 (or video), dv, dv411, mpeg2, mpeg2-422, h264, ffv1-420 or ffv1-411, got '{}'",
             req.format));
     if (video && !encoder_available(codec))
         throw RigError(fmt::format("synth: format {}: this FFmpeg has no {} encoder", req.format,

@@ -709,6 +709,7 @@ bool parse_video_codec(const std::string& name, VideoCodec& out) {
     else if (name == "dv") out = VideoCodec::kDv;
     else if (name == "dv411") out = VideoCodec::kDv411;
     else if (name == "mpeg2") out = VideoCodec::kMpeg2;
+    else if (name == "mpeg2-422") out = VideoCodec::kMpeg2_422;
     else if (name == "h264") out = VideoCodec::kH264;
     else return false;
     return true;
@@ -730,6 +731,7 @@ const char* to_string(VideoCodec codec) {
         case VideoCodec::kDv: return "dv";
         case VideoCodec::kDv411: return "dv411";
         case VideoCodec::kMpeg2: return "mpeg2";
+        case VideoCodec::kMpeg2_422: return "mpeg2-422";
         case VideoCodec::kH264: return "h264";
     }
     return "?";
@@ -740,7 +742,8 @@ const char* extension(VideoCodec codec) {
         case VideoCodec::kFfv1: return ".mkv";
         case VideoCodec::kDv:
         case VideoCodec::kDv411: return ".avi";
-        case VideoCodec::kMpeg2: return ".mpg";
+        case VideoCodec::kMpeg2:
+        case VideoCodec::kMpeg2_422: return ".mpg";
         case VideoCodec::kH264: return ".mp4";
     }
     return "";
@@ -753,7 +756,8 @@ const AVCodec* find_encoder(VideoCodec codec) {
         case VideoCodec::kFfv1: return avcodec_find_encoder(AV_CODEC_ID_FFV1);
         case VideoCodec::kDv:
         case VideoCodec::kDv411: return avcodec_find_encoder(AV_CODEC_ID_DVVIDEO);
-        case VideoCodec::kMpeg2: return avcodec_find_encoder(AV_CODEC_ID_MPEG2VIDEO);
+        case VideoCodec::kMpeg2:
+        case VideoCodec::kMpeg2_422: return avcodec_find_encoder(AV_CODEC_ID_MPEG2VIDEO);
         case VideoCodec::kH264: return avcodec_find_encoder_by_name("libx264");
     }
     return nullptr;
@@ -829,6 +833,7 @@ struct VideoWriter::Impl {
                 const int ls = frame->linesize[comp];
                 switch (layout) {
                     case VideoCodec::kFfv1:  // 4:2:2: the field's own chroma, row for row
+                    case VideoCodec::kMpeg2_422:
                         for (int y = 0; y < kFieldHeight; ++y) {
                             uint8_t* o = plane + static_cast<ptrdiff_t>(2 * y + p) * ls;
                             const uint8_t* in = f + static_cast<size_t>(y) * W * 2;
@@ -887,13 +892,16 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
     w.top_first = order == FieldOrder::kTopFirst;
     if (chroma != VideoChroma::kCodec && codec != VideoCodec::kFfv1)
         throw RigError(path + ": video: only FFV1 takes another chroma subsampling than its codec's");
-    w.layout = chroma == VideoChroma::k420 ? VideoCodec::kMpeg2 : chroma == VideoChroma::k411 ? VideoCodec::kDv411 : codec;
+    w.layout = chroma == VideoChroma::k420   ? VideoCodec::kMpeg2
+               : chroma == VideoChroma::k411 ? VideoCodec::kDv411
+               : codec == VideoCodec::kMpeg2_422 ? VideoCodec::kFfv1  // 4:2:2 planes, as FFV1's
+                                                 : codec;
     const AVCodec* c = find_encoder(codec);
     if (!c)
         throw RigError(fmt::format("{}: video: this FFmpeg has no {} encoder", path,
                                    codec == VideoCodec::kH264 ? "libx264 (H.264)" : to_string(codec)));
     const char* muxer = codec == VideoCodec::kFfv1    ? "matroska"
-                        : codec == VideoCodec::kMpeg2 ? "vob"  // MPEG-2 program stream
+                        : codec == VideoCodec::kMpeg2 || codec == VideoCodec::kMpeg2_422 ? "vob"  // MPEG-2 program stream
                         : codec == VideoCodec::kH264  ? "mp4"
                                                       : "avi";
     int r = avformat_alloc_output_context2(&w.oc, nullptr, muxer, path.c_str());
@@ -941,6 +949,22 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
             e->max_b_frames = 2;
             av_dict_set(&opts, "intra_vlc", "1", 0);
             break;
+        case VideoCodec::kMpeg2_422:
+            // D-10 / IMX: 4:2:2 Profile @ Main Level, every picture intra, 50 Mbit/s; the quantiser held at the
+            // floor as for the MP@ML recorder above (the rig's pictures never fill the rate).
+            e->profile = 0;  // 4:2:2 Profile
+            e->level = 5;    // Main Level
+            e->flags |= AV_CODEC_FLAG_INTERLACED_DCT;
+            e->bit_rate = 50'000'000;
+            e->rc_max_rate = 50'000'000;
+            e->rc_buffer_size = 9'437'184;  // 422P@ML VBV
+            e->qmin = e->qmax = 2;
+            e->intra_dc_precision = 2;
+            e->gop_size = 1;
+            e->max_b_frames = 0;
+            av_dict_set(&opts, "intra_vlc", "1", 0);
+            av_dict_set(&opts, "non_linear_quant", "1", 0);
+            break;
         case VideoCodec::kH264:
             e->flags |= AV_CODEC_FLAG_INTERLACED_DCT;  // x264 --interlaced (field order per frame)
             e->gop_size = 25;
@@ -952,6 +976,17 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
     if (!options.empty() && av_dict_parse_string(&opts, options.c_str(), "=", ":", 0) < 0) {
         av_dict_free(&opts);
         throw RigError(fmt::format("{}: video: encoder options '{}': not key=value pairs separated by ':'", path, options));
+    }
+    // FFmpeg's MPEG-2 encoder calls a null comparison function for most interlaced-DCT metrics (a segmentation
+    // fault in the first frame): only the ones it implements for that block shape are let through.
+    if (const AVDictionaryEntry* il = av_dict_get(opts, "ildctcmp", nullptr, 0)) {
+        const std::string v = il->value;
+        if (v != "vsad" && v != "vsse" && v != "satd" && v != "zero") {
+            av_dict_free(&opts);
+            throw RigError(fmt::format("{}: video: encoder option ildctcmp={}: the MPEG-2 encoder crashes on it; "
+                                       "use vsad (its default), vsse, satd or zero",
+                                       path, v));
+        }
     }
     if (w.oc->oformat->flags & AVFMT_GLOBALHEADER) e->flags |= AV_CODEC_FLAG_GLOBAL_HEADER;
     r = avcodec_open2(e, c, &opts);

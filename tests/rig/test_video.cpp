@@ -430,7 +430,7 @@ TEST_CASE("MPEG-2 with B-frames: any reading order gives the fields of a sequent
 TEST_CASE("synth writes each format as cameras record it: interlaced, top field first, 25 frames/s",
           "[rig][recording][video]") {
     const std::string d = temp_dir("formats");
-    for (const std::string format : {"ffv1", "dv", "dv411", "mpeg2", "h264", "ffv1-420", "ffv1-411"}) {
+    for (const std::string format : {"ffv1", "dv", "dv411", "mpeg2", "mpeg2-422", "h264", "ffv1-420", "ffv1-411"}) {
         VideoCodec codec;
         VideoChroma chroma;
         REQUIRE(parse_video_format(format, codec, chroma));
@@ -459,9 +459,36 @@ TEST_CASE("synth writes each format as cameras record it: interlaced, top field 
         CHECK(r.info().frames == 3);
         CHECK(r.info().width == 720);
         CHECK(r.info().height == 576);
-        CHECK(r.info().chroma == (format == "ffv1"                                ? "4:2:2"
+        CHECK(r.info().chroma == (format == "ffv1" || format == "mpeg2-422"       ? "4:2:2"
                                   : format == "dv411" || format == "ffv1-411" ? "4:1:1"
                                                                               : "4:2:0"));
+    }
+    fs::remove_all(d);
+}
+
+TEST_CASE("encoder options: an interlaced-DCT metric the MPEG-2 encoder crashes on is a one-line error",
+          "[rig][recording][video][errors]") {
+    // FFmpeg's MPEG-2 encoder calls a null function in the first frame for most ildctcmp metrics; the writer
+    // refuses them before the encoder sees a frame, and keeps the ones that work.
+    const std::string d = temp_dir("ildct");
+    const std::vector<uint8_t> black = [] {
+        std::vector<uint8_t> b(kFieldBytes);
+        for (size_t k = 0; k < b.size(); k += 2) b[k] = 128, b[k + 1] = 16;
+        return b;
+    }();
+    for (VideoCodec codec : {VideoCodec::kMpeg2, VideoCodec::kMpeg2_422}) {
+        for (const char* bad : {"ildctcmp=sse", "ildctcmp=sad", "ildctcmp=dct", "ildctcmp=nsse", "ildctcmp=1"}) {
+            INFO(to_string(codec) << " " << bad);
+            CHECK_THROWS_WITH(VideoWriter(d + "/bad.mpg", codec, FieldOrder::kTopFirst, VideoChroma::kCodec, bad),
+                              Catch::Contains(bad) && Catch::Contains("vsad"));
+        }
+        for (const char* good : {"ildctcmp=vsse", "ildctcmp=satd", "ildctcmp=zero"}) {
+            INFO(to_string(codec) << " " << good);
+            VideoWriter w(d + "/good.mpg", codec, FieldOrder::kTopFirst, VideoChroma::kCodec, good);
+            for (int k = 0; k < 3; ++k) w.write(black.data(), black.data());
+            w.close();
+            CHECK(VideoReader(d + "/good.mpg").info().frames == 3);
+        }
     }
     fs::remove_all(d);
 }
