@@ -71,7 +71,7 @@ names = {"uyvy": "raw UYVY fields", "ffv1": "FFV1 4:2:2 .mkv (lossless)",
          "ffv1-420": "FFV1 of 4:2:0 planes (lossless; subsampling alone)",
          "ffv1-411": "FFV1 of 4:1:1 planes (lossless; subsampling alone)", "dv": "DV 4:2:0 .avi (25 Mbit/s)",
          "dv411": "DVCPRO25 4:1:1 .avi (25 Mbit/s)", "mpeg2": "MPEG-2 4:2:0 .mpg (q 2, ≤ 15 Mbit/s)",
-         "mpeg2-422": "MPEG-2 4:2:2 intra .mpg (D-10 / IMX: q 2, ≤ 50 Mbit/s)",
+         "mpeg2-422": "MPEG-2 4:2:2 intra .mpg (D-10 / IMX: q 1, ≤ 50 Mbit/s)",
          "h264": "H.264 4:2:0 .mp4 (CRF 8)"}
 def load(p):
     try:

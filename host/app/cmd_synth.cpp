@@ -45,7 +45,7 @@ eyesim::app::Registrar reg{"synth", "Render a synthetic three-camera PAL recordi
                    "uyvy (raw fields), or interlaced PAL video as cameras record it (720x576, 25 frames/s, the "
                    "rig's first field first): ffv1 (lossless 4:2:2 .mkv; also: video), dv (DV 4:2:0 .avi), dv411 "
                    "(DVCPRO25 4:1:1 .avi), mpeg2 (4:2:0 .mpg, quantiser 2, <= 15 Mbit/s), mpeg2-422 (D-10/IMX: 4:2:2 "
-                   "intra .mpg, quantiser 2, <= 50 Mbit/s), h264 (libx264 CRF 8 4:2:0 .mp4); "
+                   "intra .mpg, quantiser 1, <= 50 Mbit/s), h264 (libx264 CRF 8 4:2:0 .mp4); "
                    "ffv1-420, ffv1-411: lossless .mkv of a 4:2:0 / 4:1:1 camera's planes (subsampling alone)")
         ->check(CLI::IsMember({"uyvy", "video", "ffv1", "dv", "dv411", "mpeg2", "mpeg2-422", "h264", "ffv1-420", "ffv1-411"}));
     sub.add_option("--encoder-options", opt->encoder_options,

@@ -950,15 +950,16 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
             av_dict_set(&opts, "intra_vlc", "1", 0);
             break;
         case VideoCodec::kMpeg2_422:
-            // D-10 / IMX: 4:2:2 Profile @ Main Level, every picture intra, 50 Mbit/s; the quantiser held at the
-            // floor as for the MP@ML recorder above (the rig's pictures never fill the rate).
+            // D-10 / IMX: 4:2:2 Profile @ Main Level, every picture intra, 50 Mbit/s. At the non-linear
+            // quantiser's finest scale (1) the rig's pictures take about 32 Mbit/s per camera, under the rate, so
+            // a 50 Mbit/s recorder codes them at its floor: the scale is held there.
             e->profile = 0;  // 4:2:2 Profile
             e->level = 5;    // Main Level
             e->flags |= AV_CODEC_FLAG_INTERLACED_DCT;
             e->bit_rate = 50'000'000;
             e->rc_max_rate = 50'000'000;
             e->rc_buffer_size = 9'437'184;  // 422P@ML VBV
-            e->qmin = e->qmax = 2;
+            e->qmin = e->qmax = 1;
             e->intra_dc_precision = 2;
             e->gop_size = 1;
             e->max_b_frames = 0;

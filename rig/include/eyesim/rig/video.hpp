@@ -107,7 +107,7 @@ enum class VideoCodec {
     kDv411,  ///< DVCPRO25 PAL, 4:1:1, AVI (.avi)
     kMpeg2,  ///< MPEG-2 MP@ML 4:2:0 interlaced, ≤ 15 Mbit/s at quantiser scale 2, GOP 12 (IBBP), program stream (.mpg)
     kH264,   ///< H.264 High 4:2:0 interlaced (libx264 MBAFF, CRF 8, GOP 25), MP4 (.mp4)
-    kMpeg2_422,  ///< MPEG-2 4:2:2 Profile interlaced, intra only, ≤ 50 Mbit/s at quantiser scale 2: the D-10 / IMX
+    kMpeg2_422,  ///< MPEG-2 4:2:2 Profile interlaced, intra only, ≤ 50 Mbit/s at quantiser scale 1: the D-10 / IMX
                  ///< studio recorders' coding, in a program stream (.mpg)
 };
 
