@@ -109,17 +109,9 @@ TEST_CASE("MPEG-2 4:2:2 intra video (D-10 / IMX) keeps the centroids within 2x t
         int n = 0, n_parity[2] = {0, 0}, missed = 0;
     };
     auto score = [](const std::string& format) {
-        const std::string dir = (std::filesystem::temp_directory_path() / ("eyesim_fpga_m422_" + format)).string();
-        std::filesystem::remove_all(dir);
-        rig::SynthRequest req;
-        req.out_dir = dir;
-        req.scenario = "sweep";
-        req.seconds = 0.4;
-        req.seed = 13;
-        req.format = format;
-        rig::write_recording(req);
-        rig::Recording rec = rig::Recording::open(dir);
-        const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+        RigRecording rr("eyesim_fpga_m422_" + format, "sweep", 0.4, 1.0, 13, format);
+        rig::Recording& rec = rr.rec;
+        const std::vector<rig::FieldTruth>& truth = rr.truth;
         Pipeline p{RegisterMap{}};
         std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
         Score s;
@@ -150,7 +142,6 @@ TEST_CASE("MPEG-2 4:2:2 intra video (D-10 / IMX) keeps the centroids within 2x t
                     },
                     used);
             }
-        std::filesystem::remove_all(dir);
         return s;
     };
     const Score raw = score("uyvy"), vid = score("mpeg2-422");
