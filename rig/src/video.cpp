@@ -516,8 +516,41 @@ struct VideoReader::Impl {
             else if (fmt->duration != AV_NOPTS_VALUE && fmt->duration > 0) dur_s = fmt->duration / double(AV_TIME_BASE);
             if (dur_s > 0) n = std::llround(dur_s * info.frame_rate_hz);
         }
+        // An MPEG program or transport stream states no length. FFmpeg estimates it from the last timestamps of
+        // the few hundred KB it reads at the end, and without the last frame when that frame's packet is not among
+        // them (large intra frames): a stream one frame short, whose last frame would never be read. The count
+        // from the largest timestamp of the stream's tail instead.
+        const std::string demuxer = fmt->iformat ? fmt->iformat->name : "";
+        if (st->nb_frames <= 0 && info.frame_rate_hz > 0 && (demuxer == "mpeg" || demuxer == "mpegts")) {
+            const int64_t t = tail_frames(st->start_time, st->time_base);
+            if (t > 0) n = t;
+        }
         if (n <= 0) n = count_packets();
         info.frames = std::max<int64_t>(1, n);
+    }
+
+    /// Frames of a timestamped stream from its first timestamp to the largest one in the file's last 4 MB (more
+    /// than a GOP at any MPEG-2 rate a camera records), demuxed, not decoded; 0 when it cannot tell.
+    int64_t tail_frames(int64_t start, AVRational time_base) {
+        if (start == AV_NOPTS_VALUE) return 0;
+        AVFormatContext* f = nullptr;
+        if (avformat_open_input(&f, path.c_str(), nullptr, nullptr) < 0) return 0;
+        constexpr int64_t kTailBytes = 4 << 20;
+        int64_t last = AV_NOPTS_VALUE;
+        AVPacket* p = av_packet_alloc();
+        const int64_t size = f->pb ? avio_size(f->pb) : -1;
+        // (A program stream's streams appear as its packets are read: the index is the first open's.)
+        if (p && (size <= kTailBytes ||
+             avformat_seek_file(f, -1, INT64_MIN, size - kTailBytes, size - kTailBytes, AVSEEK_FLAG_BYTE) >= 0))
+            while (av_read_frame(f, p) >= 0) {
+                if (p->stream_index == stream && p->pts != AV_NOPTS_VALUE && (last == AV_NOPTS_VALUE || p->pts > last))
+                    last = p->pts;
+                av_packet_unref(p);
+            }
+        av_packet_free(&p);
+        avformat_close_input(&f);
+        if (last == AV_NOPTS_VALUE || last < start) return 0;
+        return std::llround(static_cast<double>(last - start) * av_q2d(time_base) * info.frame_rate_hz) + 1;
     }
 
     /// Frame count of a container that states neither count nor duration: its packets, demuxed (not decoded).
