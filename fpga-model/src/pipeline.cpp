@@ -44,7 +44,7 @@ struct CellLerp {
     size_t i, i1;
     int f;
 };
-CellLerp cell_lerp(int x) {
+constexpr CellLerp cell_lerp(int x) {
     const int u = x - (kBgCellPairs - 1);
     int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
     if (j0 >= kBgCells - 1) {
@@ -59,13 +59,8 @@ CellLerp cell_lerp(int x) {
 constexpr std::array<uint16_t, kActivePixelsPerLine> make_cell_lerp() {
     std::array<uint16_t, kActivePixelsPerLine> t{};
     for (int x = 0; x < static_cast<int>(kActivePixelsPerLine); ++x) {
-        const int u = x - (kBgCellPairs - 1);
-        int j0 = u >= 0 ? u / kBgCellPixels : 0, f = u >= 0 ? u - kBgCellPixels * j0 : 0;
-        if (j0 >= kBgCells - 1) {
-            j0 = kBgCells - 1;
-            f = 0;
-        }
-        t[static_cast<size_t>(x)] = static_cast<uint16_t>(j0 * kBgCellPixels + f);
+        const CellLerp l = cell_lerp(x);
+        t[static_cast<size_t>(x)] = static_cast<uint16_t>(l.i / 2 * kBgCellPixels + static_cast<size_t>(l.f));
     }
     return t;
 }
@@ -379,9 +374,7 @@ uint16_t Pipeline::weight2_bg(uint8_t cls, int y, int cb2, int cr2, int bg_cb_q7
     // Mode 1: projection of the chroma minus the background on the class hue direction, Q1.9 coefficients,
     // rounded (chroma ×2 as the datapath keeps it, scaled to the background's ×128). Mode 2: luma. Both minus
     // the background level WEIGHT_BG, clamped to 0..255.
-    const int v = params_.weight_mode == 2 ? y : band_residual(cls, cb2, cr2, bg_cb_q7, bg_cr_q7);
-    const int w = std::clamp(v - static_cast<int>(params_.weight_bg[cls]), 0, 255);
-    return static_cast<uint16_t>(w >> (8 - params_.weight_bits));
+    return weight_from_value(cls, params_.weight_mode == 2 ? y : band_residual(cls, cb2, cr2, bg_cb_q7, bg_cr_q7));
 }
 
 int Pipeline::band_residual(uint8_t cls, int cb2, int cr2, int bg_cb_q7, int bg_cr_q7) const {
@@ -408,7 +401,7 @@ void Pipeline::background_reference_at(int x, double& cb, double& cr) const {
 inline int Pipeline::background_residual_at(uint8_t cls, int cb2, int cr2, int x) const {
     int bcb, bcr;
     background_at(x, bcb, bcr);
-    return ((64 * cb2 - bcb) * dir_cb_q9_[cls] + (64 * cr2 - bcr) * dir_cr_q9_[cls] + (1 << 15)) >> 16;
+    return band_residual(cls, cb2, cr2, bcb, bcr);
 }
 
 // weight2_bg's level, clamp and width for a projection or luma value v.
@@ -733,10 +726,10 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
 constexpr int kSimdChunkMaxX = static_cast<int>(kActivePixelsPerLine) - 16;
 
 #if defined(EYESIM_FPGA_AVX2)
-// Pixels x0..x0+7 (x0 even, x0 <= kSimdChunkMaxX): their classes (cls < 0: each pixel's own from the LUT and its
-// luma band, as classify_pixel; else cls for all) and chroma weights against the tracked background (weight_at
-// with WEIGHT_MODE 1), the same integer arithmetic in eight lanes.
-__attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line, int x0, int cls, ChunkOut& out) const {
+// Pixels x0..x0+7 (x0 even, x0 <= kSimdChunkMaxX): their classes from the LUT and its luma band (classify_pixel)
+// and chroma weights against the tracked background (weight_at with WEIGHT_MODE 1), the same integer arithmetic
+// in eight lanes.
+__attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line, int x0, ChunkOut& out) const {
     const uint8_t* q = line + 2 * x0;
     const __m128i lo = _mm_loadu_si128(reinterpret_cast<const __m128i*>(q));  // pixels x0..x0+7: pairs and lumas
     const __m256i both = _mm256_inserti128_si256(_mm256_castsi128_si256(lo), _mm_loadu_si128(reinterpret_cast<const __m128i*>(q + 8)), 1);
@@ -748,32 +741,22 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
                                           0, -1, 2, -1, 4, -1, 6, -1, 4, -1, 6, -1, 8, -1, 10, -1);
     const __m256i c2 = _mm256_add_epi16(_mm256_shuffle_epi8(both, own), _mm256_shuffle_epi8(both, next));
     const __m256i zero = _mm256_setzero_si256();
-    __m256i c;
-    if (cls < 0) {
-        // LUT cell ((cb2 + 1) >> 3, (cr2 + 1) >> 3): the rounded odd-pixel chroma's top kLutChromaBits bits.
-        const __m256i r = _mm256_srli_epi16(_mm256_add_epi16(c2, _mm256_set1_epi16(1)), 8 - kLutChromaBits + 1);
-        const __m256i idx = _mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(r, _mm256_set1_epi32(0xFFFF)), kLutChromaBits),
-                                            _mm256_srli_epi32(r, 16));
-        const __m256i band = _mm256_i32gather_epi32(reinterpret_cast<const int*>(lut_band_.data()), idx, 4);
-        const __m256i luma = _mm256_cvtepu8_epi32(
-            _mm_shuffle_epi8(lo, _mm_setr_epi8(1, 3, 5, 7, 9, 11, 13, 15, -1, -1, -1, -1, -1, -1, -1, -1)));
-        const __m256i byte = _mm256_set1_epi32(0xFF);
-        const __m256i outside = _mm256_or_si256(
-            _mm256_cmpgt_epi32(_mm256_and_si256(_mm256_srli_epi32(band, 8), byte), luma),
-            _mm256_cmpgt_epi32(luma, _mm256_srli_epi32(band, 16)));
-        c = _mm256_andnot_si256(outside, _mm256_and_si256(band, byte));
-    } else {
-        c = _mm256_set1_epi32(cls);
-    }
-    // Background: cell_lerp per pixel (u = x - 3 clamped at 0; cell u / 8 and weight u % 8, the last cell alone),
-    // the cells' (Cb, Cr) pairs picked from eight consecutive cells.
-    const __m256i x = _mm256_add_epi32(_mm256_set1_epi32(x0), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-    const __m256i u = _mm256_max_epi32(_mm256_sub_epi32(x, _mm256_set1_epi32(kBgCellPairs - 1)), zero);
-    __m256i j = _mm256_srli_epi32(u, 3);
-    const __m256i last = _mm256_cmpgt_epi32(j, _mm256_set1_epi32(kBgCells - 2));
-    j = _mm256_min_epi32(j, _mm256_set1_epi32(kBgCells - 1));
-    const __m256i f = _mm256_andnot_si256(last, _mm256_and_si256(u, _mm256_set1_epi32(kBgCellPixels - 1)));
-    const int jb = std::min(std::max(x0 - (kBgCellPairs - 1), 0) / kBgCellPixels, kBgCells - 1);
+    // LUT cell ((cb2 + 1) >> 3, (cr2 + 1) >> 3): the rounded odd-pixel chroma's top kLutChromaBits bits.
+    const __m256i r = _mm256_srli_epi16(_mm256_add_epi16(c2, _mm256_set1_epi16(1)), 8 - kLutChromaBits + 1);
+    const __m256i idx = _mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(r, _mm256_set1_epi32(0xFFFF)), kLutChromaBits),
+                                        _mm256_srli_epi32(r, 16));
+    const __m256i band = _mm256_i32gather_epi32(reinterpret_cast<const int*>(lut_band_.data()), idx, 4);
+    const __m256i luma = _mm256_cvtepu8_epi32(
+        _mm_shuffle_epi8(lo, _mm_setr_epi8(1, 3, 5, 7, 9, 11, 13, 15, -1, -1, -1, -1, -1, -1, -1, -1)));
+    const __m256i byte = _mm256_set1_epi32(0xFF);
+    const __m256i outside = _mm256_or_si256(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_srli_epi32(band, 8), byte), luma),
+                                            _mm256_cmpgt_epi32(luma, _mm256_srli_epi32(band, 16)));
+    const __m256i c = _mm256_andnot_si256(outside, _mm256_and_si256(band, byte));
+    // Background: each pixel's cell and weight from the cell_lerp table, the cells' (Cb, Cr) pairs picked from
+    // eight consecutive cells (the chunk's first cell is its smallest).
+    const __m256i e = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kCellLerp.data() + x0)));
+    const __m256i j = _mm256_srli_epi32(e, 3), f = _mm256_and_si256(e, _mm256_set1_epi32(kBgCellPixels - 1));
+    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
     const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4_.data() + 2 * jb));
     const __m256i rel = _mm256_sub_epi32(j, _mm256_set1_epi32(jb));
     const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
@@ -793,7 +776,7 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
     _mm256_zeroupper();
 }
 #else
-void Pipeline::chunk_weights(const uint8_t*, int, int, ChunkOut&) const {}
+void Pipeline::chunk_weights(const uint8_t*, int, ChunkOut&) const {}
 #endif
 
 // classify_pixel over [x0, x1] with the classes and weights of AVX2 chunks (the line's last pixels one by one).
@@ -808,7 +791,7 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
             for (; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
             break;
         }
-        chunk_weights(line, xe, -1, c);
+        chunk_weights(line, xe, c);
         for (const int end = std::min(x1, xe + 7); x <= end; ++x)
             run_pixel(o, static_cast<uint8_t>(c.cls[x - xe]), static_cast<uint32_t>(c.w[x - xe]), x, runs, n);
     }

@@ -925,10 +925,7 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
     w.top_first = order == FieldOrder::kTopFirst;
     if (chroma != VideoChroma::kCodec && codec != VideoCodec::kFfv1)
         throw RigError(path + ": video: only FFV1 takes another chroma subsampling than its codec's");
-    w.layout = chroma == VideoChroma::k420   ? VideoCodec::kMpeg2
-               : chroma == VideoChroma::k411 ? VideoCodec::kDv411
-               : codec == VideoCodec::kMpeg2_422 ? VideoCodec::kFfv1  // 4:2:2 planes, as FFV1's
-                                                 : codec;
+    w.layout = chroma == VideoChroma::k420 ? VideoCodec::kMpeg2 : chroma == VideoChroma::k411 ? VideoCodec::kDv411 : codec;
     const AVCodec* c = find_encoder(codec);
     if (!c)
         throw RigError(fmt::format("{}: video: this FFmpeg has no {} encoder", path,
@@ -949,7 +946,7 @@ VideoWriter::VideoWriter(const std::string& path, VideoCodec codec, FieldOrder o
     e->time_base = {1, 25};
     e->framerate = {25, 1};
     e->sample_aspect_ratio = {16, 15};  // 4:3 PAL
-    e->pix_fmt = w.layout == VideoCodec::kFfv1    ? AV_PIX_FMT_YUV422P
+    e->pix_fmt = w.layout == VideoCodec::kFfv1 || w.layout == VideoCodec::kMpeg2_422 ? AV_PIX_FMT_YUV422P
                  : w.layout == VideoCodec::kDv411 ? AV_PIX_FMT_YUV411P
                                                   : AV_PIX_FMT_YUV420P;
     e->field_order = w.top_first ? AV_FIELD_TT : AV_FIELD_BB;

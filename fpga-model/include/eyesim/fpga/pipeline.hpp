@@ -315,7 +315,7 @@ private:
         alignas(32) int32_t cls[8];
         alignas(32) int32_t w[8];
     };
-    void chunk_weights(const uint8_t* line, int x0, int cls, ChunkOut& out) const;
+    void chunk_weights(const uint8_t* line, int x0, ChunkOut& out) const;
     void classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n);
 
     // Blob table.
