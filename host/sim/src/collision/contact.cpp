@@ -4,6 +4,7 @@
 #include "eyesim/sim/collision/zcoll.hpp"
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 
 #include <algorithm>
 #include <cmath>
@@ -97,8 +98,6 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     tris_.reserve(ni);
     tri_part_.reserve(ni);
     inst_stamp_.reserve(ni);
-    cell_items_.reserve(ni * 8);
-    cell_box_.reserve(ni * 8 * 6);
     for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
     kept_.reserve(ni);
     front_.reserve(ni);
@@ -156,109 +155,210 @@ void ExactContact::reset_result() {
     bump(query_, tri_stamp_, vert_stamp_, vscan_stamp_, vdepth_stamp_, node_stamp_);
 }
 
-bool ExactContact::instrument_changed(const MeshRef& ins, std::span<const uint32_t> parts) const {
+ExactContact::InstrumentChange ExactContact::instrument_change(const MeshRef& ins,
+                                                               std::span<const uint32_t> parts) const {
     if (!built_ || ins.vertices_mm.size() != inst_vertices_.size() ||
         ins.triangles.size() != inst_triangles_.size())
-        return true;
+        return InstrumentChange::Topology;
     const size_t np = parts.size() > 1 ? parts.size() : 2;
-    if (np != parts_.size()) return true;
-    if (parts.size() > 1 && !std::equal(parts.begin(), parts.end(), parts_.begin())) return true;
+    if (np != parts_.size()) return InstrumentChange::Topology;
+    if (parts.size() > 1 && !std::equal(parts.begin(), parts.end(), parts_.begin())) return InstrumentChange::Topology;
+    if (std::memcmp(ins.triangles.data(), inst_triangles_.data(), ins.triangles.size_bytes()) != 0)
+        return InstrumentChange::Topology;
     // The articulation (forceps opening) moves vertices: compare them all (≈12 kB, about a microsecond).
-    return std::memcmp(ins.vertices_mm.data(), inst_vertices_.data(), ins.vertices_mm.size_bytes()) != 0 ||
-           std::memcmp(ins.triangles.data(), inst_triangles_.data(), ins.triangles.size_bytes()) != 0;
+    return std::memcmp(ins.vertices_mm.data(), inst_vertices_.data(), ins.vertices_mm.size_bytes()) != 0
+               ? InstrumentChange::Vertices
+               : InstrumentChange::None;
 }
 
-void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t> parts) {
-    inst_vertices_.assign(ins.vertices_mm.begin(), ins.vertices_mm.end());
-    inst_triangles_.assign(ins.triangles.begin(), ins.triangles.end());
-    const size_t nt = inst_triangles_.size();
-    if (parts.size() > 1) parts_.assign(parts.begin(), parts.end());
-    else parts_.assign({0u, uint32_t(nt)});
-    tris_.resize(nt);
+void ExactContact::set_triangle(size_t t) {
+    // Plain float arithmetic: this runs for every triangle of a part that moved (≈ 900 per forceps opening).
+    const auto& tr = inst_triangles_[t];
+    InstTri& T = tris_[t];
+    T.a = inst_vertices_[tr[0]];
+    T.b = inst_vertices_[tr[1]];
+    T.c = inst_vertices_[tr[2]];
+    const float ax = T.a.x(), ay = T.a.y(), az = T.a.z(), bx = T.b.x(), by = T.b.y(), bz = T.b.z(), cx = T.c.x(),
+                cy = T.c.y(), cz = T.c.z();
+    const float e1x = bx - ax, e1y = by - ay, e1z = bz - az, e2x = cx - ax, e2y = cy - ay, e2z = cz - az;
+    const float nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
+    const float len = std::sqrt(nx * nx + ny * ny + nz * nz);
+    T.n = len > 0.0f ? Vec3f(nx / len, ny / len, nz / len) : Vec3f::Zero();  // degenerate: never rejected
+    T.d = T.n.x() * ax + T.n.y() * ay + T.n.z() * az;
+    T.lo = Vec3f(min3(ax, bx, cx), min3(ay, by, cy), min3(az, bz, cz));
+    T.hi = Vec3f(max3(ax, bx, cx), max3(ay, by, cy), max3(az, bz, cz));
+    const float mx = (ax + bx + cx) / 3.0f, my = (ay + by + cy) / 3.0f, mz = (az + bz + cz) / 3.0f;
+    auto d2 = [&](float x, float y, float z) { return (x - mx) * (x - mx) + (y - my) * (y - my) + (z - mz) * (z - mz); };
+    tcx_[t] = mx;
+    tcy_[t] = my;
+    tcz_[t] = mz;
+    // One square root: it is monotonic and correctly rounded, so this is the largest of the three distances.
+    trad_[t] = std::sqrt(std::max(std::max(d2(ax, ay, az), d2(bx, by, bz)), d2(cx, cy, cz))) * (1.0f + 1e-5f) + kEps_mm;
+    tnx_[t] = T.n.x();
+    tny_[t] = T.n.y();
+    tnz_[t] = T.n.z();
+}
+
+void ExactContact::update_bounds(bool changed_only) {
     lo_ = Vec3f::Constant(kInf);
     hi_ = Vec3f::Constant(-kInf);
-    for (size_t t = 0; t < nt; ++t) {
-        const auto& tr = inst_triangles_[t];
-        InstTri& T = tris_[t];
-        T.a = inst_vertices_[tr[0]];
-        T.b = inst_vertices_[tr[1]];
-        T.c = inst_vertices_[tr[2]];
-        const Vec3f n = (T.b - T.a).cross(T.c - T.a);
-        const float len = n.norm();
-        T.n = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();  // degenerate: never rejected by the filter
-        T.d = T.n.dot(T.a);
-        T.lo = T.a.cwiseMin(T.b).cwiseMin(T.c);
-        T.hi = T.a.cwiseMax(T.b).cwiseMax(T.c);
-        lo_ = lo_.cwiseMin(T.lo);
-        hi_ = hi_.cwiseMax(T.hi);
-    }
-    const size_t np = parts_.size() - 1;
-    part_lo_.assign(np, Vec3f::Constant(kInf));
-    part_hi_.assign(np, Vec3f::Constant(-kInf));
-    tri_part_.resize(nt);
-    for (size_t p = 0; p < np; ++p)
-        for (uint32_t t = parts_[p]; t < parts_[p + 1] && t < nt; ++t) {
-            tri_part_[t] = uint32_t(p);
-            part_lo_[p] = part_lo_[p].cwiseMin(tris_[t].lo);
-            part_hi_[p] = part_hi_[p].cwiseMax(tris_[t].hi);
+    for (size_t p = 0; p < grids_.size(); ++p) {
+        if (!changed_only || grids_[p].changed) {
+            Vec3f lo = Vec3f::Constant(kInf), hi = Vec3f::Constant(-kInf);
+            for (uint32_t t = grids_[p].t0; t < grids_[p].t1; ++t) {
+                lo = lo.cwiseMin(tris_[t].lo);
+                hi = hi.cwiseMax(tris_[t].hi);
+            }
+            part_lo_[p] = lo;
+            part_hi_[p] = hi;
         }
-    // Uniform grid in the instrument frame, cells about the size of the instrument's triangles (built once per
-    // articulation, so it can afford to be fine).
-    const Vec3f ext = (hi_ - lo_).cwiseMax(Vec3f::Constant(1e-4f));
-    const float cell = std::max(ext.maxCoeff() / float(kMaxCells), std::cbrt(ext.prod() / float(std::max<size_t>(nt, 1))) * 0.5f);
-    for (int k = 0; k < 3; ++k) dims_[k] = std::clamp(int(std::ceil(ext[k] / cell)), 1, kMaxCells);
-    inv_cell_ = Vec3f(float(dims_[0]) / ext.x(), float(dims_[1]) / ext.y(), float(dims_[2]) / ext.z());
-    const size_t ncell = size_t(dims_[0]) * size_t(dims_[1]) * size_t(dims_[2]);
-    cell_begin_.assign(ncell + 1, 0);
-    auto cell_of = [&](float x, int k) { return std::clamp(int((x - lo_[k]) * inv_cell_[k]), 0, dims_[k] - 1); };
+        lo_ = lo_.cwiseMin(part_lo_[p]);
+        hi_ = hi_.cwiseMax(part_hi_[p]);
+    }
+}
+
+void ExactContact::build_grid(PartGrid& g) {
+    // The grid's frame is the instrument frame as the part is now.
+    for (size_t i = 0; i < g.vertices.size(); ++i) g.built_mm[i] = inst_vertices_[g.vertices[i]];
+    g.moved = false;
+    g.rot.setIdentity();
+    g.trans.setZero();
+    g.slack_mm = 0.0f;
+    Vec3f lo = Vec3f::Constant(kInf), hi = Vec3f::Constant(-kInf);
+    for (uint32_t t = g.t0; t < g.t1; ++t) {
+        lo = lo.cwiseMin(tris_[t].lo);
+        hi = hi.cwiseMax(tris_[t].hi);
+    }
+    const uint32_t nt = g.t1 - g.t0;
+    if (nt == 0) lo = hi = Vec3f::Zero();
+    // Cells about the size of the part's triangles (built once per part, so it can afford to be fine).
+    const Vec3f ext = (hi - lo).cwiseMax(Vec3f::Constant(1e-4f));
+    const float cell = std::max(ext.maxCoeff() / float(kMaxCells),
+                                std::cbrt(ext.prod() / float(std::max<uint32_t>(nt, 1))) * 0.5f);
+    for (int k = 0; k < 3; ++k) g.dims[k] = std::clamp(int(std::ceil(ext[k] / cell)), 1, kMaxCells);
+    g.lo = lo;
+    g.inv_cell = Vec3f(float(g.dims[0]) / ext.x(), float(g.dims[1]) / ext.y(), float(g.dims[2]) / ext.z());
+    const size_t ncell = size_t(g.dims[0]) * size_t(g.dims[1]) * size_t(g.dims[2]);
+    g.cell_begin.assign(ncell + 1, 0);
     auto for_cells = [&](const Vec3f& a, const Vec3f& b, auto&& fn) {
-        const int x0 = cell_of(a.x(), 0), x1 = cell_of(b.x(), 0), y0 = cell_of(a.y(), 1), y1 = cell_of(b.y(), 1),
-                  z0 = cell_of(a.z(), 2), z1 = cell_of(b.z(), 2);
+        const int x0 = g.cell(a.x(), 0), x1 = g.cell(b.x(), 0), y0 = g.cell(a.y(), 1), y1 = g.cell(b.y(), 1),
+                  z0 = g.cell(a.z(), 2), z1 = g.cell(b.z(), 2);
         for (int z = z0; z <= z1; ++z)
             for (int y = y0; y <= y1; ++y)
-                for (int x = x0; x <= x1; ++x)
-                    fn((size_t(z) * size_t(dims_[1]) + size_t(y)) * size_t(dims_[0]) + size_t(x));
+                for (int x = x0; x <= x1; ++x) fn(g.index(x, y, z));
     };
     const Vec3f m = Vec3f::Constant(kEps_mm);
-    for (size_t t = 0; t < nt; ++t) for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { ++cell_begin_[c + 1]; });
-    for (size_t c = 0; c < ncell; ++c) cell_begin_[c + 1] += cell_begin_[c];
-    cell_items_.resize(cell_begin_[ncell]);
-    cell_box_.resize(size_t(cell_begin_[ncell]) * 6);
-    cell_fill_.assign(cell_begin_.begin(), cell_begin_.end() - 1);
-    for (size_t t = 0; t < nt; ++t)
+    for (uint32_t t = g.t0; t < g.t1; ++t)
+        for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { ++g.cell_begin[c + 1]; });
+    for (size_t c = 0; c < ncell; ++c) g.cell_begin[c + 1] += g.cell_begin[c];
+    g.cell_items.resize(g.cell_begin[ncell]);
+    g.cell_box.resize(size_t(g.cell_begin[ncell]) * 6);
+    cell_fill_.assign(g.cell_begin.begin(), g.cell_begin.end() - 1);
+    for (uint32_t t = g.t0; t < g.t1; ++t)
         for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) {
             const uint32_t k = cell_fill_[c]++;
-            cell_items_[k] = uint32_t(t);
-            float* box = &cell_box_[size_t(k) * 6];
+            g.cell_items[k] = t;
+            float* box = &g.cell_box[size_t(k) * 6];
             for (int i = 0; i < 3; ++i) {
                 box[i] = tris_[t].lo[i];
                 box[3 + i] = tris_[t].hi[i];
             }
         });
+}
+
+void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t> parts) {
+    inst_vertices_.assign(ins.vertices_mm.begin(), ins.vertices_mm.end());
+    inst_triangles_.assign(ins.triangles.begin(), ins.triangles.end());
+    const size_t nt = inst_triangles_.size(), nv = inst_vertices_.size();
+    if (parts.size() > 1) parts_.assign(parts.begin(), parts.end());
+    else parts_.assign({0u, uint32_t(nt)});
+    tris_.resize(nt);
+    for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->resize(nt);
+    kept_.reserve(nt);
+    for (size_t t = 0; t < nt; ++t) set_triangle(t);
+    const size_t np = parts_.size() - 1;
+    part_lo_.resize(np);
+    part_hi_.resize(np);
+    tri_part_.resize(nt);
+    grids_.resize(np);
+    std::vector<uint32_t> mark(nv, 0);  // topology change: allocates anyway
+    for (size_t p = 0; p < np; ++p) {
+        PartGrid& g = grids_[p];
+        g.t0 = std::min<uint32_t>(parts_[p], uint32_t(nt));
+        g.t1 = std::clamp<uint32_t>(parts_[p + 1], g.t0, uint32_t(nt));
+        g.vertices.clear();
+        for (uint32_t t = g.t0; t < g.t1; ++t) {
+            tri_part_[t] = uint32_t(p);
+            for (uint32_t v : inst_triangles_[t])
+                if (v < nv && mark[v] != p + 1) {
+                    mark[v] = uint32_t(p + 1);
+                    g.vertices.push_back(v);
+                }
+        }
+        std::sort(g.vertices.begin(), g.vertices.end());
+        g.built_mm.resize(g.vertices.size());
+        build_grid(g);
+    }
+    update_bounds(false);
     inst_stamp_.assign(nt, 0);
     inst_query_ = 0;
     std::fill(hint_.begin(), hint_.end(), kNoHint);  // they name triangles of the previous structure
     last_hit_ = kNoHint;
-    tcx_.resize(nt);
-    tcy_.resize(nt);
-    tcz_.resize(nt);
-    trad_.resize(nt);
-    tnx_.resize(nt);
-    tny_.resize(nt);
-    tnz_.resize(nt);
-    kept_.reserve(nt);
-    for (size_t t = 0; t < nt; ++t) {
-        const InstTri& T = tris_[t];
-        const Vec3f c = (T.a + T.b + T.c) / 3.0f;
-        tcx_[t] = c.x();
-        tcy_[t] = c.y();
-        tcz_[t] = c.z();
-        trad_[t] = std::max({(T.a - c).norm(), (T.b - c).norm(), (T.c - c).norm()}) * (1.0f + 1e-5f) + kEps_mm;
-        tnx_[t] = T.n.x();
-        tny_[t] = T.n.y();
-        tnz_[t] = T.n.z();
-    }
     built_ = true;
+}
+
+void ExactContact::move_instrument(const MeshRef& ins) {
+    // Which parts moved (against the vertices of the last query), before the copy is overwritten.
+    for (PartGrid& g : grids_) {
+        g.changed = false;
+        for (uint32_t v : g.vertices)
+            if (std::memcmp(&ins.vertices_mm[v], &inst_vertices_[v], sizeof(Vec3f)) != 0) {
+                g.changed = true;
+                break;
+            }
+    }
+    std::copy(ins.vertices_mm.begin(), ins.vertices_mm.end(), inst_vertices_.begin());
+    for (PartGrid& g : grids_) {
+        if (!g.changed) continue;
+        for (uint32_t t = g.t0; t < g.t1; ++t) set_triangle(t);
+        // The rigid motion from the grid's frame to the part now (Kabsch, in double): a forceps jaw turning about
+        // its hinge fits to rounding. Anything else that moves a vertex by more than a tenth of a cell from that
+        // motion rebuilds the part's grid.
+        const size_t n = g.vertices.size();
+        Eigen::Vector3d cb = Eigen::Vector3d::Zero(), cn = Eigen::Vector3d::Zero();
+        for (size_t i = 0; i < n; ++i) {
+            cb += g.built_mm[i].cast<double>();
+            cn += inst_vertices_[g.vertices[i]].cast<double>();
+        }
+        cb /= double(std::max<size_t>(n, 1));
+        cn /= double(std::max<size_t>(n, 1));
+        Eigen::Matrix3d h = Eigen::Matrix3d::Zero();
+        for (size_t i = 0; i < n; ++i)
+            h += (g.built_mm[i].cast<double>() - cb) * (inst_vertices_[g.vertices[i]].cast<double>() - cn).transpose();
+        const Eigen::JacobiSVD<Eigen::Matrix3d> svd(h, Eigen::ComputeFullU | Eigen::ComputeFullV);
+        Eigen::Matrix3d fix = Eigen::Matrix3d::Identity();
+        fix(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1.0 : 1.0;
+        const Eigen::Matrix3d r = svd.matrixV() * fix * svd.matrixU().transpose();  // built → now
+        double slack = 0;
+        for (size_t i = 0; i < n; ++i) {
+            const Eigen::Vector3d now = inst_vertices_[g.vertices[i]].cast<double>();
+            slack = std::max(slack, (r * (g.built_mm[i].cast<double>() - cb) + cn - now).norm());
+        }
+        const float cell = 1.0f / g.inv_cell.maxCoeff();
+        if (!(slack <= 0.1 * double(cell))) {  // also NaN
+            build_grid(g);
+            result_.rebuilt = true;
+            continue;
+        }
+        // Now → built: x_b = rᵀ (x − cn) + cb. The walk maps membrane corners with it in float; the slack covers
+        // the fit residual, and the rounding of that map is added per corner (mapped_box).
+        g.rot = r.transpose().cast<float>();
+        g.trans = (cb - r.transpose() * cn).cast<float>();
+        g.slack_mm = float(slack * (1.0 + 1e-6)) + 1e-9f;  // rounded up
+        g.moved = true;
+        ++result_.refit_parts;
+    }
+    update_bounds(true);
 }
 
 bool ExactContact::intersects_any(uint32_t mt) {
@@ -271,9 +371,6 @@ bool ExactContact::intersects_any(uint32_t mt) {
                 loz = min3(az, bz, cz) - kEps_mm;
     const float hix = max3(ax, bx, cx) + kEps_mm, hiy = max3(ay, by, cy) + kEps_mm,
                 hiz = max3(az, bz, cz) + kEps_mm;
-    auto cell_of = [&](float x, int k) { return std::clamp(int((x - lo_[k]) * inv_cell_[k]), 0, dims_[k] - 1); };
-    const int x0 = cell_of(lox, 0), x1 = cell_of(hix, 0), y0 = cell_of(loy, 1), y1 = cell_of(hiy, 1),
-              z0 = cell_of(loz, 2), z1 = cell_of(hiz, 2);
     const uint32_t q = bump(inst_query_, inst_stamp_);
     // The membrane triangle's plane (unnormalised) for the second filter, computed when a pair first gets there.
     bool plane = false;
@@ -322,52 +419,72 @@ bool ExactContact::intersects_any(uint32_t mt) {
         hint_[mt] = last_hit_;
         return true;
     }
-    for (int z = z0; z <= z1; ++z)
-        for (int y = y0; y <= y1; ++y)
-            for (int x = x0; x <= x1; ++x) {
-                const size_t cidx = (size_t(z) * size_t(dims_[1]) + size_t(y)) * size_t(dims_[0]) + size_t(x);
-                for (uint32_t k = cell_begin_[cidx]; k < cell_begin_[cidx + 1]; ++k) {
-                    const float* box = &cell_box_[size_t(k) * 6];
-                    // One branch, not six (the outcome is hard to predict).
-                    if ((hix < box[0]) | (hiy < box[1]) | (hiz < box[2]) | (lox > box[3]) | (loy > box[4]) |
-                        (loz > box[5]))
-                        continue;
-                    const uint32_t it = cell_items_[k];
-                    if (inst_stamp_[it] == q) continue;
-                    inst_stamp_[it] = q;
-                    if (pair_after_bounds(tris_[it])) {
-                        hint_[mt] = last_hit_ = it;
-                        return true;
+    for (size_t p = 0; p < grids_.size(); ++p) {
+        if ((hix < part_lo_[p].x()) | (hiy < part_lo_[p].y()) | (hiz < part_lo_[p].z()) | (lox > part_hi_[p].x()) |
+            (loy > part_hi_[p].y()) | (loz > part_hi_[p].z()))
+            continue;
+        const PartGrid& g = grids_[p];
+        // The walk's box in the grid's frame: the triangle's own, or its corners mapped there (a moved part).
+        float wlo[3] = {lox, loy, loz}, whi[3] = {hix, hiy, hiz};
+        if (g.moved) {
+            const Vec3f corners[3] = {a, b, c};
+            g.mapped_box(corners, 3, kEps_mm, wlo, whi);
+        }
+        const int x0 = g.cell(wlo[0], 0), x1 = g.cell(whi[0], 0), y0 = g.cell(wlo[1], 1), y1 = g.cell(whi[1], 1),
+                  z0 = g.cell(wlo[2], 2), z1 = g.cell(whi[2], 2);
+        for (int z = z0; z <= z1; ++z)
+            for (int y = y0; y <= y1; ++y)
+                for (int x = x0; x <= x1; ++x) {
+                    const size_t cidx = g.index(x, y, z);
+                    for (uint32_t k = g.cell_begin[cidx]; k < g.cell_begin[cidx + 1]; ++k) {
+                        const float* box = &g.cell_box[size_t(k) * 6];
+                        // One branch, not six (the outcome is hard to predict).
+                        if ((whi[0] < box[0]) | (whi[1] < box[1]) | (whi[2] < box[2]) | (wlo[0] > box[3]) |
+                            (wlo[1] > box[4]) | (wlo[2] > box[5]))
+                            continue;
+                        const uint32_t it = g.cell_items[k];
+                        if (inst_stamp_[it] == q) continue;
+                        inst_stamp_[it] = q;
+                        if (pair_after_bounds(tris_[it])) {
+                            hint_[mt] = last_hit_ = it;
+                            return true;
+                        }
                     }
                 }
-            }
+    }
     return false;
 }
 
 bool ExactContact::inside_any_part(const Vec3f& p) {
     ++result_.inside_tests;
     // Ray parity along an almost axis-aligned direction (+x with a tiny skew against hits on the edges of
-    // regular meshes): the ray stays within one or two grid rows. Per part: parts may overlap.
+    // regular meshes): in a part's grid frame the ray stays within one or two grid rows (a moved part: within
+    // the box of the mapped segment). Per part: parts may overlap.
     const double sy = 1.37e-4, sz = 0.71e-4;
     const Eigen::Vector3d dir(1.0, sy, sz);
     const Eigen::Vector3d o = p.cast<double>();
-    auto cell = [&](float x, int k) { return std::clamp(int((x - lo_[k]) * inv_cell_[k]), 0, dims_[k] - 1); };
-    for (size_t part = 0; part + 1 < parts_.size(); ++part) {
+    for (size_t part = 0; part < grids_.size(); ++part) {
         if ((p.array() < part_lo_[part].array()).any() || (p.array() > part_hi_[part].array()).any()) continue;
+        const PartGrid& g = grids_[part];
         const float run = part_hi_[part].x() - p.x();
-        const int x0 = cell(p.x(), 0), x1 = cell(part_hi_[part].x(), 0);
-        const int y0 = cell(p.y(), 1), y1 = cell(p.y() + float(sy) * run, 1);
-        const int z0 = cell(p.z(), 2), z1 = cell(p.z() + float(sz) * run, 2);
+        const Vec3f end(part_hi_[part].x(), p.y() + float(sy) * run, p.z() + float(sz) * run);
+        float wlo[3] = {p.x(), p.y(), p.z()}, whi[3] = {end.x(), end.y(), end.z()};
+        if (g.moved) {
+            const Vec3f seg[2] = {p, end};
+            g.mapped_box(seg, 2, kEps_mm, wlo, whi);
+        }
+        const int x0 = g.cell(wlo[0], 0), x1 = g.cell(whi[0], 0);
+        const int y0 = g.cell(wlo[1], 1), y1 = g.cell(whi[1], 1);
+        const int z0 = g.cell(wlo[2], 2), z1 = g.cell(whi[2], 2);
         const uint32_t q = bump(inst_query_, inst_stamp_);
-        const uint32_t t0 = parts_[part], t1 = parts_[part + 1];
         int crossings = 0;
         for (int z = z0; z <= z1; ++z)
             for (int y = y0; y <= y1; ++y)
                 for (int x = x0; x <= x1; ++x) {
-                    const size_t c = (size_t(z) * size_t(dims_[1]) + size_t(y)) * size_t(dims_[0]) + size_t(x);
-                    for (uint32_t k = cell_begin_[c]; k < cell_begin_[c + 1]; ++k) {
-                        const uint32_t it = cell_items_[k];
-                        if (it < t0 || it >= t1 || inst_stamp_[it] == q) continue;
+                    const size_t c = g.index(x, y, z);
+                    for (uint32_t k = g.cell_begin[c]; k < g.cell_begin[c + 1]; ++k) {
+                        const uint32_t it = g.cell_items[k];
+                        if (inst_stamp_[it] == q) continue;
                         inst_stamp_[it] = q;
                         const InstTri& T = tris_[it];
                         if (T.hi.x() < p.x()) continue;
@@ -690,9 +807,13 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
         result_.invalid_input = true;
         return result_;
     }
-    if (instrument_changed(instrument, part_triangle_begin)) {
-        build_instrument(instrument, part_triangle_begin);
-        result_.rebuilt = true;
+    switch (instrument_change(instrument, part_triangle_begin)) {
+        case InstrumentChange::Topology:
+            build_instrument(instrument, part_triangle_begin);
+            result_.rebuilt = true;
+            break;
+        case InstrumentChange::Vertices: move_instrument(instrument); break;
+        case InstrumentChange::None: break;
     }
     // Membrane → instrument frame, outcodes against the instrument's bounds (with the filter margin).
     const Eigen::Matrix3f r = instrument.to_eye.linear().transpose();

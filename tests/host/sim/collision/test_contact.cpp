@@ -553,3 +553,50 @@ TEST_CASE("Exact contact: queries on a known instrument allocate nothing", "[col
     CHECK(contacts > 100);
     CHECK(allocations == 0);
 }
+
+TEST_CASE("Exact contact: a turning jaw keeps its grid, a part that deforms gets a new one, the sets stay the "
+          "referee's", "[collision][contact]") {
+    const TriangleMesh m = make_membrane_patch(4.0f, 4.0f, kPatch3k.nx, kPatch3k.ny);
+    PosedInstrument forceps(make_forceps());
+    const Eigen::Isometry3f base = calibrate(m, forceps, 200);
+    ExactContact contact(m);
+    forceps.set_state(30.0f, base);
+    CHECK(contact.query(m.vertices_mm, forceps, Vec3f(0, 0, 1)).rebuilt);
+
+    // The pedal moves the jaws between queries (0–60°, far from the opening the grids were built at), the pose
+    // moves a little: the jaws are refitted, never rebuilt, and every set equals the brute-force referee's.
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<float> open(0.0f, 60.0f), lat(-0.03f, 0.03f);
+    size_t equal = 0, colliding = 0;
+    const int poses = 40;
+    for (int i = 0; i < poses; ++i) {
+        Eigen::Isometry3f pose = base;
+        pose.translation() += Vec3f(lat(rng), lat(rng), lat(rng));
+        forceps.set_state(open(rng), pose);
+        const ContactResult& r = contact.query(m.vertices_mm, forceps, Vec3f(0, 0, 1));
+        CHECK_FALSE(r.rebuilt);
+        CHECK(r.refit_parts == 2);  // the two jaws; the shaft did not move
+        const std::vector<uint32_t> got(r.colliding_triangles.begin(), r.colliding_triangles.end());
+        equal += got == referee_set(m, m.vertices_mm, forceps);
+        colliding += got.size();
+    }
+    CHECK(equal == size_t(poses));
+    CHECK(colliding >= 100u * poses);  // dense contact: the jaws are in it
+    // The same opening again: nothing moved in the instrument frame.
+    CHECK(contact.query(m.vertices_mm, forceps, Vec3f(0, 0, 1)).refit_parts == 0);
+
+    // One jaw 40 % wider (not a rigid motion): its grid is rebuilt and the set follows the new shape.
+    const std::span<const uint32_t> before = contact.query(m.vertices_mm, forceps, Vec3f(0, 0, 1)).colliding_triangles;
+    const std::vector<uint32_t> plain(before.begin(), before.end());
+    Instrument wide = make_forceps();
+    for (size_t v = 0; v < wide.mesh.vertices_mm.size(); ++v)
+        if (wide.vertex_part[v] == InstrumentPart::JawA) wide.mesh.vertices_mm[v].x() *= 1.4f;
+    PosedInstrument wide_forceps(std::move(wide));
+    wide_forceps.set_state(forceps.opening_deg(), forceps.instrument_to_eye());
+    const ContactResult& r = contact.query(m.vertices_mm, wide_forceps, Vec3f(0, 0, 1));
+    CHECK(r.rebuilt);
+    CHECK(r.refit_parts == 0);
+    const std::vector<uint32_t> got(r.colliding_triangles.begin(), r.colliding_triangles.end());
+    CHECK(got == referee_set(m, m.vertices_mm, wide_forceps));
+    CHECK(got != plain);
+}

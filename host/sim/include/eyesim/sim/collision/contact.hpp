@@ -5,9 +5,12 @@
 /// colliding triangle ZCOLL's deformation value ZI − ZM along a direction π, from which Eq. 1 node push vectors
 /// follow as in ZcollEngine::push.
 ///
-/// The instrument is rigid per articulation: its acceleration structure (a uniform grid over its triangles,
-/// triangle planes, part bounds) is built in the instrument frame once and rebuilt only when the articulated
-/// vertices change (forceps opening). Per query the membrane vertices are moved into the instrument frame
+/// The instrument is rigid per closed part: each part's acceleration structure (a uniform grid over its
+/// triangles) is built once in the frame the part had then. When the articulated vertices change (forceps
+/// opening), each moved part's rigid motion since its grid was built is fitted (Kabsch) and the grid kept: the
+/// walk maps the membrane triangle into the grid's frame and widens its box by the fit's residual, so a jaw that
+/// turns costs the fit and its triangles' planes, not a new grid; a part that moved other than rigidly (by more
+/// than a tenth of a cell) gets a new grid. The pair tests always use the triangles as they are now. Per query the membrane vertices are moved into the instrument frame
 /// (one affine transform each, four at a time with SSE2) and culled by outcodes against the instrument's bounds;
 /// the few remaining membrane triangles are tested against the grid's instrument triangles (each cell keeps a
 /// copy of its triangles' bounds, so the walk reads them in order; coherence hints first: the
@@ -23,8 +26,11 @@
 #include "eyesim/sim/collision/raster_backend.hpp"
 #include "eyesim/sim/collision/view.hpp"
 
+#include <algorithm>
 #include <cstddef>
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -69,7 +75,9 @@ struct ContactResult {
     size_t pair_tests = 0;           ///< triangle pairs that reached the double-precision test
     size_t inside_tests = 0;         ///< point-in-part ray parity tests
     size_t front_triangles = 0;      ///< instrument triangles binned for the deformation values
-    bool rebuilt = false;            ///< the instrument structure was (re)built in this query
+    bool rebuilt = false;            ///< an instrument grid was (re)built in this query (new instrument, or a part
+                                     ///< that moved other than rigidly)
+    size_t refit_parts = 0;          ///< parts that moved rigidly in this query: their grids were kept
 };
 
 /// The exact contact engine for one membrane topology (any number of instruments; the structure of the last
@@ -105,8 +113,56 @@ private:
         float d;         // n · a
         Vec3f a, b, c;   // instrument frame
     };
-    bool instrument_changed(const MeshRef& instrument, std::span<const uint32_t> parts) const;
+    /// One closed part's uniform grid over its triangles (global indices [t0, t1)), in the frame the part had
+    /// when the grid was built; `moved`: the part has since moved rigidly, instrument frame → grid frame is
+    /// x ↦ rot·x + trans, within `slack_mm`.
+    struct PartGrid {
+        uint32_t t0 = 0, t1 = 0;
+        std::vector<uint32_t> vertices;  // the vertices of the part's triangles, ascending
+        std::vector<Vec3f> built_mm;     // where they were when the grid was built
+        Vec3f lo{0, 0, 0}, inv_cell{1, 1, 1};
+        int dims[3] = {1, 1, 1};
+        std::vector<uint32_t> cell_begin, cell_items;
+        std::vector<float> cell_box;  // per cell item: its triangle's bounds when built (lo xyz, hi xyz)
+        bool moved = false, changed = false;
+        Eigen::Matrix3f rot = Eigen::Matrix3f::Identity();
+        Vec3f trans{0, 0, 0};
+        float slack_mm = 0.0f;
+        int cell(float x, int k) const { return std::clamp(int((x - lo[k]) * inv_cell[k]), 0, dims[k] - 1); }
+        size_t index(int x, int y, int z) const {
+            return (size_t(z) * size_t(dims[1]) + size_t(y)) * size_t(dims[0]) + size_t(x);
+        }
+        /// Bounds in the grid's frame of `count` instrument-frame points, widened by `margin_mm`, the slack and
+        /// the map's rounding (a few ulps of the largest coordinate and of the translation, with room to spare).
+        void mapped_box(const Vec3f* p, int count, float margin_mm, float box_lo[3], float box_hi[3]) const {
+            float scale = std::max({std::fabs(trans.x()), std::fabs(trans.y()), std::fabs(trans.z())});
+            for (int k = 0; k < 3; ++k) {
+                box_lo[k] = std::numeric_limits<float>::infinity();
+                box_hi[k] = -std::numeric_limits<float>::infinity();
+            }
+            for (int i = 0; i < count; ++i) {
+                const float x = p[i].x(), y = p[i].y(), z = p[i].z();
+                scale = std::max({scale, std::fabs(x), std::fabs(y), std::fabs(z)});
+                for (int k = 0; k < 3; ++k) {
+                    const float q = rot(k, 0) * x + rot(k, 1) * y + rot(k, 2) * z + trans[k];
+                    box_lo[k] = std::min(box_lo[k], q);
+                    box_hi[k] = std::max(box_hi[k], q);
+                }
+            }
+            const float w = margin_mm + slack_mm + 8e-6f * scale;
+            for (int k = 0; k < 3; ++k) {
+                box_lo[k] -= w;
+                box_hi[k] += w;
+            }
+        }
+    };
+    enum class InstrumentChange { None, Vertices, Topology };
+    InstrumentChange instrument_change(const MeshRef& instrument, std::span<const uint32_t> parts) const;
     void build_instrument(const MeshRef& instrument, std::span<const uint32_t> parts);
+    void move_instrument(const MeshRef& instrument);
+    void build_grid(PartGrid& g);
+    void set_triangle(size_t t);
+    void update_bounds(bool changed_only);
     bool intersects_any(uint32_t mt);
     bool inside_any_part(const Vec3f& p_local);
     void compute_deformation(std::span<const Vec3f> membrane_vertices_eye_mm, const Eigen::Isometry3f& to_eye,
@@ -125,10 +181,9 @@ private:
     std::vector<InstTri> tris_;
     std::vector<uint32_t> tri_part_;
     std::vector<Vec3f> part_lo_, part_hi_;
-    Vec3f lo_{0, 0, 0}, hi_{0, 0, 0}, inv_cell_{1, 1, 1};
-    int dims_[3] = {1, 1, 1};
-    std::vector<uint32_t> cell_begin_, cell_items_, cell_fill_;
-    std::vector<float> cell_box_;  // per cell item: its triangle's bounds (lo xyz, hi xyz), read in cell order
+    Vec3f lo_{0, 0, 0}, hi_{0, 0, 0};  // the instrument's bounds now
+    std::vector<PartGrid> grids_;
+    std::vector<uint32_t> cell_fill_;
     bool built_ = false;
     // Per query: membrane in the instrument frame (structure of arrays), outcodes, stamps.
     std::vector<float> lx_, ly_, lz_;
