@@ -211,6 +211,12 @@ void ExactContact::update_bounds(bool changed_only) {
             }
             part_lo_[p] = lo;
             part_hi_[p] = hi;
+            float* pb = &part_box_[p * 8];
+            for (int k = 0; k < 3; ++k) {
+                pb[k] = lo[k];
+                pb[4 + k] = hi[k];
+            }
+            pb[3] = pb[7] = 0.0f;
         }
         lo_ = lo_.cwiseMin(part_lo_[p]);
         hi_ = hi_.cwiseMax(part_hi_[p]);
@@ -231,10 +237,11 @@ void ExactContact::build_grid(PartGrid& g) {
     }
     const uint32_t nt = g.t1 - g.t0;
     if (nt == 0) lo = hi = Vec3f::Zero();
-    // Cells about the size of the part's triangles (built once per part, so it can afford to be fine).
+    // Cells about the size of the part's triangles (0.75 × the cube root of bounds volume per triangle: the
+    // fewest instructions per dense query of 0.5, 0.75, 1 and 1.5; a walk reads a row's cells as one run).
     const Vec3f ext = (hi - lo).cwiseMax(Vec3f::Constant(1e-4f));
     const float cell = std::max(ext.maxCoeff() / float(kMaxCells),
-                                std::cbrt(ext.prod() / float(std::max<uint32_t>(nt, 1))) * 0.5f);
+                                std::cbrt(ext.prod() / float(std::max<uint32_t>(nt, 1))) * 0.75f);
     for (int k = 0; k < 3; ++k) g.dims[k] = std::clamp(int(std::ceil(ext[k] / cell)), 1, kMaxCells);
     g.lo = lo;
     g.inv_cell = Vec3f(float(g.dims[0]) / ext.x(), float(g.dims[1]) / ext.y(), float(g.dims[2]) / ext.z());
@@ -279,6 +286,7 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
     const size_t np = parts_.size() - 1;
     part_lo_.resize(np);
     part_hi_.resize(np);
+    part_box_.resize(np * 8);
     tri_part_.resize(nt);
     grids_.resize(np);
     std::vector<uint32_t> mark(nv, 0);  // topology change: allocates anyway
@@ -419,10 +427,21 @@ bool ExactContact::intersects_any(uint32_t mt) {
         hint_[mt] = last_hit_;
         return true;
     }
-    for (size_t p = 0; p < grids_.size(); ++p) {
+    const size_t np = grids_.size();
+#if defined(__SSE2__)
+    const __m128 tlo = _mm_setr_ps(lox, loy, loz, 0.0f), thi = _mm_setr_ps(hix, hiy, hiz, 0.0f);
+#endif
+    for (size_t p = 0; p < np; ++p) {
+#if defined(__SSE2__)
+        // The part's bounds (lanes x, y, z, 0 = 0): any lane apart → skip.
+        const float* pb = &part_box_[p * 8];
+        if (_mm_movemask_ps(_mm_or_ps(_mm_cmplt_ps(thi, _mm_loadu_ps(pb)), _mm_cmpgt_ps(tlo, _mm_loadu_ps(pb + 4)))))
+            continue;
+#else
         if ((hix < part_lo_[p].x()) | (hiy < part_lo_[p].y()) | (hiz < part_lo_[p].z()) | (lox > part_hi_[p].x()) |
             (loy > part_hi_[p].y()) | (loz > part_hi_[p].z()))
             continue;
+#endif
         const PartGrid& g = grids_[p];
         // The walk's box in the grid's frame: the triangle's own, or its corners mapped there (a moved part).
         float wlo[3] = {lox, loy, loz}, whi[3] = {hix, hiy, hiz};
@@ -432,25 +451,26 @@ bool ExactContact::intersects_any(uint32_t mt) {
         }
         const int x0 = g.cell(wlo[0], 0), x1 = g.cell(whi[0], 0), y0 = g.cell(wlo[1], 1), y1 = g.cell(whi[1], 1),
                   z0 = g.cell(wlo[2], 2), z1 = g.cell(whi[2], 2);
+        // The cells x0..x1 of a grid row are adjacent in the item list: one run of items per row.
         for (int z = z0; z <= z1; ++z)
-            for (int y = y0; y <= y1; ++y)
-                for (int x = x0; x <= x1; ++x) {
-                    const size_t cidx = g.index(x, y, z);
-                    for (uint32_t k = g.cell_begin[cidx]; k < g.cell_begin[cidx + 1]; ++k) {
-                        const float* box = &g.cell_box[size_t(k) * 6];
-                        // One branch, not six (the outcome is hard to predict).
-                        if ((whi[0] < box[0]) | (whi[1] < box[1]) | (whi[2] < box[2]) | (wlo[0] > box[3]) |
-                            (wlo[1] > box[4]) | (wlo[2] > box[5]))
-                            continue;
-                        const uint32_t it = g.cell_items[k];
-                        if (inst_stamp_[it] == q) continue;
-                        inst_stamp_[it] = q;
-                        if (pair_after_bounds(tris_[it])) {
-                            hint_[mt] = last_hit_ = it;
-                            return true;
-                        }
+            for (int y = y0; y <= y1; ++y) {
+                const size_t row = g.index(0, y, z);
+                const uint32_t end = g.cell_begin[row + size_t(x1) + 1];
+                for (uint32_t k = g.cell_begin[row + size_t(x0)]; k < end; ++k) {
+                    const float* box = &g.cell_box[size_t(k) * 6];
+                    // One branch, not six (the outcome is hard to predict).
+                    if ((whi[0] < box[0]) | (whi[1] < box[1]) | (whi[2] < box[2]) | (wlo[0] > box[3]) |
+                        (wlo[1] > box[4]) | (wlo[2] > box[5]))
+                        continue;
+                    const uint32_t it = g.cell_items[k];
+                    if (inst_stamp_[it] == q) continue;
+                    inst_stamp_[it] = q;
+                    if (pair_after_bounds(tris_[it])) {
+                        hint_[mt] = last_hit_ = it;
+                        return true;
                     }
                 }
+            }
     }
     return false;
 }
@@ -479,18 +499,18 @@ bool ExactContact::inside_any_part(const Vec3f& p) {
         const uint32_t q = bump(inst_query_, inst_stamp_);
         int crossings = 0;
         for (int z = z0; z <= z1; ++z)
-            for (int y = y0; y <= y1; ++y)
-                for (int x = x0; x <= x1; ++x) {
-                    const size_t c = g.index(x, y, z);
-                    for (uint32_t k = g.cell_begin[c]; k < g.cell_begin[c + 1]; ++k) {
-                        const uint32_t it = g.cell_items[k];
-                        if (inst_stamp_[it] == q) continue;
-                        inst_stamp_[it] = q;
-                        const InstTri& T = tris_[it];
-                        if (T.hi.x() < p.x()) continue;
-                        crossings += ray_crosses_triangle(o, dir, T.a, T.b, T.c);
-                    }
+            for (int y = y0; y <= y1; ++y) {
+                const size_t row = g.index(0, y, z);
+                const uint32_t stop = g.cell_begin[row + size_t(x1) + 1];
+                for (uint32_t k = g.cell_begin[row + size_t(x0)]; k < stop; ++k) {
+                    const uint32_t it = g.cell_items[k];
+                    if (inst_stamp_[it] == q) continue;
+                    inst_stamp_[it] = q;
+                    const InstTri& T = tris_[it];
+                    if (T.hi.x() < p.x()) continue;
+                    crossings += ray_crosses_triangle(o, dir, T.a, T.b, T.c);
                 }
+            }
         if (crossings & 1) return true;
     }
     return false;

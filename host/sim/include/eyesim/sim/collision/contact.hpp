@@ -181,6 +181,7 @@ private:
     std::vector<InstTri> tris_;
     std::vector<uint32_t> tri_part_;
     std::vector<Vec3f> part_lo_, part_hi_;
+    std::vector<float> part_box_;  // per part: lo x y z 0, hi x y z 0 (one SSE compare each)
     Vec3f lo_{0, 0, 0}, hi_{0, 0, 0};  // the instrument's bounds now
     std::vector<PartGrid> grids_;
     std::vector<uint32_t> cell_fill_;
