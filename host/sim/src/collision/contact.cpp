@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <limits>
 
@@ -260,7 +261,7 @@ void ExactContact::build_grid(PartGrid& g) {
         for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) { ++g.cell_begin[c + 1]; });
     for (size_t c = 0; c < ncell; ++c) g.cell_begin[c + 1] += g.cell_begin[c];
     g.cell_items.resize(g.cell_begin[ncell]);
-    g.cell_box.resize(size_t(g.cell_begin[ncell]) * 6);
+    g.cell_box.resize(size_t(g.cell_begin[ncell]) * 6 + 2);  // + 2: the walk reads the last bounds four floats wide
     cell_fill_.assign(g.cell_begin.begin(), g.cell_begin.end() - 1);
     for (uint32_t t = g.t0; t < g.t1; ++t)
         for_cells(tris_[t].lo - m, tris_[t].hi + m, [&](size_t c) {
@@ -449,10 +450,22 @@ bool ExactContact::intersects_any(uint32_t mt) {
         const int fast = interval_test(a, b, c, T.a, T.b, T.c);
         return fast == 1 || (fast < 0 && triangles_intersect(a, b, c, T.a, T.b, T.c));
     };
+#if defined(__SSE2__)
+    const __m128 tlo = _mm_setr_ps(lox, loy, loz, 0.0f), thi = _mm_setr_ps(hix, hiy, hiz, 0.0f);
+#endif
     auto pair_hits = [&](const InstTri& T) __attribute__((always_inline)) {
+#if defined(__SSE2__)
+        // T.lo and T.hi are adjacent (InstTri starts with them): four-wide loads, the fourth lane ignored.
+        static_assert(sizeof(Vec3f) == 12 && offsetof(InstTri, hi) == 12 && offsetof(InstTri, n) == 24);
+        if (_mm_movemask_ps(_mm_or_ps(_mm_cmplt_ps(thi, _mm_loadu_ps(T.lo.data())),
+                                      _mm_cmpgt_ps(tlo, _mm_loadu_ps(T.hi.data())))) &
+            7)
+            return false;
+#else
         if ((hix < T.lo.x()) | (hiy < T.lo.y()) | (hiz < T.lo.z()) | (lox > T.hi.x()) | (loy > T.hi.y()) |
             (loz > T.hi.z()))
             return false;
+#endif
         return pair_after_bounds(T);
     };
     // Coherence: first the instrument triangle that hit this membrane triangle in the previous query (small
@@ -468,9 +481,6 @@ bool ExactContact::intersects_any(uint32_t mt) {
         return true;
     }
     const size_t np = grids_.size();
-#if defined(__SSE2__)
-    const __m128 tlo = _mm_setr_ps(lox, loy, loz, 0.0f), thi = _mm_setr_ps(hix, hiy, hiz, 0.0f);
-#endif
     for (size_t p = 0; p < np; ++p) {
 #if defined(__SSE2__)
         // The part's bounds (lanes x, y, z, 0 = 0): any lane apart → skip.
@@ -491,6 +501,9 @@ bool ExactContact::intersects_any(uint32_t mt) {
         }
         const int x0 = g.cell(wlo[0], 0), x1 = g.cell(whi[0], 0), y0 = g.cell(wlo[1], 1), y1 = g.cell(whi[1], 1),
                   z0 = g.cell(wlo[2], 2), z1 = g.cell(whi[2], 2);
+#if defined(__SSE2__)
+        const __m128 vwlo = _mm_setr_ps(wlo[0], wlo[1], wlo[2], 0.0f), vwhi = _mm_setr_ps(whi[0], whi[1], whi[2], 0.0f);
+#endif
         // The cells x0..x1 of a grid row are adjacent in the item list: one run of items per row.
         for (int z = z0; z <= z1; ++z)
             for (int y = y0; y <= y1; ++y) {
@@ -498,10 +511,18 @@ bool ExactContact::intersects_any(uint32_t mt) {
                 const uint32_t end = g.cell_begin[row + size_t(x1) + 1];
                 for (uint32_t k = g.cell_begin[row + size_t(x0)]; k < end; ++k) {
                     const float* box = &g.cell_box[size_t(k) * 6];
+#if defined(__SSE2__)
+                    // lo xyz from box[0..2], hi xyz from box[3..5] (the list is padded so box + 3 reads four floats).
+                    if (_mm_movemask_ps(_mm_or_ps(_mm_cmplt_ps(vwhi, _mm_loadu_ps(box)),
+                                                  _mm_cmpgt_ps(vwlo, _mm_loadu_ps(box + 3)))) &
+                        7)
+                        continue;
+#else
                     // One branch, not six (the outcome is hard to predict).
                     if ((whi[0] < box[0]) | (whi[1] < box[1]) | (whi[2] < box[2]) | (wlo[0] > box[3]) |
                         (wlo[1] > box[4]) | (wlo[2] > box[5]))
                         continue;
+#endif
                     const uint32_t it = g.cell_items[k];
                     if (inst_stamp_[it] == q) continue;
                     inst_stamp_[it] = q;
