@@ -35,6 +35,9 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     if (c != "4:2:2" || !lossless) config.chroma_noise_dn = 8.0;
     // Lossy luma: the codec's quantisation error near the marker's edge (DCT ringing), a few DN.
     if (!lossless) config.luma_noise_floor_dn = 2.0;
+    // Lossy coding moves the pipeline's chroma-only centroid itself by ≈ 0.1 px RMS, so a fit 0.15 px from it is
+    // as often the right one as not: the shift test, which catches fits of something else, needs a wider gate.
+    if (!lossless) config.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
     return config;
 }
 

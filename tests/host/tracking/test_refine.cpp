@@ -250,6 +250,7 @@ TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma
     const SphereFitConfig aware = sphere_fit_config_for_source(plain, "4:2:0", true);
     CHECK(aware.chroma_noise_dn > plain.noise_dn);
     CHECK(aware.luma_noise_floor_dn == 0.0);  // lossless: the luma is the camera's
+    CHECK(aware.max_shift_px == plain.max_shift_px);  // and so is the pipeline's accuracy
     const SphereFitConfig raw = sphere_fit_config_for_source(plain, "4:2:2", true);
     CHECK(raw.chroma_noise_dn == plain.chroma_noise_dn);  // raw or lossless 4:2:2: the camera's own fit
     CHECK(raw.luma_noise_floor_dn == plain.luma_noise_floor_dn);
@@ -312,4 +313,87 @@ TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma
     CHECK(std::sqrt(se_fit_on / refined) < 0.7 * std::sqrt(se_model_on / refined));
     CHECK(rms_fit < rms_model);
     CHECK(std::abs(sum_dy_fit / matched) <= 0.01);
+}
+
+TEST_CASE("sphere fit: on DV video the wider shift gate takes fits the pipeline's centroid is further off than",
+          "[tracking][rig][refine]") {
+    // DV (lossy 4:2:0): the codec moves the pipeline's chroma-only centroid by ≈ 0.1 px, so the fit of a clear
+    // marker lands more than 0.15 px from it as often as not. The fits only the wider gate accepts must be closer
+    // to the rendered centroid than the pipeline's centroids they replace.
+    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fit_dv_test").string();
+    std::filesystem::remove_all(dir);
+    rig::SynthRequest req;
+    req.out_dir = dir;
+    req.scenario = "sweep";
+    req.seconds = 0.4;  // 20 fields
+    req.seed = 4;
+    req.format = "dv";
+    rig::write_recording(req);
+    struct Cleanup {
+        std::string d;
+        ~Cleanup() {
+            std::error_code ec;
+            std::filesystem::remove_all(d, ec);
+        }
+    } cleanup{dir};
+    rig::Recording rec = rig::Recording::open(dir);
+    REQUIRE(rec.format(0) == rig::StreamFormat::kVideo);
+    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    REQUIRE(truth.size() == 20);
+
+    const SphereFitConfig lossy = sphere_fit_config_for_source(rig_config(), "4:2:0", false);
+    CHECK(lossy.max_shift_px == kLossyMaxShiftPx);
+    SphereFitConfig narrow = lossy;
+    narrow.max_shift_px = rig_config().max_shift_px;
+
+    auto work = std::make_unique<SphereFitWorkspace>();
+    Pipeline p{RegisterMap{}};
+    Field f(rig::kFieldHeight);
+    double se_pipeline_gained = 0, se_fit_gained = 0, se_all_narrow = 0, se_all_wide = 0;
+    int matched = 0, gained = 0, lost = 0;
+    for (int64_t i = 0; i < 20; ++i)
+        for (int cam = 0; cam < rec.camera_count(); ++cam) {
+            rec.read_field(cam, i, f.bytes.data());
+            const std::vector<Blob> blobs = run_field(p, f);
+            std::vector<rig::DetectedMarker> det;
+            std::vector<SphereFitResult> wide_fits, narrow_fits;
+            for (const Blob& b : blobs) {
+                det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+                wide_fits.push_back(fit_sphere(f.bytes.data(), f.height, blob_box(b), lossy, *work));
+                narrow_fits.push_back(fit_sphere(f.bytes.data(), f.height, blob_box(b), narrow, *work));
+            }
+            std::vector<bool> used;
+            rig::match_markers(
+                truth[static_cast<size_t>(i)], cam, det, 3.0,
+                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection < 0) return;
+                    const size_t d = static_cast<size_t>(m.detection);
+                    const Blob& b = blobs[d];
+                    const Eigen::Vector2d t = m.view->centroid_px, pipeline(b.cx_px(), b.cy_px());
+                    const SphereFitResult& w = wide_fits[d];
+                    const SphereFitResult& n = narrow_fits[d];
+                    const Eigen::Vector2d wide = w.ok ? Eigen::Vector2d(w.cx_px, w.cy_px) : pipeline;
+                    const Eigen::Vector2d nar = n.ok ? Eigen::Vector2d(n.cx_px, n.cy_px) : pipeline;
+                    se_all_wide += (wide - t).squaredNorm();
+                    se_all_narrow += (nar - t).squaredNorm();
+                    if (w.ok && !n.ok) {
+                        ++gained;
+                        se_pipeline_gained += (pipeline - t).squaredNorm();
+                        se_fit_gained += (wide - t).squaredNorm();
+                    }
+                    lost += n.ok && !w.ok;
+                    ++matched;
+                },
+                used);
+        }
+    REQUIRE(matched > 300);
+    INFO("matched " << matched << ", fits taken only by the wide gate " << gained << ": pipeline RMS "
+                    << std::sqrt(se_pipeline_gained / std::max(1, gained)) << ", fit RMS "
+                    << std::sqrt(se_fit_gained / std::max(1, gained)) << "; all blobs narrow "
+                    << std::sqrt(se_all_narrow / matched) << " wide " << std::sqrt(se_all_wide / matched));
+    REQUIRE(gained >= 10);
+    CHECK(lost == 0);  // the gate only widens
+    CHECK(std::sqrt(se_fit_gained / gained) < 0.5 * std::sqrt(se_pipeline_gained / gained));
+    CHECK(se_all_wide < se_all_narrow);
 }

@@ -59,8 +59,12 @@ struct SphereFitConfig {
     double luma_noise_floor_dn = 0.0;
 };
 
-/// Chroma and luma σ of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1" (video.hpp VideoInfo), a
-/// `lossless` codec or not. Raw or lossless 4:2:2 leaves `config` unchanged.
+/// max_shift_px for a lossy source, whose pipeline centroid is itself ≈ 0.1 px off (the codec's chroma).
+inline constexpr double kLossyMaxShiftPx = 0.25;
+
+/// Chroma and luma σ, and the shift gate, of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1"
+/// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx).
+/// Raw or lossless 4:2:2 leaves `config` unchanged.
 SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
 /// Why a fit was refused (the pipeline's centroid then stands).
