@@ -70,6 +70,10 @@ struct CameraStats {
     // shows a bias that alternates with the parity.
     std::array<double, 2> sum_dx{}, sum_dy{};
     std::array<int64_t, 2> n_parity{};
+    // Split by the truth's visibility: clear markers, and partly hidden ones (an instrument's own shaft in front of
+    // it, the eye's outline), whose visible part's centroid is the harder target.
+    std::array<double, 2> se_vis{};
+    std::array<int64_t, 2> n_vis{};
     std::vector<double> latency_us;        // blob: emission after its last pixel
     std::vector<double> field_latency_us;  // field: last blob after the last active line
 };
@@ -90,6 +94,9 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
             }
             st.se += m.distance_px * m.distance_px;
             ++st.matched;
+            const size_t hidden = m.view->occluded_fraction > 0.0 ? 1 : 0;
+            st.se_vis[hidden] += m.distance_px * m.distance_px;
+            ++st.n_vis[hidden];
             const Eigen::Vector2d d = det[static_cast<size_t>(m.detection)].centroid_px - m.view->centroid_px;
             st.sum_dx[parity & 1] += d.x();
             st.sum_dy[parity & 1] += d.y();
@@ -97,6 +104,16 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
         },
         used);
     for (bool u : used) st.extra += !u;
+}
+
+// Centroid RMS over clear and over partly hidden markers: {"clear": {"rms_px", "matched"}, "partly_hidden": …}.
+nlohmann::json visibility_json(const CameraStats& st) {
+    nlohmann::json j;
+    const char* names[2] = {"clear", "partly_hidden"};
+    for (size_t h = 0; h < 2; ++h)
+        j[names[h]] = {{"rms_px", st.n_vis[h] ? nlohmann::json(std::sqrt(st.se_vis[h] / st.n_vis[h])) : nlohmann::json()},
+                       {"matched", st.n_vis[h]}};
+    return j;
 }
 
 // Mean signed centroid error, x and y, and y by field parity (top, bottom); null where nothing was matched.
@@ -273,7 +290,10 @@ int run(const FpgaOptions& opt) {
             j["missed"] = st.missed;
             j["extra"] = st.extra;
             j["centroid_bias_px"] = bias_json(st);
+            j["centroid_by_visibility"] = visibility_json(st);
             for (int p = 0; p < 2; ++p) {
+                all.se_vis[p] += st.se_vis[p];
+                all.n_vis[p] += st.n_vis[p];
                 all.sum_dx[p] += st.sum_dx[p];
                 all.sum_dy[p] += st.sum_dy[p];
                 all.n_parity[p] += st.n_parity[p];
@@ -291,6 +311,7 @@ int run(const FpgaOptions& opt) {
         if (!truth.empty()) {
             j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
             j["centroid_bias_px"] = bias_json(all);
+            j["centroid_by_visibility"] = visibility_json(all);
         }
         if (opt.refine) {
             j["refined"] = refined;

@@ -174,6 +174,23 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
     CHECK(refined["refined"].get<int>() * 3 > fpga["blobs"].get<int>());
     CHECK(refined["centroid_rms_px"].get<double>() < 0.1);
 
+    // The same centroid error split by the truth's visibility adds up to the whole; the fit is far closer to the
+    // rendered centroid on clear markers (a partly hidden one keeps the pipeline's centroid more often).
+    for (const auto* run_j : {&fpga, &refined}) {
+        const nlohmann::json& vis = (*run_j)["centroid_by_visibility"];
+        const int64_t n_clear = vis["clear"]["matched"].get<int64_t>(), n_hidden = vis["partly_hidden"]["matched"].get<int64_t>();
+        int64_t matched = 0;
+        for (size_t c = 0; c < 3; ++c) matched += (*run_j)["cameras"][c]["matched"].get<int64_t>();
+        CHECK(n_clear + n_hidden == matched);
+        REQUIRE(n_clear > 20);
+        REQUIRE(n_hidden > 0);
+        const double r_clear = vis["clear"]["rms_px"].get<double>(), r_hidden = vis["partly_hidden"]["rms_px"].get<double>();
+        const double whole = std::sqrt((n_clear * r_clear * r_clear + n_hidden * r_hidden * r_hidden) / matched);
+        CHECK(std::abs(whole - (*run_j)["centroid_rms_px"].get<double>()) < 1e-9);
+    }
+    CHECK(refined["centroid_by_visibility"]["clear"]["rms_px"].get<double>() <
+          0.6 * fpga["centroid_by_visibility"]["clear"]["rms_px"].get<double>());
+
     // validate --refine: the same chain with refined centroids, scored against the rendered truth of the markers
     // no other object hides (its own matching), is closer to it than without.
     auto plain_v = nlohmann::json::parse(run(exe + " validate --recording " + dir + "/rec --json", rc));
