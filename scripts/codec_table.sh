@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Regenerates the codec table of docs/validation.md: a `sweep` recording written as raw UYVY fields and as each
 # video format `eyesim synth --format` writes (interlaced PAL as cameras record it), then per recording
-# `eyesim fpga --json` (centroid error and signed bias against the rendered centroids, wall time),
+# `eyesim fpga --json` (centroid error, also over clear and over partly hidden markers, and signed bias against the
+# rendered centroids, wall time),
 # `eyesim validate --json` (3D marker, tip and eye errors) and bench_recording (what opening costs, reading speed).
 # Each figure is the worst over the seeds (largest error, largest |bias|, slowest; fewest blobs refined). Prints
 # the Markdown table on stdout. --refine: `fpga` and `validate` with --refine (each blob's centroid from the refinement stage's
@@ -86,10 +87,10 @@ def worst(vals, key=lambda v: v):
     return max(vals, key=key) if vals else None
 def fmt(v, spec):
     return "n/a" if v is None else format(v, spec)
-print("| recording | centroid RMS px | bias x / y px | y bias top / bottom px | 3D µm | tip µm | eye ° "
+print("| recording | centroid RMS px | clear / partly hidden px | bias x / y px | y bias top / bottom px | 3D µm | tip µm | eye ° "
       "| `fpga` wall s | open ms (frames decoded) | read fields/s | Mbit/s per camera | lost fields |"
       + (" blobs refined % |" if refined else ""))
-print("|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if refined else ""))
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if refined else ""))
 for f in formats:
     rows = []
     for s in seeds:
@@ -99,8 +100,11 @@ for f in formats:
             continue
         t0, t1 = map(float, open(d + ".fpga.wall").read().split())
         bias = fp.get("centroid_bias_px") or {}
+        vis = fp.get("centroid_by_visibility") or {}
         rows.append({
-            "rms": num(fp.get("centroid_rms_px")), "bx": num(bias.get("x")), "by": num(bias.get("y")),
+            "rms": num(fp.get("centroid_rms_px")),
+            "clear": num((vis.get("clear") or {}).get("rms_px")),
+            "hidden": num((vis.get("partly_hidden") or {}).get("rms_px")), "bx": num(bias.get("x")), "by": num(bias.get("y")),
             "byt": num(bias.get("y_top")), "byb": num(bias.get("y_bottom")),
             "m3d": num(va.get("marker3d_rms_um")) if va else None, "tip": num(va.get("tip_rms_um")) if va else None,
             "eye": num(va.get("eye_rot_rms_deg")) if va else None, "wall": t1 - t0,
@@ -108,10 +112,11 @@ for f in formats:
             "mbit": int(open(d + ".bytes").read()) * 8 / 1e6 / seconds, "lost": fp.get("lost_fields", 0),
             "refined": 100.0 * fp["refined"] / fp["blobs"] if refined and fp.get("blobs") else None})
     if not rows:
-        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * (11 if refined else 10))
+        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * (12 if refined else 11))
         continue
     w = lambda k, absval=False: worst([r[k] for r in rows], key=(abs if absval else (lambda v: v)))
-    print(f"| {names.get(f, f)} | {fmt(w('rms'), '.4f')} | {fmt(w('bx', True), '+.4f')} / {fmt(w('by', True), '+.4f')} "
+    print(f"| {names.get(f, f)} | {fmt(w('rms'), '.4f')} | {fmt(w('clear'), '.4f')} / {fmt(w('hidden'), '.4f')} "
+          f"| {fmt(w('bx', True), '+.4f')} / {fmt(w('by', True), '+.4f')} "
           f"| {fmt(w('byt', True), '+.4f')} / {fmt(w('byb', True), '+.4f')} | {fmt(w('m3d'), '.1f')} "
           f"| {fmt(w('tip'), '.1f')} | {fmt(w('eye'), '.4f')} | {w('wall'):.1f} | {w('open'):.0f} ({w('dec')}) "
           f"| {min(r['fps'] for r in rows):.0f} | {w('mbit'):.1f} | {w('lost')} |"
