@@ -44,6 +44,8 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
 namespace {
 
 constexpr int kMaxPar = 24;
+// Two doubles in one SSE2 register (GCC / Clang vector extension): sums over two independent lanes.
+typedef double V2 __attribute__((vector_size(16)));
 // Parameters: centre (frame x, frame v), radius (frame px), the outline's ellipticity (e1, e2: the marker's
 // outline is ρ² = (1 + e1)·dx² + 2·e2·dx·dv + (1 − e1)·dv² = r²; pixel aspect and perspective make a sphere's
 // image an ellipse), amplitude; background per channel Y, Cb, Cr as level + x slope + v slope about the patch
@@ -261,6 +263,7 @@ public:
         for (int j = 0; j < p_.lines; ++j)
             for (int x = 0; x < nx; ++x) wy_[static_cast<size_t>(j * nx + x)] = 1.0 / w_.var_y[static_cast<size_t>(j * nx + x)];
         background_moments();
+        n_obs_ = count_observations();
     }
 
     // Coverage and coverage × shading of the marker per model pixel at t; with kDeriv also their derivatives by
@@ -433,6 +436,16 @@ public:
             const double beyond = p_.outline ? t[kB2 + ch] : 0.0, am = t[kA] * m_[ch];
             const double limb = p_.outline ? t[kG + ch] : 0.0;
             double* out = val + ch * n;
+            if (!p_.outline) {  // the same values without the outline's terms (weight 1, no limb, nothing beyond)
+                for (int j = 0; j < p_.lines; ++j) {
+                    for (int i = 0; i < p_.cols; ++i) {
+                        const int k = j * p_.cols + i;
+                        const double bg = b0 + bx * xrel_[static_cast<size_t>(i)] + bv * vrel_[static_cast<size_t>(j)];
+                        out[k] = kOffset[ch] + am * shade[k] + (1.0 - cov[k]) * (bg - kOffset[ch]);
+                    }
+                }
+                continue;
+            }
             for (int j = 0; j < p_.lines; ++j)
                 for (int i = 0; i < p_.cols; ++i) {
                     const int k = j * p_.cols + i;
@@ -498,30 +511,79 @@ public:
         const int nx = p_.x1 - p_.x0 + 1;
         const double wc = 1.0 / var_c();
         for (auto& m : mom_) m.fill(0.0);
-        auto add = [](std::array<double, 10>& m, double w, double x, double v, double o) {
-            m[0] += w;
-            m[1] += w * x;
-            m[2] += w * v;
-            m[3] += w * x * x;
-            m[4] += w * x * v;
-            m[5] += w * v * v;
-            m[6] += w * o;
-            m[7] += w * o * x;
-            m[8] += w * o * v;
-            m[9] += w * o * o;
+        // Per line, the sums over x (Σw, Σwx, Σwx², Σwo, Σwox, Σwo²); v enters once per line.
+        auto add_line = [](std::array<double, 10>& m, const double l[6], double v) {
+            m[0] += l[0];
+            m[1] += l[1];
+            m[2] += l[0] * v;
+            m[3] += l[2];
+            m[4] += l[1] * v;
+            m[5] += l[0] * v * v;
+            m[6] += l[3];
+            m[7] += l[4];
+            m[8] += l[3] * v;
+            m[9] += l[5];
         };
         for (int j = 0; j < p_.lines; ++j) {
             const double vj = vrel_[static_cast<size_t>(j)];
-            for (int x = 0; x < nx; ++x) {
-                const int o = j * nx + x;
-                if (w_.keep_y[o]) add(mom_[0], wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(x + 1)], vj, w_.obs_y[o]);
+            double ly[6] = {}, lcb[6] = {}, lcr[6] = {};
+            const uint8_t* keep_y = w_.keep_y.data() + j * nx;
+            const double* obs_y = w_.obs_y.data() + j * nx;
+            const double* wy = wy_.data() + j * nx;
+            const double* xr = xrel_.data() + 1;
+            // Two columns per step in the two lanes of a vector (independent sums, added at the end of the line).
+            V2 acc[6] = {};
+            int x = 0;
+            for (; x + 1 < nx; x += 2) {
+                const V2 w = V2{double(keep_y[x]), double(keep_y[x + 1])} * V2{wy[x], wy[x + 1]};
+                const V2 xx = {xr[x], xr[x + 1]}, ob = {obs_y[x], obs_y[x + 1]};
+                const V2 wx = w * xx, wo = w * ob;
+                acc[0] += w;
+                acc[1] += wx;
+                acc[2] += wx * xx;
+                acc[3] += wo;
+                acc[4] += wo * xx;
+                acc[5] += wo * ob;
             }
-            int s = 0;
-            for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
-                const int i = x - p_.x0 + 1, o = j * nx + s;
-                if (w_.keep_cb[o]) add(mom_[1], wc, xrel_[static_cast<size_t>(i)], vj, w_.obs_cb[o]);
-                if (w_.keep_cr[o]) add(mom_[2], wc, xrel_[static_cast<size_t>(i)], vj, w_.obs_cr[o]);
+            for (int q = 0; q < 6; ++q) ly[q] = acc[q][0] + acc[q][1];
+            for (; x < nx; ++x) {
+                const double w = keep_y[x] * wy[x], xx = xr[x];
+                const double wx = w * xx, wo = w * obs_y[x];
+                ly[0] += w;
+                ly[1] += wx;
+                ly[2] += wx * xx;
+                ly[3] += wo;
+                ly[4] += wo * xx;
+                ly[5] += wo * obs_y[x];
             }
+            // Chroma samples at even columns: sample s at model column i = x − x0 + 1.
+            const int i0 = (p_.x0 & 1) + 1, ns = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
+            // Cb and Cr in the two lanes (the same columns, weights and σ).
+            const uint8_t *kcb = w_.keep_cb.data() + j * nx, *kcr = w_.keep_cr.data() + j * nx;
+            const double *ocb = w_.obs_cb.data() + j * nx, *ocr = w_.obs_cr.data() + j * nx;
+            V2 acc_c[6] = {};
+            for (int s = 0; s < ns; ++s) {
+                const double xs = xrel_[static_cast<size_t>(i0 + 2 * s)];
+                const V2 w = {double(kcb[s]), double(kcr[s])}, xx = {xs, xs}, ob = {ocb[s], ocr[s]};
+                const V2 wx = w * xx, wo = w * ob;
+                acc_c[0] += w;
+                acc_c[1] += wx;
+                acc_c[2] += wx * xx;
+                acc_c[3] += wo;
+                acc_c[4] += wo * xx;
+                acc_c[5] += wo * ob;
+            }
+            for (int q = 0; q < 6; ++q) {
+                lcb[q] = acc_c[q][0];
+                lcr[q] = acc_c[q][1];
+            }
+            for (int q = 0; q < 6; ++q) {  // the chroma's weight is one σ for all
+                lcb[q] *= wc;
+                lcr[q] *= wc;
+            }
+            add_line(mom_[0], ly, vj);
+            add_line(mom_[1], lcb, vj);
+            add_line(mom_[2], lcr, vj);
         }
     }
 
@@ -857,14 +919,28 @@ public:
         const double* ds = w_.dshade.data();
         // The marker is convex: where the render reaches the patch's first or last line or column and that holds
         // nothing, nothing lies beyond it either.
-        for (int j = box[0]; j <= box[1]; ++j)
-            for (int i = box[2]; i <= box[3]; ++i)
-                if ((j == 0 || j == p_.lines - 1 || i == 0 || i == p_.cols - 1) && shade[j * p_.cols + i] != 0.0)
-                    return false;
+        for (int j : {0, p_.lines - 1})
+            if (j >= box[0] && j <= box[1])
+                for (int i = box[2]; i <= box[3]; ++i)
+                    if (shade[j * p_.cols + i] != 0.0) return false;
+        for (int i : {0, p_.cols - 1})
+            if (i >= box[2] && i <= box[3])
+                for (int j = box[0]; j <= box[1]; ++j)
+                    if (shade[j * p_.cols + i] != 0.0) return false;
         double si = 0, sx = 0, sv = 0;
         for (int j = box[0]; j <= box[1]; ++j) {
-            double line = 0, line_x = 0;
-            for (int i = box[2]; i <= box[3]; ++i) {
+            // Two columns per step in the lanes of a vector.
+            V2 line2 = {}, line_x2 = {};
+            int i = box[2];
+            for (; i + 1 <= box[3]; i += 2) {
+                const int k = j * p_.cols + i;
+                V2 in = {shade[k], shade[k + 1]};
+                for (int m = 0; m < kShapePar; ++m) in += d[m] * V2{ds[m * n + k], ds[m * n + k + 1]};
+                line2 += in;
+                line_x2 += in * V2{double(p_.x0 - 1 + i), double(p_.x0 + i)};
+            }
+            double line = line2[0] + line2[1], line_x = line_x2[0] + line_x2[1];
+            for (; i <= box[3]; ++i) {
                 const int k = j * p_.cols + i;
                 double in = shade[k];
                 for (int m = 0; m < kShapePar; ++m) in += d[m] * ds[m * n + k];
@@ -886,8 +962,9 @@ public:
         const double sc = cfg_.chroma_noise_dn > 0 ? cfg_.chroma_noise_dn : cfg_.noise_dn;
         return sc * sc + 1.0 / 12.0;
     }
-    // Observations still in the fit.
-    int observations() const {
+    // Observations still in the fit (counted when the kept set changes).
+    int observations() const { return n_obs_; }
+    int count_observations() const {
         const int nx = p_.x1 - p_.x0 + 1, nc = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
         int n = 0;
         for (int j = 0; j < p_.lines; ++j) {
@@ -951,6 +1028,7 @@ public:
             }
         }
         background_moments();
+        n_obs_ = count_observations();
         return dropped;
     }
 
@@ -1035,6 +1113,7 @@ private:
     double m_[3] = {};
     std::array<std::array<double, 10>, 3> mom_{};  // background_moments()
     Vec lin_t_{};                                  // the point of the last linearise()
+    int n_obs_ = 0;                                // observations() (kept Y, Cb, Cr samples)
     std::array<double, SphereFitWorkspace::kPx> wy_;  // 1 / var_y: the luma observations' weights
     // The box (lines, columns) raster_analytic() last wrote, with and without derivatives; the whole patch at first.
     mutable std::array<int, 4> written_[2] = {{0, p_.lines - 1, 0, p_.cols - 1}, {0, p_.lines - 1, 0, p_.cols - 1}};
@@ -1122,24 +1201,32 @@ struct BorderPx {
 // The offset comes from a coarse search and a parabola, the levels and gains from least squares at each offset.
 void outline_profile_start(const BorderPx* border, int nb, const Patch& p, Vec& t) {
     const double cp = std::cos(t[kPhi]), sp = std::sin(t[kPhi]);
-    // Least squares of channel ch over the border against we·(b0 + G·P) + (1 − we)·b2 at offset D + dd; returns the
-    // residual sum of squares (infinite when the design is singular) and the levels in lev (b0, G, b2).
-    auto fit = [&](double dd, int ch, double lev[3]) {
-        double m[6] = {}, g[3] = {}, oo = 0;  // lower triangle 00, 10, 11, 20, 21, 22
+    // Each border pixel's coordinate along the outline's normal: fixed over the search, which moves only the offset.
+    std::array<double, 2 * (kFitMaxCols + kFitMaxLines)> along;
+    for (int k = 0; k < nb; ++k) along[static_cast<size_t>(k)] = cp * (border[k].x - p.xc) + sp * (border[k].v - p.vc);
+    // Least squares of channels 0 … n_ch − 1 over the border against we·(b0 + G·P) + (1 − we)·b2 at offset D + dd
+    // (the design is the same for every channel); returns channel 0's residual sum of squares (infinite when the
+    // design is singular) and each channel's levels in lev[ch] (b0, G, b2).
+    auto fit = [&](double dd, int n_ch, double lev[3][3]) {
+        double m[6] = {}, g[3][3] = {}, oo[3] = {};  // lower triangle 00, 10, 11, 20, 21, 22
+        const double off = t[kD] + dd;
         for (int k = 0; k < nb; ++k) {
-            const double dist = cp * (border[k].x - p.xc) + sp * (border[k].v - p.vc) - (t[kD] + dd);
+            const double dist = along[static_cast<size_t>(k)] - off;
             const double we = std::clamp(0.5 - dist, 0.0, 1.0), s = -dist;
             const double hi = s + 0.5, lo = std::max(0.0, s - 0.5);
             const double pr = hi > 0 ? (2.0 / 3.0) * (hi * std::sqrt(hi) - lo * std::sqrt(lo)) : 0.0;
-            const double a[3] = {we, we * pr, 1.0 - we}, o = border[k].c[ch];
+            const double a[3] = {we, we * pr, 1.0 - we};
             m[0] += a[0] * a[0];
             m[1] += a[1] * a[0];
             m[2] += a[1] * a[1];
             m[3] += a[2] * a[0];
             m[4] += a[2] * a[1];
             m[5] += a[2] * a[2];
-            for (int q = 0; q < 3; ++q) g[q] += a[q] * o;
-            oo += o * o;
+            for (int ch = 0; ch < n_ch; ++ch) {
+                const double o = border[k].c[ch];
+                for (int q = 0; q < 3; ++q) g[ch][q] += a[q] * o;
+                oo[ch] += o * o;
+            }
         }
         // 3 × 3 by Cholesky.
         const double l00 = m[0] > 0 ? std::sqrt(m[0]) : 0.0;
@@ -1151,38 +1238,43 @@ void outline_profile_start(const BorderPx* border, int nb, const Patch& p, Vec& 
         const double d2 = m[5] - l20 * l20 - l21 * l21;
         if (!(d2 > 1e-9 * m[5])) return HUGE_VAL;
         const double l22 = std::sqrt(d2);
-        const double y0 = g[0] / l00, y1 = (g[1] - l10 * y0) / l11, y2 = (g[2] - l20 * y0 - l21 * y1) / l22;
-        lev[2] = y2 / l22;
-        lev[1] = (y1 - l21 * lev[2]) / l11;
-        lev[0] = (y0 - l10 * lev[1] - l20 * lev[2]) / l00;
-        return oo - (y0 * y0 + y1 * y1 + y2 * y2);
+        double sse = 0;
+        for (int ch = n_ch - 1; ch >= 0; --ch) {
+            const double y0 = g[ch][0] / l00, y1 = (g[ch][1] - l10 * y0) / l11, y2 = (g[ch][2] - l20 * y0 - l21 * y1) / l22;
+            lev[ch][2] = y2 / l22;
+            lev[ch][1] = (y1 - l21 * lev[ch][2]) / l11;
+            lev[ch][0] = (y0 - l10 * lev[ch][1] - l20 * lev[ch][2]) / l00;
+            sse = oo[ch] - (y0 * y0 + y1 * y1 + y2 * y2);
+        }
+        return sse;
     };
     // Coarse search over whole pixels, then half a pixel either side of the best and a parabola through the three.
     // The range reaches far inside: an outline whose step the profile does not match (a shaft's edge, a shadow)
     // fits best as a smooth gradient, the step moved out of the way.
     constexpr int kN = 10;
     constexpr double kLo = -1.0;
-    double lev[3], best_sse = HUGE_VAL, dd = 0;
+    double lev[3][3], best_sse = HUGE_VAL, dd = 0;
     for (int q = 0; q < kN; ++q) {
-        const double e = fit(kLo + q, 0, lev);
+        const double e = fit(kLo + q, 1, lev);
         if (e < best_sse) {
             best_sse = e;
             dd = kLo + q;
         }
     }
     if (!(best_sse < HUGE_VAL)) return;
-    const double below = fit(dd - 0.5, 0, lev), above = fit(dd + 0.5, 0, lev);
+    const double below = fit(dd - 0.5, 1, lev), above = fit(dd + 0.5, 1, lev);
     const double c2 = below - 2.0 * best_sse + above;
     if (below < HUGE_VAL && above < HUGE_VAL && c2 > 0) {
         const double at = dd + 0.25 * (below - above) / c2;  // vertex of the parabola (step 0.5)
-        if (fit(at, 0, lev) < best_sse) dd = at;
+        if (fit(at, 1, lev) < best_sse) dd = at;
     }
+    const bool solved = fit(dd, 3, lev) < HUGE_VAL;  // the levels at the offset found (before t[kD] moves to it)
     t[kD] += dd;
+    if (!solved) return;
     for (int ch = 0; ch < 3; ++ch) {
-        if (!(fit(dd, ch, lev) < HUGE_VAL)) continue;
-        t[kB0 + 3 * ch] = lev[0];
-        t[kG + ch] = lev[1];
-        t[kB2 + ch] = lev[2];
+        t[kB0 + 3 * ch] = lev[ch][0];
+        t[kG + ch] = lev[ch][1];
+        t[kB2 + ch] = lev[ch][2];
     }
 }
 
