@@ -531,31 +531,24 @@ public:
             const double* obs_y = w_.obs_y.data() + j * nx;
             const double* wy = wy_.data() + j * nx;
             const double* xr = xrel_.data() + 1;
+            // Σw, Σwx, Σwx², Σwo, Σwox, Σwo² of one observation (double) or of two in the lanes of a V2.
+            auto accumulate = [](auto* l, auto w, auto xx, auto ob) {
+                const auto wx = w * xx, wo = w * ob;
+                l[0] += w;
+                l[1] += wx;
+                l[2] += wx * xx;
+                l[3] += wo;
+                l[4] += wo * xx;
+                l[5] += wo * ob;
+            };
             // Two columns per step in the two lanes of a vector (independent sums, added at the end of the line).
             V2 acc[6] = {};
             int x = 0;
-            for (; x + 1 < nx; x += 2) {
-                const V2 w = V2{double(keep_y[x]), double(keep_y[x + 1])} * V2{wy[x], wy[x + 1]};
-                const V2 xx = {xr[x], xr[x + 1]}, ob = {obs_y[x], obs_y[x + 1]};
-                const V2 wx = w * xx, wo = w * ob;
-                acc[0] += w;
-                acc[1] += wx;
-                acc[2] += wx * xx;
-                acc[3] += wo;
-                acc[4] += wo * xx;
-                acc[5] += wo * ob;
-            }
+            for (; x + 1 < nx; x += 2)
+                accumulate(acc, V2{double(keep_y[x]), double(keep_y[x + 1])} * V2{wy[x], wy[x + 1]},
+                           V2{xr[x], xr[x + 1]}, V2{obs_y[x], obs_y[x + 1]});
             for (int q = 0; q < 6; ++q) ly[q] = acc[q][0] + acc[q][1];
-            for (; x < nx; ++x) {
-                const double w = keep_y[x] * wy[x], xx = xr[x];
-                const double wx = w * xx, wo = w * obs_y[x];
-                ly[0] += w;
-                ly[1] += wx;
-                ly[2] += wx * xx;
-                ly[3] += wo;
-                ly[4] += wo * xx;
-                ly[5] += wo * obs_y[x];
-            }
+            for (; x < nx; ++x) accumulate(ly, keep_y[x] * wy[x], xr[x], obs_y[x]);
             // Chroma samples at even columns: sample s at model column i = x − x0 + 1.
             const int i0 = (p_.x0 & 1) + 1, ns = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
             // Cb and Cr in the two lanes (the same columns, weights and σ).
@@ -564,14 +557,7 @@ public:
             V2 acc_c[6] = {};
             for (int s = 0; s < ns; ++s) {
                 const double xs = xrel_[static_cast<size_t>(i0 + 2 * s)];
-                const V2 w = {double(kcb[s]), double(kcr[s])}, xx = {xs, xs}, ob = {ocb[s], ocr[s]};
-                const V2 wx = w * xx, wo = w * ob;
-                acc_c[0] += w;
-                acc_c[1] += wx;
-                acc_c[2] += wx * xx;
-                acc_c[3] += wo;
-                acc_c[4] += wo * xx;
-                acc_c[5] += wo * ob;
+                accumulate(acc_c, V2{double(kcb[s]), double(kcr[s])}, V2{xs, xs}, V2{ocb[s], ocr[s]});
             }
             for (int q = 0; q < 6; ++q) {
                 lcb[q] = acc_c[q][0];

@@ -226,24 +226,10 @@ TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma
     // Lossless FFV1 of 4:2:0 planes, written as cameras record (synth --format ffv1-420): the subsampling alone.
     // The pipeline's chroma-only centroid carries the subsampled chroma's y bias; the fit, told the source's
     // chroma (sphere_fit_config_for_source), stands on the full-resolution luma.
-    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fit_420_test").string();
-    std::filesystem::remove_all(dir);
-    rig::SynthRequest req;
-    req.out_dir = dir;
-    req.scenario = "surgery";
-    req.seconds = 0.2;  // 10 fields
-    req.format = "ffv1-420";
-    rig::write_recording(req);
-    struct Cleanup {
-        std::string d;
-        ~Cleanup() {
-            std::error_code ec;
-            std::filesystem::remove_all(d, ec);
-        }
-    } cleanup{dir};
-    rig::Recording rec = rig::Recording::open(dir);
+    RigRecording written("eyesim_fit_420_test", "surgery", 0.2, 1.0, 1, "ffv1-420");  // 10 fields, σ 1 DN
+    rig::Recording& rec = written.rec;
     REQUIRE(rec.format(0) == rig::StreamFormat::kVideo);
-    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    const std::vector<rig::FieldTruth>& truth = written.truth;
     REQUIRE(truth.size() == 10);
 
     const SphereFitConfig plain = rig_config();
@@ -320,25 +306,10 @@ TEST_CASE("sphere fit: on DV video the wider shift gate takes fits the pipeline'
     // DV (lossy 4:2:0): the codec moves the pipeline's chroma-only centroid by ≈ 0.1 px, so the fit of a clear
     // marker lands more than 0.15 px from it as often as not. The fits only the wider gate accepts must be closer
     // to the rendered centroid than the pipeline's centroids they replace.
-    const std::string dir = (std::filesystem::temp_directory_path() / "eyesim_fit_dv_test").string();
-    std::filesystem::remove_all(dir);
-    rig::SynthRequest req;
-    req.out_dir = dir;
-    req.scenario = "sweep";
-    req.seconds = 0.4;  // 20 fields
-    req.seed = 4;
-    req.format = "dv";
-    rig::write_recording(req);
-    struct Cleanup {
-        std::string d;
-        ~Cleanup() {
-            std::error_code ec;
-            std::filesystem::remove_all(d, ec);
-        }
-    } cleanup{dir};
-    rig::Recording rec = rig::Recording::open(dir);
+    RigRecording written("eyesim_fit_dv_test", "sweep", 0.4, 1.0, 4, "dv");  // 20 fields, σ 1 DN
+    rig::Recording& rec = written.rec;
     REQUIRE(rec.format(0) == rig::StreamFormat::kVideo);
-    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    const std::vector<rig::FieldTruth>& truth = written.truth;
     REQUIRE(truth.size() == 20);
 
     const SphereFitConfig lossy = sphere_fit_config_for_source(rig_config(), "4:2:0", false);
