@@ -58,22 +58,42 @@ nlohmann::json latency_json(std::vector<double> v) {
     return {{"p50", percentile(v, 0.5)}, {"p99", percentile(v, 0.99)}, {"max", v.empty() ? 0.0 : v.back()}};
 }
 
+// Squared and signed centroid errors (blob − rendered centroid), the signed ones per field parity: a video whose
+// chroma is sited wrongly shows a bias that alternates with the parity.
+struct ErrorSums {
+    double se = 0;
+    int64_t n = 0;
+    std::array<double, 2> sum_dx{}, sum_dy{};
+    std::array<int64_t, 2> n_parity{};
+    void add(const Eigen::Vector2d& d, int parity) {
+        se += d.squaredNorm();
+        ++n;
+        sum_dx[parity & 1] += d.x();
+        sum_dy[parity & 1] += d.y();
+        ++n_parity[parity & 1];
+    }
+    void add(const ErrorSums& o) {
+        se += o.se;
+        n += o.n;
+        for (int p = 0; p < 2; ++p) {
+            sum_dx[p] += o.sum_dx[p];
+            sum_dy[p] += o.sum_dy[p];
+            n_parity[p] += o.n_parity[p];
+        }
+    }
+};
+
 struct CameraStats {
     int camera = 0;
     int64_t fields = 0;
     int64_t blobs = 0;
     int64_t overflows = 0;
     int64_t refined = 0;
-    double se = 0;
-    int64_t matched = 0, missed = 0, extra = 0;
-    // Signed centroid error (blob − rendered centroid) per field parity: a video whose chroma is sited wrongly
-    // shows a bias that alternates with the parity.
-    std::array<double, 2> sum_dx{}, sum_dy{};
-    std::array<int64_t, 2> n_parity{};
+    int64_t missed = 0, extra = 0;
+    ErrorSums err;  // every matched marker
     // Split by the truth's visibility: clear markers, and partly hidden ones (an instrument's own shaft in front of
     // it, the eye's outline), whose visible part's centroid is the harder target.
-    std::array<double, 2> se_vis{};
-    std::array<int64_t, 2> n_vis{};
+    std::array<ErrorSums, 2> vis;
     std::vector<double> latency_us;        // blob: emission after its last pixel
     std::vector<double> field_latency_us;  // field: last blob after the last active line
 };
@@ -92,38 +112,36 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
                 ++st.missed;
                 return;
             }
-            st.se += m.distance_px * m.distance_px;
-            ++st.matched;
-            const size_t hidden = m.view->occluded_fraction > 0.0 ? 1 : 0;
-            st.se_vis[hidden] += m.distance_px * m.distance_px;
-            ++st.n_vis[hidden];
             const Eigen::Vector2d d = det[static_cast<size_t>(m.detection)].centroid_px - m.view->centroid_px;
-            st.sum_dx[parity & 1] += d.x();
-            st.sum_dy[parity & 1] += d.y();
-            ++st.n_parity[parity & 1];
+            st.err.add(d, parity);
+            st.vis[m.view->occluded_fraction > 0.0 ? 1 : 0].add(d, parity);
         },
         used);
     for (bool u : used) st.extra += !u;
 }
 
-// Centroid RMS over clear and over partly hidden markers: {"clear": {"rms_px", "matched"}, "partly_hidden": …}.
-nlohmann::json visibility_json(const CameraStats& st) {
-    nlohmann::json j;
-    const char* names[2] = {"clear", "partly_hidden"};
-    for (size_t h = 0; h < 2; ++h)
-        j[names[h]] = {{"rms_px", st.n_vis[h] ? nlohmann::json(std::sqrt(st.se_vis[h] / st.n_vis[h])) : nlohmann::json()},
-                       {"matched", st.n_vis[h]}};
-    return j;
-}
-
 // Mean signed centroid error, x and y, and y by field parity (top, bottom); null where nothing was matched.
-nlohmann::json bias_json(const CameraStats& st) {
+nlohmann::json bias_json(const ErrorSums& e) {
     const auto mean = [](double sum, int64_t n) {
         return n ? nlohmann::json(sum / static_cast<double>(n)) : nlohmann::json();
     };
-    const int64_t n = st.n_parity[0] + st.n_parity[1];
-    return {{"x", mean(st.sum_dx[0] + st.sum_dx[1], n)}, {"y", mean(st.sum_dy[0] + st.sum_dy[1], n)},
-            {"y_top", mean(st.sum_dy[0], st.n_parity[0])}, {"y_bottom", mean(st.sum_dy[1], st.n_parity[1])}};
+    const int64_t n = e.n_parity[0] + e.n_parity[1];
+    return {{"x", mean(e.sum_dx[0] + e.sum_dx[1], n)}, {"y", mean(e.sum_dy[0] + e.sum_dy[1], n)},
+            {"y_top", mean(e.sum_dy[0], e.n_parity[0])}, {"y_bottom", mean(e.sum_dy[1], e.n_parity[1])}};
+}
+
+double rms(const ErrorSums& e) { return e.n ? std::sqrt(e.se / static_cast<double>(e.n)) : 0.0; }
+
+// Centroid RMS and bias over clear and over partly hidden markers:
+// {"clear": {"rms_px", "matched", "bias_px"}, "partly_hidden": …}.
+nlohmann::json visibility_json(const std::array<ErrorSums, 2>& vis) {
+    nlohmann::json j;
+    const char* names[2] = {"clear", "partly_hidden"};
+    for (size_t h = 0; h < 2; ++h)
+        j[names[h]] = {{"rms_px", vis[h].n ? nlohmann::json(rms(vis[h])) : nlohmann::json()},
+                       {"matched", vis[h].n},
+                       {"bias_px", bias_json(vis[h])}};
+    return j;
 }
 
 int run(const FpgaOptions& opt) {
@@ -267,9 +285,9 @@ int run(const FpgaOptions& opt) {
         if (!csv) throw eyesim::app::Error(fmt::format("{}: write failed", opt.csv));
     }
 
-    int64_t total_fields = 0, total_blobs = 0, matched = 0, refined = 0, lost = 0;
-    double se = 0;
-    CameraStats all;  // bias sums over the cameras
+    int64_t total_fields = 0, total_blobs = 0, refined = 0, lost = 0;
+    ErrorSums all;                      // over the cameras
+    std::array<ErrorSums, 2> all_vis;
     for (int c : cams) lost += rec.lost_fields(c);
     std::vector<double> all_latency;
     nlohmann::json per_cam = nlohmann::json::array();
@@ -277,27 +295,20 @@ int run(const FpgaOptions& opt) {
         total_fields += st.fields;
         total_blobs += st.blobs;
         refined += st.refined;
-        matched += st.matched;
-        se += st.se;
         all_latency.insert(all_latency.end(), st.latency_us.begin(), st.latency_us.end());
         nlohmann::json j{{"camera", st.camera}, {"fields", st.fields}, {"blobs", st.blobs},
                          {"blob_table_overflows", st.overflows}, {"latency_us", latency_json(st.latency_us)},
                          {"field_last_blob_latency_us", latency_json(st.field_latency_us)}};
         if (opt.refine) j["refined"] = st.refined;
         if (!truth.empty()) {
-            j["centroid_rms_px"] = st.matched ? std::sqrt(st.se / st.matched) : 0.0;
-            j["matched"] = st.matched;
+            j["centroid_rms_px"] = rms(st.err);
+            j["matched"] = st.err.n;
             j["missed"] = st.missed;
             j["extra"] = st.extra;
-            j["centroid_bias_px"] = bias_json(st);
-            j["centroid_by_visibility"] = visibility_json(st);
-            for (int p = 0; p < 2; ++p) {
-                all.se_vis[p] += st.se_vis[p];
-                all.n_vis[p] += st.n_vis[p];
-                all.sum_dx[p] += st.sum_dx[p];
-                all.sum_dy[p] += st.sum_dy[p];
-                all.n_parity[p] += st.n_parity[p];
-            }
+            j["centroid_bias_px"] = bias_json(st.err);
+            j["centroid_by_visibility"] = visibility_json(st.vis);
+            all.add(st.err);
+            for (size_t h = 0; h < 2; ++h) all_vis[h].add(st.vis[h]);
         }
         j["lost_fields"] = rec.lost_fields(st.camera);
         per_cam.push_back(j);
@@ -309,9 +320,9 @@ int run(const FpgaOptions& opt) {
                          {"blobs", total_blobs}, {"latency_us", latency_json(all_latency)}, {"cameras", per_cam},
                          {"truth", !truth.empty()}, {"lost_fields", lost}, {"warnings", warnings}, {"errors", 0}};
         if (!truth.empty()) {
-            j["centroid_rms_px"] = matched ? std::sqrt(se / matched) : 0.0;
+            j["centroid_rms_px"] = rms(all);
             j["centroid_bias_px"] = bias_json(all);
-            j["centroid_by_visibility"] = visibility_json(all);
+            j["centroid_by_visibility"] = visibility_json(all_vis);
         }
         if (opt.refine) {
             j["refined"] = refined;
@@ -336,7 +347,7 @@ int run(const FpgaOptions& opt) {
         for (const CameraStats& st : stats)
             if (!truth.empty())
                 std::printf("  cam%d: centroid RMS %.4f px over %lld markers, %lld missed, %lld extra\n", st.camera,
-                            st.matched ? std::sqrt(st.se / st.matched) : 0.0, static_cast<long long>(st.matched),
+                            rms(st.err), static_cast<long long>(st.err.n),
                             static_cast<long long>(st.missed), static_cast<long long>(st.extra));
     }
     return 0;

@@ -187,6 +187,10 @@ TEST_CASE("the tool chain a hardware engineer uses: synth → fpga → capture �
         const double r_clear = vis["clear"]["rms_px"].get<double>(), r_hidden = vis["partly_hidden"]["rms_px"].get<double>();
         const double whole = std::sqrt((n_clear * r_clear * r_clear + n_hidden * r_hidden * r_hidden) / matched);
         CHECK(std::abs(whole - (*run_j)["centroid_rms_px"].get<double>()) < 1e-9);
+        // So do the mean x errors, weighted by the counts.
+        const double bias_x = (n_clear * vis["clear"]["bias_px"]["x"].get<double>() +
+                               n_hidden * vis["partly_hidden"]["bias_px"]["x"].get<double>()) / matched;
+        CHECK(std::abs(bias_x - (*run_j)["centroid_bias_px"]["x"].get<double>()) < 1e-9);
     }
     CHECK(refined["centroid_by_visibility"]["clear"]["rms_px"].get<double>() <
           0.6 * fpga["centroid_by_visibility"]["clear"]["rms_px"].get<double>());
