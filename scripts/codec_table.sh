@@ -87,10 +87,10 @@ def worst(vals, key=lambda v: v):
     return max(vals, key=key) if vals else None
 def fmt(v, spec):
     return "n/a" if v is None else format(v, spec)
-print("| recording | centroid RMS px | clear / partly hidden px | bias x / y px | y bias top / bottom px | 3D µm | tip µm | eye ° "
+print("| recording | centroid RMS px | clear / partly hidden px | clear markers' bias x, y top / bottom px | bias x / y px | y bias top / bottom px | 3D µm | tip µm | eye ° "
       "| `fpga` wall s | open ms (frames decoded) | read fields/s | Mbit/s per camera | lost fields |"
       + (" blobs refined % |" if refined else ""))
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if refined else ""))
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if refined else ""))
 for f in formats:
     rows = []
     for s in seeds:
@@ -104,7 +104,10 @@ for f in formats:
         rows.append({
             "rms": num(fp.get("centroid_rms_px")),
             "clear": num((vis.get("clear") or {}).get("rms_px")),
-            "hidden": num((vis.get("partly_hidden") or {}).get("rms_px")), "bx": num(bias.get("x")), "by": num(bias.get("y")),
+            "hidden": num((vis.get("partly_hidden") or {}).get("rms_px")),
+            "cbx": num(((vis.get("clear") or {}).get("bias_px") or {}).get("x")),
+            "cbt": num(((vis.get("clear") or {}).get("bias_px") or {}).get("y_top")),
+            "cbb": num(((vis.get("clear") or {}).get("bias_px") or {}).get("y_bottom")), "bx": num(bias.get("x")), "by": num(bias.get("y")),
             "byt": num(bias.get("y_top")), "byb": num(bias.get("y_bottom")),
             "m3d": num(va.get("marker3d_rms_um")) if va else None, "tip": num(va.get("tip_rms_um")) if va else None,
             "eye": num(va.get("eye_rot_rms_deg")) if va else None, "wall": t1 - t0,
@@ -112,10 +115,11 @@ for f in formats:
             "mbit": int(open(d + ".bytes").read()) * 8 / 1e6 / seconds, "lost": fp.get("lost_fields", 0),
             "refined": 100.0 * fp["refined"] / fp["blobs"] if refined and fp.get("blobs") else None})
     if not rows:
-        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * (12 if refined else 11))
+        print(f"| {names.get(f, f)} | not written (see stderr) |" + " |" * (13 if refined else 12))
         continue
     w = lambda k, absval=False: worst([r[k] for r in rows], key=(abs if absval else (lambda v: v)))
     print(f"| {names.get(f, f)} | {fmt(w('rms'), '.4f')} | {fmt(w('clear'), '.4f')} / {fmt(w('hidden'), '.4f')} "
+          f"| {fmt(w('cbx', True), '+.4f')}, {fmt(w('cbt', True), '+.4f')} / {fmt(w('cbb', True), '+.4f')} "
           f"| {fmt(w('bx', True), '+.4f')} / {fmt(w('by', True), '+.4f')} "
           f"| {fmt(w('byt', True), '+.4f')} / {fmt(w('byb', True), '+.4f')} | {fmt(w('m3d'), '.1f')} "
           f"| {fmt(w('tip'), '.1f')} | {fmt(w('eye'), '.4f')} | {w('wall'):.1f} | {w('open'):.0f} ({w('dec')}) "
