@@ -526,7 +526,7 @@ public:
         };
         for (int j = 0; j < p_.lines; ++j) {
             const double vj = vrel_[static_cast<size_t>(j)];
-            double ly[6] = {}, lcb[6] = {}, lcr[6] = {};
+            double ly[6], lcb[6], lcr[6];  // set below from the lanes' sums
             const uint8_t* keep_y = w_.keep_y.data() + j * nx;
             const double* obs_y = w_.obs_y.data() + j * nx;
             const double* wy = wy_.data() + j * nx;
@@ -559,13 +559,9 @@ public:
                 const double xs = xrel_[static_cast<size_t>(i0 + 2 * s)];
                 accumulate(acc_c, V2{double(kcb[s]), double(kcr[s])}, V2{xs, xs}, V2{ocb[s], ocr[s]});
             }
-            for (int q = 0; q < 6; ++q) {
-                lcb[q] = acc_c[q][0];
-                lcr[q] = acc_c[q][1];
-            }
             for (int q = 0; q < 6; ++q) {  // the chroma's weight is one σ for all
-                lcb[q] *= wc;
-                lcr[q] *= wc;
+                lcb[q] = acc_c[q][0] * wc;
+                lcr[q] = acc_c[q][1] * wc;
             }
             add_line(mom_[0], ly, vj);
             add_line(mom_[1], lcb, vj);
