@@ -181,6 +181,56 @@ __attribute__((target("avx2"))) void scan_line_avx2(const uint8_t* line, int T, 
 }
 #endif
 
+#if defined(EYESIM_FPGA_AVX2)
+#define EYESIM_FPGA_AVX512_TARGET __attribute__((target("avx512f,avx512bw,avx512vl")))
+// Full-mask forms of unpack (the plain ones trip GCC 12's -Wuninitialized in its own headers).
+EYESIM_FPGA_AVX512_TARGET inline __m512i unpacklo64(__m512i x, __m512i y) { return _mm512_maskz_unpacklo_epi64(0xFF, x, y); }
+EYESIM_FPGA_AVX512_TARGET inline __m512i unpackhi64(__m512i x, __m512i y) { return _mm512_maskz_unpackhi_epi64(0xFF, x, y); }
+
+// Sixteen cells (256 bytes) per step in 64-byte vectors (four cells each), the same arithmetic as the AVX2 scan;
+// the last step starts at kBgCells - 16 and repeats a few cells (same sums, same bits).
+EYESIM_FPGA_AVX512_TARGET void scan_line_avx512(const uint8_t* line, int T, uint32_t* sums, uint64_t* out) {
+    const __m512i lo = _mm512_set1_epi16(static_cast<short>(128 - T));
+    const __m512i range = _mm512_set1_epi16(static_cast<short>(0xFF00 | (2 * T)));
+    const __m512i low_bytes = _mm512_set1_epi16(0x00FF);
+    // Lane i of the sums vector holds cells i, 4 + i, 8 + i, 12 + i: cell c comes from dword 4·(c mod 4) + c / 4.
+    const __m512i order = _mm512_setr_epi32(0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15);
+    out[0] = out[1] = 0;
+    static_assert(kBgCells % 16 != 0 && kBgCells > 16 && (kBgCells - 16) / 64 == (kBgCells - 1) / 64 && 48 + 16 <= 64);
+    // One bit per 16-byte cell of a 64-bit byte mask: set when any of its bytes is.
+    auto cell_bits = [](uint64_t m) {
+        return static_cast<uint64_t>((m & 0xFFFFu) != 0) | static_cast<uint64_t>(((m >> 16) & 0xFFFFu) != 0) << 1 |
+               static_cast<uint64_t>(((m >> 32) & 0xFFFFu) != 0) << 2 | static_cast<uint64_t>((m >> 48) != 0) << 3;
+    };
+    for (int j = 0; j < kBgCells; j = std::min(j + 16, kBgCells - 16)) {
+        const uint8_t* p = line + kCellBytes * j;
+        const __m512i v0 = _mm512_loadu_si512(p), v1 = _mm512_loadu_si512(p + 64), v2 = _mm512_loadu_si512(p + 128),
+                      v3 = _mm512_loadu_si512(p + 192);
+        const __m512i d0 = _mm512_sub_epi8(v0, lo), d1 = _mm512_sub_epi8(v1, lo), d2 = _mm512_sub_epi8(v2, lo),
+                      d3 = _mm512_sub_epi8(v3, lo);
+        const __m512i dmax = _mm512_max_epu8(_mm512_max_epu8(d0, d1), _mm512_max_epu8(d2, d3));
+        if (_mm512_cmpgt_epu8_mask(dmax, range) != 0) {  // some cell of the sixteen is out of the box (rare)
+            const uint64_t bits = cell_bits(_mm512_cmpgt_epu8_mask(d0, range)) |
+                                  cell_bits(_mm512_cmpgt_epu8_mask(d1, range)) << 4 |
+                                  cell_bits(_mm512_cmpgt_epu8_mask(d2, range)) << 8 |
+                                  cell_bits(_mm512_cmpgt_epu8_mask(d3, range)) << 12;
+            out[j >> 6] |= bits << (j & 63);
+        }
+        const __m512i a0 = _mm512_and_si512(v0, low_bytes), a1 = _mm512_and_si512(v1, low_bytes),
+                      a2 = _mm512_and_si512(v2, low_bytes), a3 = _mm512_and_si512(v3, low_bytes);
+        const __m512i u = _mm512_add_epi16(unpacklo64(a0, a1), unpackhi64(a0, a1));
+        const __m512i w = _mm512_add_epi16(unpacklo64(a2, a3), unpackhi64(a2, a3));
+        const __m512 uf = _mm512_castsi512_ps(u), wf = _mm512_castsi512_ps(w);
+        const __m512i s16 =
+            _mm512_add_epi16(_mm512_castps_si512(_mm512_shuffle_ps(uf, wf, _MM_SHUFFLE(2, 0, 2, 0))),
+                             _mm512_castps_si512(_mm512_shuffle_ps(uf, wf, _MM_SHUFFLE(3, 1, 3, 1))));
+        _mm512_storeu_si512(sums + j, _mm512_maskz_permutexvar_epi32(0xFFFF, order, s16));
+        if (j == kBgCells - 16) break;
+    }
+    _mm256_zeroupper();
+}
+#endif
+
 // Background step of every cell (Pipeline::update_background's arithmetic, 16-bit lanes: Cb, Cr interleaved as in
 // the cell sums): bg += (4 · sum − bg + 2^(n−1)) >> n.
 void bg_step_scalar(int16_t* bg, const uint32_t* sums, int n) {
@@ -235,10 +285,35 @@ __attribute__((target("avx2"))) void bg_step_avx2(int16_t* bg, const uint32_t* s
 }
 #endif
 
+#if defined(EYESIM_FPGA_AVX2)
+// Sixteen cells (32 lanes) per step; the last ten cells in masked lanes.
+EYESIM_FPGA_AVX512_TARGET inline __m512i bg_step16_avx512(__m512i s, __m512i b, __m512i v_half, __m128i v_shift) {
+    return _mm512_add_epi16(b, _mm512_sra_epi16(_mm512_add_epi16(_mm512_sub_epi16(_mm512_slli_epi16(s, 4 - kBgCellLog2), b), v_half), v_shift));
+}
+
+EYESIM_FPGA_AVX512_TARGET void bg_step_avx512(int16_t* bg, const uint32_t* sums, int n) {
+    const __m512i v_half = _mm512_set1_epi16(static_cast<short>(1 << (n - 1)));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    int j = 0;
+    for (; j + 16 <= kBgCells; j += 16)
+        _mm512_storeu_si512(bg + 2 * j, bg_step16_avx512(_mm512_loadu_si512(sums + j), _mm512_loadu_si512(bg + 2 * j), v_half, v_shift));
+    static_assert(kBgCells % 16 != 0);
+    const __mmask32 m = (1u << (2 * (kBgCells % 16))) - 1;
+    _mm512_mask_storeu_epi16(bg + 2 * j, m, bg_step16_avx512(_mm512_maskz_loadu_epi16(m, sums + j), _mm512_maskz_loadu_epi16(m, bg + 2 * j), v_half, v_shift));
+    _mm256_zeroupper();
+}
+#endif
+
 // The scan for a requested instruction set, falling back to what this build and CPU have.
 Pipeline::LineScan select_scan(ScanIsa want, ScanIsa& got, Pipeline::BgStep& bg_step) {
 #if defined(EYESIM_FPGA_AVX2)
-    if ((want == ScanIsa::kAuto || want == ScanIsa::kAvx2) && __builtin_cpu_supports("avx2")) {
+    if ((want == ScanIsa::kAuto || want == ScanIsa::kAvx512) && __builtin_cpu_supports("avx512f") &&
+        __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx2")) {
+        got = ScanIsa::kAvx512;
+        bg_step = bg_step_avx512;
+        return scan_line_avx512;
+    }
+    if ((want == ScanIsa::kAuto || want == ScanIsa::kAvx2 || want == ScanIsa::kAvx512) && __builtin_cpu_supports("avx2")) {
         got = ScanIsa::kAvx2;
         bg_step = bg_step_avx2;
         return scan_line_avx2;
@@ -458,7 +533,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     hold_cells_ = {};
     hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
-    simd_weights_ = cells_path_ && scan_isa_ == ScanIsa::kAvx2 && params_.weight_mode == 1;
+    simd_weights_ = cells_path_ && (scan_isa_ == ScanIsa::kAvx2 || scan_isa_ == ScanIsa::kAvx512) && params_.weight_mode == 1;
     return PipelineStatus::kOk;
 }
 
@@ -505,6 +580,12 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
         classify_line<true>(uyvy_line, y);
     else
         classify_line<false>(uyvy_line, y);
+    finish_line(uyvy_line, y, stable);
+    return PipelineStatus::kOk;
+}
+
+// After line y is classified: labelling and ring, the background's step from the previous line, the line buffer.
+void Pipeline::finish_line(const uint8_t* uyvy_line, int y, bool stable) {
     // Nothing to connect, ring or complete when neither this line nor the previous one has a run (most lines).
     if (n_runs_[0] != 0 || n_runs_[1] != 0) label_line(y, false, uyvy_line);
     // The background learns from the previous line once this line has shown which of its pixels are next to a
@@ -525,7 +606,36 @@ PipelineStatus Pipeline::push_line_impl(const uint8_t* uyvy_line, int y, bool st
     }
     last_line_ = y;
     ++stats_.lines;
-    return PipelineStatus::kOk;
+}
+
+// Line y of a field in memory (process_field) where neither of the two lines before had a run, on the fast line
+// path: what push_line_impl does, with the line scan's result tested first. A line whose cells are all inside the
+// grey box (most lines) has no run and holds no cell: it ends with the background's step from the previous line.
+void Pipeline::push_quiet_line(const uint8_t* uyvy_line, int y) {
+    cur_buf_ ^= 1;
+    n_runs_older_ = 0;  // the buffer's line had no run: its masks are clear
+    if (claimed_dirty_[cur_buf_]) {
+        claimed_[cur_buf_] = {};
+        claimed_dirty_[cur_buf_] = false;
+    }
+    uint64_t out[2];
+    scan_(uyvy_line, fast_half_width_, cell_sums_[cur_buf_].data(), out);
+    if ((out[0] | out[1]) != 0) {
+        classify_cells(uyvy_line, out);
+        finish_line(uyvy_line, y, true);
+        return;
+    }
+    n_runs_[cur_buf_] = 0;
+    stats_.fast_path_pixels += static_cast<uint32_t>(kActivePixelsPerLine);
+    if (params_.bg_track_shift != 0 && params_.weight_mode == 1) {
+        if (bg_all_seeded_)  // no cell is held: no run on this line or the two before
+            bg_step_(bg_q4_.data(), cell_sums_[cur_buf_ ^ 1].data(), params_.bg_track_shift);
+        else
+            update_background_cells();
+    }
+    prev_line_ = uyvy_line;
+    last_line_ = y;
+    ++stats_.lines;
 }
 
 PipelineStatus Pipeline::end_field() {
@@ -552,8 +662,21 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
         end_field();
         return PipelineStatus::kNullLine;
     }
+    // The field is in memory: each line's bytes are requested PipelineConfig::prefetch_lines lines ahead, so the
+    // memory reads of later lines overlap the work on this one (a model option; the hardware streams).
+    const int ahead = config_.prefetch_lines;
     for (int y = 0; y < lines; ++y) {
-        s = push_line_impl(uyvy_field + static_cast<size_t>(y) * stride_bytes, y, true);
+        if (ahead > 0 && y + ahead < lines) {
+            const char* q = reinterpret_cast<const char*>(uyvy_field + static_cast<size_t>(y + ahead) * stride_bytes);
+            for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 3);
+            __builtin_prefetch(q + kLineBytes - 1, 0, 3);
+        }
+        const uint8_t* line = uyvy_field + static_cast<size_t>(y) * stride_bytes;
+        if (cells_path_ && params_.enable && y > 0 && n_runs_[0] == 0 && n_runs_[1] == 0) {
+            push_quiet_line(line, y);
+            continue;
+        }
+        s = push_line_impl(line, y, true);
         if (s != PipelineStatus::kOk) {
             end_field();
             return s;
@@ -803,10 +926,15 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
 // last (odd) pixel, whose chroma is interpolated with the next cell's first pair. So only the pixels of out-of-box
 // cells and the last pixel before each are classified, one by one; everything else is background by construction.
 void Pipeline::classify_line_cells(const uint8_t* line) {
-    Run* runs = runs_[cur_buf_].data();
-    int n = 0;
     uint64_t out[2];
     scan_(line, fast_half_width_, cell_sums_[cur_buf_].data(), out);
+    classify_cells(line, out);
+}
+
+// classify_line_cells after its line scan: `out` has a bit per out-of-box cell.
+void Pipeline::classify_cells(const uint8_t* line, const uint64_t* out) {
+    Run* runs = runs_[cur_buf_].data();
+    int n = 0;
     uint32_t examined = 0;
     auto classify_span = [&](int x0, int x1) {
         if (simd_weights_) {

@@ -218,7 +218,7 @@ size_t check_identical(const std::vector<const uint8_t*>& fields, const std::str
         const Output ref = run(fields, s, false, ScanIsa::kScalar);
         REQUIRE(ref.skipped_px == 0);
         blobs += ref.blobs.size();
-        for (const ScanIsa isa : {ScanIsa::kScalar, ScanIsa::kSse2, ScanIsa::kAvx2, ScanIsa::kAuto}) {
+        for (const ScanIsa isa : {ScanIsa::kScalar, ScanIsa::kSse2, ScanIsa::kAvx2, ScanIsa::kAvx512, ScanIsa::kAuto}) {
             const Output got = run(fields, s, true, isa);
             INFO(what << ", " << s.name << ", line scan " << static_cast<int>(got.isa));
             if (isa == ScanIsa::kScalar) CHECK(got.isa == ScanIsa::kScalar);

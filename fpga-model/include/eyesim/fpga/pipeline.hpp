@@ -77,10 +77,11 @@ enum class PipelineStatus : uint8_t {
 /// Instruction set of the software model's line scan (the fast path's per-cell grey-box test and cell chroma
 /// sums). A model option, not hardware: every choice gives identical output.
 enum class ScanIsa : uint8_t {
-    kAuto = 0,  ///< the best the CPU has (AVX2, else SSE2, else portable C++)
+    kAuto = 0,  ///< the best the CPU has (AVX-512, else AVX2, else SSE2, else portable C++)
     kScalar,    ///< portable C++
     kSse2,      ///< 16-byte vectors (x86-64 baseline)
     kAvx2,      ///< 32-byte vectors (selected at run time where the CPU has AVX2)
+    kAvx512,    ///< 64-byte vectors (AVX-512 F, BW, VL; the weights as kAvx2)
 };
 
 /// Construction-time options (hardware build parameters, not registers).
@@ -89,6 +90,9 @@ struct PipelineConfig {
     int blob_table_capacity = kMaxBlobSlots;  ///< 1..kMaxBlobSlots usable slots (smaller = cheaper FPGA)
     bool float_reference = false;           ///< also accumulate the floating reference moments (slower)
     ScanIsa scan_isa = ScanIsa::kAuto;      ///< line scan of the software model (falls back where unsupported)
+    /// process_field requests each line's bytes this many lines ahead (software prefetch; 0: off). A model option:
+    /// the output is the same; docs/bench/fpga-model.md gives its effect.
+    int prefetch_lines = 4;
 };
 
 /// Storage the FPGA needs for this configuration, in bits. Depends on the line width and table sizes only.
@@ -237,6 +241,9 @@ private:
     void close_run(OpenRun& o, int x_end, Run* runs, int& n);
     void run_pixel(OpenRun& o, uint8_t c, uint32_t w, int px, Run* runs, int& n);
     void classify_line_cells(const uint8_t* line);
+    void classify_cells(const uint8_t* line, const uint64_t* out);
+    void finish_line(const uint8_t* uyvy_line, int y, bool stable);
+    void push_quiet_line(const uint8_t* uyvy_line, int y);
     void background_hold_mask(std::array<uint64_t, (kActivePixelsPerLine + 63) / 64>& near, uint64_t& any) const;
     void update_background_cells();
     void label_line(int y, bool end_of_field, const uint8_t* line);
