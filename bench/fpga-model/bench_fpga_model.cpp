@@ -426,10 +426,11 @@ int main(int argc, char** argv) {
     std::vector<Blob> blobs;
     blobs.reserve(256);
     std::vector<std::unique_ptr<Contender>> owned;
-    auto model = [&](const std::string& key, const std::string& name, const std::function<void(RegisterMap&)>& setup) {
+    auto model = [&](const std::string& key, const std::string& name, const std::function<void(RegisterMap&)>& setup,
+                     const PipelineConfig& cfg = PipelineConfig{}) {
         RegisterMap regs;
         setup(regs);
-        pipes.push_back(std::make_unique<Pipeline>(regs));
+        pipes.push_back(std::make_unique<Pipeline>(regs, cfg));
         Pipeline* p = pipes.back().get();
         auto c = std::make_unique<Contender>();
         c->key = key;
@@ -463,6 +464,13 @@ int main(int argc, char** argv) {
     });
     model("pipeline_binary", "pipeline: binary centroid", [](RegisterMap& r) { r.write(reg::kWeightMode, 0); });
     model("pipeline_no_fast_path", "pipeline: reset, fast path off", [](RegisterMap& r) { r.write(reg::kFastPath, 0); });
+    // The model's own options (same output): the line scan a CPU without AVX-512 gets, and no software prefetch.
+    PipelineConfig avx2;
+    avx2.scan_isa = ScanIsa::kAvx2;
+    model("pipeline_avx2", "pipeline: reset, AVX2 line scan (a CPU without AVX-512)", [](RegisterMap&) {}, avx2);
+    PipelineConfig no_prefetch;
+    no_prefetch.prefetch_lines = 0;
+    model("pipeline_no_prefetch", "pipeline: reset, no software prefetch", [](RegisterMap&) {}, no_prefetch);
     if (!rig_mode) {
         // ROI: one window per marker around its true position (as a tracker predicting from the last field
         // would); scored on the first four markers; timed with scene 0's windows (no register writes timed).
@@ -587,6 +595,10 @@ int main(int argc, char** argv) {
     out["repeats"] = repeats;
     out["timing"] = "thread CPU time (CLOCK_THREAD_CPUTIME_ID) per field, median of interleaved repeats, 1 thread";
     out["load_average_1min"] = {{"start", load_start}, {"end", load_end}};
+    {
+        static const char* const kIsa[] = {"auto", "scalar", "sse2", "avx2", "avx512"};
+        out["pipeline_line_scan"] = kIsa[static_cast<int>(Pipeline(RegisterMap{}).scan_isa())];
+    }
     for (auto& c : owned) {
         nlohmann::json j = error_json(c->err);
         if (!c->scored && c->err.matched == 0 && c->err.missed == 0) j = nlohmann::json::object();
@@ -601,9 +613,9 @@ int main(int argc, char** argv) {
 
     if (!json) {
         std::printf("fields: %s, %zu fields, %d markers, noise sigma %.2f; %d interleaved repeats (median), 1 thread, "
-                    "thread CPU time; load average %.2f -> %.2f\n\n",
+                    "thread CPU time; load average %.2f -> %.2f; pipeline line scan %s\n\n",
                     rig_mode ? "rig surgery recording" : "synthetic scenes (6-10 px)", nf, markers, noise, repeats,
-                    load_start, load_end);
+                    load_start, load_end, out["pipeline_line_scan"].get<std::string>().c_str());
         std::printf("| contender | us/field p50 | min-max | fields/s | x peer (speed) | centroid RMS px | bias x, y px | "
                     "matched | missed | extra |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         for (auto& c : owned) {
