@@ -1216,12 +1216,9 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     Slot& s = slots_[root];
     const int k = x >> 1;
     const uint8_t* q = line + 4 * k;
-    int cb2 = 2 * q[0], cr2 = 2 * q[2];
+    const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;  // as add_ring_span
+    const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
     const int luma = q[1 + 2 * (x & 1)];
-    if ((x & 1) && k < kPairs - 1) {
-        cb2 = q[0] + q[4];
-        cr2 = q[2] + q[6];
-    }
     const uint64_t w = weight_at(s.cls, luma, cb2, cr2, x);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
     s.sw += w;
@@ -1264,12 +1261,11 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
             const int x = 64 * w + __builtin_ctzll(free);
             const int k = x >> 1;
             const uint8_t* q = line + 4 * k;
-            int cb2 = 2 * q[0], cr2 = 2 * q[2];
+            // Chroma ×2: twice the own pair's, or an odd pixel's sum with the next pair's (no branch on the
+            // pixel's parity, which has no pattern here).
+            const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;
+            const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
             const int luma = q[1 + 2 * (x & 1)];
-            if ((x & 1) && k < kPairs - 1) {
-                cb2 = q[0] + q[4];
-                cr2 = q[2] + q[6];
-            }
             const uint64_t wt = weight_at(cls, luma, cb2, cr2, x);
             const uint64_t ux = static_cast<uint64_t>(x);
             sw += wt;
