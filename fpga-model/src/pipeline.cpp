@@ -1250,6 +1250,48 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
     uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
     uint32_t count = 0, pn = 0;
     const uint8_t cls = slots_[root].cls;
+    auto add_pixel = [&](int x) {
+        const int k = x >> 1;
+        const uint8_t* q = line + 4 * k;
+        // Chroma ×2: twice the own pair's, or an odd pixel's sum with the next pair's (no branch on the
+        // pixel's parity, which has no pattern here).
+        const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;
+        const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
+        const int luma = q[1 + 2 * (x & 1)];
+        const uint64_t wt = weight_at(cls, luma, cb2, cr2, x);
+        const uint64_t ux = static_cast<uint64_t>(x);
+        sw += wt;
+        swx += wt * ux;
+        swxx += wt * ux * ux;
+        pn += wt != 0;
+        psx += wt != 0 ? ux : 0;
+        ++count;
+    };
+    if (xb - xa < 64) {
+        // A span within 64 pixels (all but very wide runs): its free pixels from a two-word window, claimed and
+        // summed with no branch but the loop over them; whether any is free is not tested (it has no pattern).
+        const size_t w0 = static_cast<size_t>(xa >> 6);
+        const int sh = xa & 63;
+        const uint64_t lo = occ[w0] | clm[w0], hi = occ[w0 + 1] | clm[w0 + 1];
+        const uint64_t taken = lo >> sh | (hi << 1) << (63 - sh);  // bit i: pixel xa + i
+        const uint64_t free = ~taken & (~0ull >> (63 - (xb - xa)));
+        clm[w0] |= free << sh;
+        clm[w0 + 1] |= (free >> 1) >> (63 - sh);
+        for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));
+        claimed_dirty_[cur_buf_] |= free != 0;
+        Slot& s = slots_[root];
+        const uint64_t uy = static_cast<uint64_t>(y);
+        s.sw += sw;
+        s.swx += swx;
+        s.swy += sw * uy;
+        s.swxx += swxx;
+        s.swyy += sw * uy * uy;
+        s.swxy += swx * uy;
+        s.pn += pn;
+        s.psx += psx;
+        stats_.ring_pixels += count;
+        return;
+    }
     for (int w = xa >> 6; w <= xb >> 6; ++w) {
         uint64_t range = ~0ull;
         if (w == xa >> 6) range &= ~0ull << (xa & 63);
@@ -1257,24 +1299,7 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         uint64_t free = range & ~occ[static_cast<size_t>(w)] & ~clm[static_cast<size_t>(w)];
         if (free == 0) continue;
         clm[static_cast<size_t>(w)] |= free;
-        for (; free != 0; free &= free - 1) {
-            const int x = 64 * w + __builtin_ctzll(free);
-            const int k = x >> 1;
-            const uint8_t* q = line + 4 * k;
-            // Chroma ×2: twice the own pair's, or an odd pixel's sum with the next pair's (no branch on the
-            // pixel's parity, which has no pattern here).
-            const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;
-            const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
-            const int luma = q[1 + 2 * (x & 1)];
-            const uint64_t wt = weight_at(cls, luma, cb2, cr2, x);
-            const uint64_t ux = static_cast<uint64_t>(x);
-            sw += wt;
-            swx += wt * ux;
-            swxx += wt * ux * ux;
-            pn += wt != 0;
-            psx += wt != 0 ? ux : 0;
-            ++count;
-        }
+        for (; free != 0; free &= free - 1) add_pixel(64 * w + __builtin_ctzll(free));
     }
     if (count == 0) return;
     claimed_dirty_[cur_buf_] = true;

@@ -244,7 +244,7 @@ private:
     void classify_cells(const uint8_t* line, const uint64_t* out);
     void finish_line(const uint8_t* uyvy_line, int y, bool stable);
     void push_quiet_line(const uint8_t* uyvy_line, int y);
-    void background_hold_mask(std::array<uint64_t, (kActivePixelsPerLine + 63) / 64>& near, uint64_t& any) const;
+    void background_hold_mask(std::array<uint64_t, (kActivePixelsPerLine + 63) / 64 + 1>& near, uint64_t& any) const;
     void update_background_cells();
     void label_line(int y, bool end_of_field, const uint8_t* line);
     PipelineStatus push_line_impl(const uint8_t* uyvy_line, int y, bool stable);
@@ -284,7 +284,8 @@ private:
     std::array<std::array<Run, kMaxRunsPerLine>, 2> runs_{};  // [cur_buf_] current line, other: previous
     std::array<int, 2> n_runs_{};
     int cur_buf_ = 0;
-    static constexpr int kMaskWords = (kActivePixelsPerLine + 63) / 64;
+    // One word more than the line needs, always zero: a span's two-word window never reads past the end.
+    static constexpr int kMaskWords = (kActivePixelsPerLine + 63) / 64 + 1;
     std::array<std::array<uint64_t, kMaskWords>, 2> occupied_{};  // pixels of any class, per line buffer
     std::array<std::array<uint64_t, kMaskWords>, 2> claimed_{};   // ring pixels already given to a blob
     std::array<uint8_t, kLineBytes + 4> prev_line_copy_{};        // previous line's pixels (edge ring)
