@@ -534,6 +534,7 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     simd_weights_ = cells_path_ && (scan_isa_ == ScanIsa::kAvx2 || scan_isa_ == ScanIsa::kAvx512) && params_.weight_mode == 1;
+    simd_ring_ = simd_weights_ && scan_isa_ == ScanIsa::kAvx512;
     return PipelineStatus::kOk;
 }
 
@@ -900,6 +901,79 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
 }
 #else
 void Pipeline::chunk_weights(const uint8_t*, int, ChunkOut&) const {}
+#endif
+
+// Ring spans whose pixels all lie at or before this x take the sixteen-lane weights: their 36-byte reads stay in
+// the line, and none of them holds the line's last pixel (whose odd chroma has no right neighbour).
+constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
+
+#if defined(EYESIM_FPGA_AVX2)
+// GCC 12's AVX-512 headers fill unused lanes from a self-initialised variable, which -Wuninitialized flags.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// add_ring_span's weights and sums for the free pixels of a span from xa (bit i of `free`: pixel xa + i; fewer
+// than 64 pixels, the last at most kSimdRingMaxX) for class cls: chunk_weights' arithmetic (weight_at with
+// WEIGHT_MODE 1) in sixteen 32-bit lanes from the even pixel at or before xa, the same integers.
+EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, uint8_t cls, int xa, uint64_t free,
+                                                           RingSums& r) const {
+    const int xe = xa & ~1;
+    uint64_t m = free << (xa - xe);  // bit i: pixel xe + i
+    const __m512i zero = _mm512_setzero_si512();
+    const __m512i dir = _mm512_set1_epi32(dir_pair_[cls]), level = _mm512_set1_epi32(level_[cls]);
+    const __m128i shift = _mm_cvtsi32_si128(8 - params_.weight_bits);
+    const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    // Lane i's own pair (i / 2) and its right neighbour's for odd i (even i: its own again), as dwords U Y V Y.
+    const __m512i own_pair = _mm512_srli_epi32(lane, 1), next_pair = _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1);
+    const __m512i chroma = _mm512_set1_epi32(0x00FF00FF);
+    __m512i sw = zero, swx = zero, swxx = zero, psx = zero;
+    uint32_t pn = 0;
+    for (int base = xe; m != 0; base += 16, m >>= 16) {
+        const __mmask16 k = static_cast<__mmask16>(m & 0xFFFFu);
+        if (k == 0) continue;
+        const __m512i bytes = _mm512_maskz_loadu_epi8(0xFFFFFFFFFull, line + 2 * base);  // pairs base/2 .. base/2 + 8
+        const __m512i c2 = _mm512_add_epi16(_mm512_and_si512(_mm512_maskz_permutexvar_epi32(0xFFFF, own_pair, bytes), chroma),
+                                            _mm512_and_si512(_mm512_maskz_permutexvar_epi32(0xFFFF, next_pair, bytes), chroma));
+        // Background: each pixel's two cells and the right one's weight from the cell_lerp table.
+        const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + base)));
+        const __m512i f = _mm512_and_si512(e, _mm512_set1_epi32(kBgCellPixels - 1));
+        const int jb = kCellLerp[static_cast<size_t>(base)] >> 3;
+        const __mmask16 in_table = static_cast<__mmask16>(jb + 16 <= kBgCells ? 0xFFFFu : (1u << (kBgCells - jb)) - 1);
+        const __m512i cells = _mm512_maskz_loadu_epi32(in_table, bg_q4_.data() + 2 * jb);
+        const __m512i rel = _mm512_sub_epi32(_mm512_srli_epi32(e, 3), _mm512_set1_epi32(jb));
+        const __m512i g0 = _mm512_maskz_permutexvar_epi32(0xFFFF, rel, cells);
+        const __m512i g1 = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_add_epi32(rel, _mm512_set1_epi32(1)), cells);
+        const __m512i nf = _mm512_sub_epi32(_mm512_set1_epi32(kBgCellPixels), f);
+        const __m512i bg = _mm512_add_epi16(_mm512_mullo_epi16(g0, _mm512_or_si512(nf, _mm512_slli_epi32(nf, 16))),
+                                            _mm512_mullo_epi16(g1, _mm512_or_si512(f, _mm512_slli_epi32(f, 16))));
+        const __m512i d = _mm512_sub_epi16(_mm512_slli_epi16(c2, 6), bg);
+        const __m512i v = _mm512_srai_epi32(_mm512_add_epi32(_mm512_madd_epi16(d, dir), _mm512_set1_epi32(1 << 15)), 16);
+        __m512i w = _mm512_min_epi32(_mm512_max_epi32(_mm512_sub_epi32(v, level), zero), _mm512_set1_epi32(255));
+        w = _mm512_maskz_mov_epi32(k, _mm512_srl_epi32(w, shift));
+        const __m512i x = _mm512_add_epi32(_mm512_set1_epi32(base), lane);
+        const __m512i wx = _mm512_mullo_epi32(w, x);
+        sw = _mm512_add_epi32(sw, w);
+        swx = _mm512_add_epi32(swx, wx);
+        swxx = _mm512_add_epi32(swxx, _mm512_mullo_epi32(wx, x));  // < 4 · 255 · 719² per lane: fits 32 bits unsigned
+        const __mmask16 nz = _mm512_mask_cmpneq_epi32_mask(k, w, zero);
+        pn += static_cast<uint32_t>(__builtin_popcount(nz));
+        psx = _mm512_mask_add_epi32(psx, nz, psx, x);
+    }
+    auto total = [](__m512i u) EYESIM_FPGA_AVX512_TARGET {  // the sixteen unsigned 32-bit lanes, summed in 64 bits
+        return static_cast<uint64_t>(_mm512_reduce_add_epi64(_mm512_add_epi64(
+            _mm512_cvtepu32_epi64(_mm512_castsi512_si256(u)), _mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(u, 1)))));
+    };
+    r.sw += total(sw);
+    r.swx += total(swx);
+    r.swxx += total(swxx);
+    r.psx += total(psx);
+    r.pn += pn;
+    r.count += static_cast<uint32_t>(__builtin_popcountll(free));
+    _mm256_zeroupper();
+}
+#pragma GCC diagnostic pop
+#else
+void Pipeline::ring_weights_simd(const uint8_t*, uint8_t, int, uint64_t, RingSums&) const {}
 #endif
 
 // classify_pixel over [x0, x1] with the classes and weights of AVX2 chunks (the line's last pixels one by one).
@@ -1277,7 +1351,15 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         const uint64_t free = ~taken & (~0ull >> (63 - (xb - xa)));
         clm[w0] |= free << sh;
         clm[w0 + 1] |= (free >> 1) >> (63 - sh);
-        for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));
+        if (simd_ring_ && xb <= kSimdRingMaxX && xb - xa < 63) {
+            if (free != 0) {
+                RingSums r;
+                ring_weights_simd(line, cls, xa, free, r);
+                sw = r.sw, swx = r.swx, swxx = r.swxx, psx = r.psx, count = r.count, pn = r.pn;
+            }
+        } else {
+            for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));
+        }
         claimed_dirty_[cur_buf_] |= free != 0;
         Slot& s = slots_[root];
         const uint64_t uy = static_cast<uint64_t>(y);

@@ -324,6 +324,13 @@ private:
         alignas(32) int32_t w[8];
     };
     void chunk_weights(const uint8_t* line, int x0, ChunkOut& out) const;
+    // Sums of a ring span's weights (add_ring_span's, the same integers).
+    struct RingSums {
+        uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
+        uint32_t count = 0, pn = 0;
+    };
+    void ring_weights_simd(const uint8_t* line, uint8_t cls, int xa, uint64_t free, RingSums& r) const;
+    bool simd_ring_ = false;  // ring weights sixteen at a time (AVX-512 line scan, chroma weights)
     void classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n);
 
     // Blob table.
