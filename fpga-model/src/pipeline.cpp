@@ -302,6 +302,24 @@ EYESIM_FPGA_AVX512_TARGET void bg_step_avx512(int16_t* bg, const uint32_t* sums,
     _mm512_mask_storeu_epi16(bg + 2 * j, m, bg_step16_avx512(_mm512_maskz_loadu_epi16(m, sums + j), _mm512_maskz_loadu_epi16(m, bg + 2 * j), v_half, v_shift));
     _mm256_zeroupper();
 }
+
+// bg_step_avx512 that leaves the held cells (bit j of held: cell j) as they are, by the store's lane mask.
+EYESIM_FPGA_AVX512_TARGET void bg_step_held_avx512(int16_t* bg, const uint32_t* sums, int n, const uint64_t* held) {
+    const __m512i v_half = _mm512_set1_epi16(static_cast<short>(1 << (n - 1)));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    // 16-bit lane l holds cell l / 2's Cb or Cr: its bit of the group's held mask.
+    const __m512i lane_bit = _mm512_set_epi16(-32768, -32768, 16384, 16384, 8192, 8192, 4096, 4096, 2048, 2048, 1024, 1024,
+                                              512, 512, 256, 256, 128, 128, 64, 64, 32, 32, 16, 16, 8, 8, 4, 4, 2, 2, 1, 1);
+    for (int j = 0; j < kBgCells; j += 16) {
+        const int h = static_cast<int>((held[j >> 6] >> (j & 63)) & 0xFFFFu);
+        const __mmask32 keep = _mm512_test_epi16_mask(_mm512_set1_epi16(static_cast<short>(h)), lane_bit);
+        const __mmask32 in_line = j + 16 <= kBgCells ? ~0u : (1u << (2 * (kBgCells - j))) - 1;
+        const __m512i b = _mm512_maskz_loadu_epi16(in_line, bg + 2 * j);
+        const __m512i s = _mm512_maskz_loadu_epi16(in_line, sums + j);
+        _mm512_mask_storeu_epi16(bg + 2 * j, in_line & ~keep, bg_step16_avx512(s, b, v_half, v_shift));
+    }
+    _mm256_zeroupper();
+}
 #endif
 
 // The scan for a requested instruction set, falling back to what this build and CPU have.
@@ -895,6 +913,7 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
     const __m256i v = _mm256_srai_epi32(_mm256_add_epi32(_mm256_madd_epi16(d, dir), _mm256_set1_epi32(1 << 15)), 16);
     __m256i w = _mm256_min_epi32(_mm256_max_epi32(_mm256_sub_epi32(v, level), zero), _mm256_set1_epi32(255));
     w = _mm256_srl_epi32(w, _mm_cvtsi32_si128(8 - params_.weight_bits));
+    out.any = _mm256_movemask_epi8(_mm256_cmpeq_epi32(c, zero)) != -1;
     _mm256_store_si256(reinterpret_cast<__m256i*>(out.cls), c);
     _mm256_store_si256(reinterpret_cast<__m256i*>(out.w), w);
     _mm256_zeroupper();
@@ -989,6 +1008,10 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
             break;
         }
         chunk_weights(line, xe, c);
+        if (c.any == 0 && o.cls == 0) {  // eight background pixels and no run open: nothing to extend or add
+            x = std::min(x1, xe + 7) + 1;
+            continue;
+        }
         for (const int end = std::min(x1, xe + 7); x <= end; ++x)
             run_pixel(o, static_cast<uint8_t>(c.cls[x - xe]), static_cast<uint32_t>(c.w[x - xe]), x, runs, n);
     }
@@ -1125,6 +1148,13 @@ void Pipeline::update_background_cells() {
         bg_step_(bg, sums, n);
         return;
     }
+#if defined(EYESIM_FPGA_AVX2)
+    if (bg_all_seeded_ && scan_isa_ == ScanIsa::kAvx512) {  // every cell steps but the held ones, by lane mask
+        static_assert(kCellWords == 2 && 64 % 16 == 0);
+        bg_step_held_avx512(bg, sums, n, held.data());
+        return;
+    }
+#endif
     const int half = 1 << (n - 1);
     auto is_held = [&](int j) { return ((held[static_cast<size_t>(j >> 6)] >> (j & 63)) & 1) != 0; };
     auto step_cell = [&](int j) {

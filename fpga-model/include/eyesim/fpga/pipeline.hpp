@@ -322,6 +322,7 @@ private:
     struct ChunkOut {
         alignas(32) int32_t cls[8];
         alignas(32) int32_t w[8];
+        bool any;  // some pixel of a class
     };
     void chunk_weights(const uint8_t* line, int x0, ChunkOut& out) const;
     // Sums of a ring span's weights (add_ring_span's, the same integers).
