@@ -1583,11 +1583,12 @@ void Pipeline::label_line(int y, bool end_of_field, const uint8_t* line) {
             add_ring_span(find_root(prev[k].label), line, std::max(0, prev[k].x0 - kRingColumns),
                           std::min(xmax, prev[k].x1 + kRingColumns), y);
         }
+        // Beside this line's runs: one span over the run and both sides (the run's own pixels are occupied, so the
+        // span's free pixels are the two sides', claimed by the same blob in the same order).
         for (int i = 0; i < n_cur; ++i) {
             if (cur[i].label == kNoLabel) continue;
-            const uint16_t root = find_root(cur[i].label);
-            if (cur[i].x0 > 0) add_ring_span(root, line, std::max(0, cur[i].x0 - kRingColumns), cur[i].x0 - 1, y);
-            if (cur[i].x1 < xmax) add_ring_span(root, line, cur[i].x1 + 1, std::min(xmax, cur[i].x1 + kRingColumns), y);
+            add_ring_span(find_root(cur[i].label), line, std::max(0, cur[i].x0 - kRingColumns),
+                          std::min(xmax, cur[i].x1 + kRingColumns), y);
         }
         if (prev_line_ != nullptr && y > 0) {
             cur_buf_ ^= 1;  // the previous line's masks
