@@ -1372,8 +1372,8 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         ++count;
     };
     if (xb - xa < 64) {
-        // A span within 64 pixels (all but very wide runs): its free pixels from a two-word window, claimed and
-        // summed with no branch but the loop over them; whether any is free is not tested (it has no pattern).
+        // A span within 64 pixels (all but very wide runs): its free pixels from a two-word window, claimed
+        // without a branch per word; a span with none (most spans of a blob's inner lines) ends there.
         const size_t w0 = static_cast<size_t>(xa >> 6);
         const int sh = xa & 63;
         const uint64_t lo = occ[w0] | clm[w0], hi = occ[w0 + 1] | clm[w0 + 1];
@@ -1381,16 +1381,15 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         const uint64_t free = ~taken & (~0ull >> (63 - (xb - xa)));
         clm[w0] |= free << sh;
         clm[w0 + 1] |= (free >> 1) >> (63 - sh);
+        if (free == 0) return;
         if (simd_ring_ && xb <= kSimdRingMaxX && xb - xa < 63) {
-            if (free != 0) {
-                RingSums r;
-                ring_weights_simd(line, cls, xa, free, r);
-                sw = r.sw, swx = r.swx, swxx = r.swxx, psx = r.psx, count = r.count, pn = r.pn;
-            }
+            RingSums r;
+            ring_weights_simd(line, cls, xa, free, r);
+            sw = r.sw, swx = r.swx, swxx = r.swxx, psx = r.psx, count = r.count, pn = r.pn;
         } else {
             for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));
         }
-        claimed_dirty_[cur_buf_] |= free != 0;
+        claimed_dirty_[cur_buf_] = true;
         Slot& s = slots_[root];
         const uint64_t uy = static_cast<uint64_t>(y);
         s.sw += sw;
