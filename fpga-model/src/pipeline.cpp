@@ -945,7 +945,9 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
     // Lane i's own pair (i / 2) and its right neighbour's for odd i (even i: its own again), as dwords U Y V Y.
     const __m512i own_pair = _mm512_srli_epi32(lane, 1), next_pair = _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1);
     const __m512i chroma = _mm512_set1_epi32(0x00FF00FF);
-    __m512i sw = zero, swx = zero, swxx = zero, psx = zero;
+    // Sums over offsets o = x - xe (< 64), which keep every lane and total within 32 bits: Σw ≤ 16 320,
+    // Σ o over positive weights ≤ 4 032 (both in one lane: Σw | Σo << 16), Σw·o ≤ 1 028 160, Σw·o² ≤ 64.8 M.
+    __m512i swo = zero, swoo = zero, sp = zero;
     uint32_t pn = 0;
     for (int base = xe; m != 0; base += 16, m >>= 16) {
         const __mmask16 k = static_cast<__mmask16>(m & 0xFFFFu);
@@ -969,23 +971,23 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
         const __m512i v = _mm512_srai_epi32(_mm512_add_epi32(_mm512_madd_epi16(d, dir), _mm512_set1_epi32(1 << 15)), 16);
         __m512i w = _mm512_min_epi32(_mm512_max_epi32(_mm512_sub_epi32(v, level), zero), _mm512_set1_epi32(255));
         w = _mm512_maskz_mov_epi32(k, _mm512_srl_epi32(w, shift));
-        const __m512i x = _mm512_add_epi32(_mm512_set1_epi32(base), lane);
-        const __m512i wx = _mm512_mullo_epi32(w, x);
-        sw = _mm512_add_epi32(sw, w);
-        swx = _mm512_add_epi32(swx, wx);
-        swxx = _mm512_add_epi32(swxx, _mm512_mullo_epi32(wx, x));  // < 4 · 255 · 719² per lane: fits 32 bits unsigned
+        const __m512i o = _mm512_add_epi32(_mm512_set1_epi32(base - xe), lane);
+        const __m512i wo = _mm512_mullo_epi32(w, o);
+        swo = _mm512_add_epi32(swo, wo);
+        swoo = _mm512_add_epi32(swoo, _mm512_mullo_epi32(wo, o));
         const __mmask16 nz = _mm512_mask_cmpneq_epi32_mask(k, w, zero);
         pn += static_cast<uint32_t>(__builtin_popcount(nz));
-        psx = _mm512_mask_add_epi32(psx, nz, psx, x);
+        sp = _mm512_add_epi32(sp, _mm512_add_epi32(w, _mm512_maskz_slli_epi32(nz, o, 16)));
     }
-    auto total = [](__m512i u) EYESIM_FPGA_AVX512_TARGET {  // the sixteen unsigned 32-bit lanes, summed in 64 bits
-        return static_cast<uint64_t>(_mm512_reduce_add_epi64(_mm512_add_epi64(
-            _mm512_cvtepu32_epi64(_mm512_castsi512_si256(u)), _mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(u, 1)))));
-    };
-    r.sw += total(sw);
-    r.swx += total(swx);
-    r.swxx += total(swxx);
-    r.psx += total(psx);
+    const uint32_t sum_p = static_cast<uint32_t>(_mm512_reduce_add_epi32(sp));
+    const uint64_t sw = sum_p & 0xFFFFu, so = sum_p >> 16;
+    const uint64_t swo_t = static_cast<uint32_t>(_mm512_reduce_add_epi32(swo));
+    const uint64_t swoo_t = static_cast<uint32_t>(_mm512_reduce_add_epi32(swoo));
+    const uint64_t ux = static_cast<uint64_t>(xe);  // x = xe + o: back to the sums over x, exact integers
+    r.sw += sw;
+    r.swx += swo_t + ux * sw;
+    r.swxx += swoo_t + 2 * ux * swo_t + ux * ux * sw;
+    r.psx += so + ux * pn;
     r.pn += pn;
     r.count += static_cast<uint32_t>(__builtin_popcountll(free));
     _mm256_zeroupper();
