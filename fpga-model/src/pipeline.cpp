@@ -706,6 +706,15 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
 
 namespace {
 // Sets bits [b0, b1] of a multi-word mask.
+// Sets bits [b0, b1] (at most 64 of them) of a mask with a spare word after the last one it needs: one two-word window.
+inline void mark_bits_window(uint64_t* mask, int b0, int b1) {
+    const size_t w0 = static_cast<size_t>(b0 >> 6);
+    const int sh = b0 & 63;
+    const uint64_t bits = ~0ull >> (63 - (b1 - b0));
+    mask[w0] |= bits << sh;
+    mask[w0 + 1] |= (bits >> 1) >> (63 - sh);
+}
+
 inline void mark_bits(uint64_t* mask, int b0, int b1) {
     for (int b = b0; b <= b1;) {
         const int wi = b >> 6, l0 = b & 63, l1 = std::min(63, l0 + (b1 - b));
@@ -731,12 +740,18 @@ inline void Pipeline::close_run(OpenRun& o, int x_end, Run* runs, int& n) {
         r.ref_w = o.rw;
         r.ref_wx = o.rwx;
         r.ref_wxx = o.rwxx;
-        mark_bits(occupied_[cur_buf_].data(), o.x0, x_end);
+        if (x_end - o.x0 < 64)
+            mark_bits_window(occupied_[cur_buf_].data(), o.x0, x_end);
+        else
+            mark_bits(occupied_[cur_buf_].data(), o.x0, x_end);
         // Cells with a pixel within kBgHoldColumns of the run: 8j - H ≤ x_end and 8j + 7 + H ≥ x0.
         constexpr int kLo = kBgHoldColumns + kBgCellPixels - 1;
         const int j0 = o.x0 <= kLo ? 0 : (o.x0 - kLo + kBgCellPixels - 1) / kBgCellPixels;
         const int j1 = std::min(kBgCells - 1, (x_end + kBgHoldColumns) / kBgCellPixels);
-        mark_bits(hold_cells_[cur_buf_].data(), j0, j1);
+        if (j1 - j0 < 64)
+            mark_bits_window(hold_cells_[cur_buf_].data(), j0, j1);
+        else
+            mark_bits(hold_cells_[cur_buf_].data(), j0, j1);
     }
     o.cls = 0;
 }

@@ -303,8 +303,8 @@ private:
     // Per line buffer the cells the background holds for that line's runs (kBgHoldColumns around each run; set
     // with the occupied bits), the line before the previous one's, and which claimed masks have bits to clear.
     static constexpr int kCellWords = (kBgCells + 63) / 64;
-    std::array<std::array<uint64_t, kCellWords>, 2> hold_cells_{};
-    std::array<uint64_t, kCellWords> hold_cells_older_{};
+    std::array<std::array<uint64_t, kCellWords + 1>, 2> hold_cells_{};  // + a spare word (two-word windows)
+    std::array<uint64_t, kCellWords + 1> hold_cells_older_{};
     std::array<bool, 2> claimed_dirty_{};
     // Fast line path (whole-field fields, fast path on, no floating reference): per line buffer the cells' chroma
     // sums from the line scan, which the background tracker learns from one line later.
