@@ -937,6 +937,57 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
 void Pipeline::chunk_weights(const uint8_t*, int, ChunkOut&) const {}
 #endif
 
+// Sixteen-pixel chunks (AVX-512): x0 + 15 stays off the line's last pixel and the 36-byte read stays in the line.
+constexpr int kSimdChunk16MaxX = static_cast<int>(kActivePixelsPerLine) - 24;
+
+#if defined(EYESIM_FPGA_AVX2)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// chunk_weights for pixels x0..x0+15 (x0 even, x0 <= kSimdChunk16MaxX) in sixteen 32-bit lanes: the same integers.
+EYESIM_FPGA_AVX512_TARGET void Pipeline::chunk_weights16(const uint8_t* line, int x0, ChunkOut& out) const {
+    const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const __m512i bytes = _mm512_maskz_loadu_epi8(0xFFFFFFFFFull, line + 2 * x0);  // pairs x0/2 .. x0/2 + 8
+    const __m512i own = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(lane, 1), bytes);
+    const __m512i next = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1), bytes);
+    const __m512i chroma = _mm512_set1_epi32(0x00FF00FF), byte = _mm512_set1_epi32(0xFF);
+    const __m512i c2 = _mm512_add_epi16(_mm512_and_si512(own, chroma), _mm512_and_si512(next, chroma));
+    // An even pixel's luma is its pair's byte 1, an odd one's byte 3.
+    const __m512i luma = _mm512_and_si512(
+        _mm512_srlv_epi32(own, _mm512_add_epi32(_mm512_set1_epi32(8), _mm512_slli_epi32(_mm512_and_si512(lane, _mm512_set1_epi32(1)), 4))), byte);
+    const __m512i r = _mm512_srli_epi16(_mm512_add_epi16(c2, _mm512_set1_epi16(1)), 8 - kLutChromaBits + 1);
+    const __m512i idx = _mm512_or_si512(_mm512_slli_epi32(_mm512_and_si512(r, _mm512_set1_epi32(0xFFFF)), kLutChromaBits),
+                                        _mm512_srli_epi32(r, 16));
+    const __m512i band = _mm512_i32gather_epi32(idx, lut_band_.data(), 4);
+    const __mmask16 outside = _mm512_cmpgt_epi32_mask(_mm512_and_si512(_mm512_srli_epi32(band, 8), byte), luma) |
+                              _mm512_cmpgt_epi32_mask(luma, _mm512_srli_epi32(band, 16));
+    const __m512i c = _mm512_maskz_mov_epi32(static_cast<__mmask16>(~outside), _mm512_and_si512(band, byte));
+    const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + x0)));
+    const __m512i f = _mm512_and_si512(e, _mm512_set1_epi32(kBgCellPixels - 1));
+    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
+    const __mmask16 in_table = static_cast<__mmask16>(jb + 16 <= kBgCells ? 0xFFFFu : (1u << (kBgCells - jb)) - 1);
+    const __m512i cells = _mm512_maskz_loadu_epi32(in_table, bg_q4_.data() + 2 * jb);
+    const __m512i rel = _mm512_sub_epi32(_mm512_srli_epi32(e, 3), _mm512_set1_epi32(jb));
+    const __m512i g0 = _mm512_maskz_permutexvar_epi32(0xFFFF, rel, cells);
+    const __m512i g1 = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_add_epi32(rel, _mm512_set1_epi32(1)), cells);
+    const __m512i nf = _mm512_sub_epi32(_mm512_set1_epi32(kBgCellPixels), f);
+    const __m512i bg = _mm512_add_epi16(_mm512_mullo_epi16(g0, _mm512_or_si512(nf, _mm512_slli_epi32(nf, 16))),
+                                        _mm512_mullo_epi16(g1, _mm512_or_si512(f, _mm512_slli_epi32(f, 16))));
+    const __m512i d = _mm512_sub_epi16(_mm512_slli_epi16(c2, 6), bg);
+    const __m512i dir = _mm512_maskz_permutexvar_epi32(0xFFFF, c, _mm512_maskz_loadu_epi32(0xFF, dir_pair_.data()));
+    const __m512i level = _mm512_maskz_permutexvar_epi32(0xFFFF, c, _mm512_maskz_loadu_epi32(0xFF, level_.data()));
+    const __m512i v = _mm512_srai_epi32(_mm512_add_epi32(_mm512_madd_epi16(d, dir), _mm512_set1_epi32(1 << 15)), 16);
+    const __m512i w = _mm512_min_epi32(_mm512_max_epi32(_mm512_sub_epi32(v, level), _mm512_setzero_si512()), _mm512_set1_epi32(255));
+    out.any = _mm512_test_epi32_mask(c, c) != 0;
+    _mm512_store_si512(out.cls, c);
+    _mm512_store_si512(out.w, _mm512_srl_epi32(w, _mm_cvtsi32_si128(8 - params_.weight_bits)));
+    _mm256_zeroupper();
+}
+#pragma GCC diagnostic pop
+#else
+void Pipeline::chunk_weights16(const uint8_t*, int, ChunkOut&) const {}
+#endif
+
 // Ring spans whose pixels all lie at or before this x take the sixteen-lane weights: their 36-byte reads stay in
 // the line, and none of them holds the line's last pixel (whose odd chroma has no right neighbour).
 constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
@@ -1024,12 +1075,18 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
             for (; x <= x1; ++x) classify_pixel<false>(line, x, o, runs, n);
             break;
         }
-        chunk_weights(line, xe, c);
-        if (c.any == 0 && o.cls == 0) {  // eight background pixels and no run open: nothing to extend or add
-            x = std::min(x1, xe + 7) + 1;
+        int last = xe + 7;
+        if (simd_ring_ && xe <= kSimdChunk16MaxX && x1 > xe + 7) {  // sixteen at a time (AVX-512)
+            chunk_weights16(line, xe, c);
+            last = xe + 15;
+        } else {
+            chunk_weights(line, xe, c);
+        }
+        if (c.any == 0 && o.cls == 0) {  // background pixels only and no run open: nothing to extend or add
+            x = std::min(x1, last) + 1;
             continue;
         }
-        for (const int end = std::min(x1, xe + 7); x <= end; ++x)
+        for (const int end = std::min(x1, last); x <= end; ++x)
             run_pixel(o, static_cast<uint8_t>(c.cls[x - xe]), static_cast<uint32_t>(c.w[x - xe]), x, runs, n);
     }
     close_run(o, x1, runs, n);

@@ -320,11 +320,12 @@ private:
     std::array<uint32_t, 1u << (2 * kLutChromaBits)> lut_band_{};
     std::array<int32_t, 8> dir_pair_{}, level_{};
     struct ChunkOut {
-        alignas(32) int32_t cls[8];
-        alignas(32) int32_t w[8];
+        alignas(64) int32_t cls[16];  // 8 (chunk_weights) or 16 (chunk_weights16) used
+        alignas(64) int32_t w[16];
         bool any;  // some pixel of a class
     };
     void chunk_weights(const uint8_t* line, int x0, ChunkOut& out) const;
+    void chunk_weights16(const uint8_t* line, int x0, ChunkOut& out) const;
     // Sums of a ring span's weights (add_ring_span's, the same integers).
     struct RingSums {
         uint64_t sw = 0, swx = 0, swxx = 0, psx = 0;
