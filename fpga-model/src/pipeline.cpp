@@ -303,6 +303,34 @@ EYESIM_FPGA_AVX512_TARGET void bg_step_avx512(int16_t* bg, const uint32_t* sums,
     _mm256_zeroupper();
 }
 
+// bg_step_avx2 that leaves the held cells (bit j of held: cell j) as they are, by a blend.
+__attribute__((target("avx2"))) void bg_step_held_avx2(int16_t* bg, const uint32_t* sums, int n, const uint64_t* held) {
+    const __m256i v_half = _mm256_set1_epi16(static_cast<short>(1 << (n - 1)));
+    const __m128i v_shift = _mm_cvtsi32_si128(n);
+    // 16-bit lane l holds cell l / 2's Cb or Cr: its bit of the group's held mask.
+    const __m256i lane_bit = _mm256_setr_epi16(1, 1, 2, 2, 4, 4, 8, 8, 16, 16, 32, 32, 64, 64, 128, 128);
+    static_assert(kBgCells % 8 == 2 && 64 % 8 == 0);
+    int j = 0;
+    for (; j + 8 <= kBgCells; j += 8) {
+        __m256i* bp = reinterpret_cast<__m256i*>(bg + 2 * j);
+        const __m256i b = _mm256_loadu_si256(bp);
+        const __m256i m = _mm256_slli_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)), 4 - kBgCellLog2);
+        const __m256i stepped = _mm256_add_epi16(b, _mm256_sra_epi16(_mm256_add_epi16(_mm256_sub_epi16(m, b), v_half), v_shift));
+        const short h = static_cast<short>((held[j >> 6] >> (j & 63)) & 0xFFu);
+        const __m256i keep = _mm256_cmpeq_epi16(_mm256_and_si256(_mm256_set1_epi16(h), lane_bit), lane_bit);
+        _mm256_storeu_si256(bp, _mm256_blendv_epi8(stepped, b, keep));
+    }
+    _mm256_zeroupper();
+    const int half = 1 << (n - 1);
+    for (; j < kBgCells; ++j) {  // the last two cells one by one (bg_step_scalar's arithmetic)
+        if ((held[j >> 6] >> (j & 63)) & 1) continue;
+        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);
+        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
+        bg[2 * j] = static_cast<int16_t>(bg[2 * j] + ((mcb - bg[2 * j] + half) >> n));
+        bg[2 * j + 1] = static_cast<int16_t>(bg[2 * j + 1] + ((mcr - bg[2 * j + 1] + half) >> n));
+    }
+}
+
 // bg_step_avx512 that leaves the held cells (bit j of held: cell j) as they are, by the store's lane mask.
 EYESIM_FPGA_AVX512_TARGET void bg_step_held_avx512(int16_t* bg, const uint32_t* sums, int n, const uint64_t* held) {
     const __m512i v_half = _mm512_set1_epi16(static_cast<short>(1 << (n - 1)));
@@ -552,7 +580,8 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     simd_weights_ = cells_path_ && (scan_isa_ == ScanIsa::kAvx2 || scan_isa_ == ScanIsa::kAvx512) && params_.weight_mode == 1;
-    simd_ring_ = simd_weights_ && scan_isa_ == ScanIsa::kAvx512;
+    simd_ring_ = simd_weights_;
+    simd16_ = simd_weights_ && scan_isa_ == ScanIsa::kAvx512;
     return PipelineStatus::kOk;
 }
 
@@ -1059,8 +1088,72 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
     _mm256_zeroupper();
 }
 #pragma GCC diagnostic pop
+
+// ring_weights_simd in eight lanes (AVX2): the same integers. Its 32-byte reads from pixel base (<= kSimdRingMaxX)
+// stay in the line, and the eight cells it reads from bg_q4_ stay in its padding.
+__attribute__((target("avx2"))) void Pipeline::ring_weights_avx2(const uint8_t* line, uint8_t cls, int xa, uint64_t free,
+                                                                RingSums& r) const {
+    const int xe = xa & ~1;
+    uint64_t m = free << (xa - xe);  // bit i: pixel xe + i
+    const __m256i zero = _mm256_setzero_si256();
+    const __m256i dir = _mm256_set1_epi32(dir_pair_[cls]), level = _mm256_set1_epi32(level_[cls]);
+    const __m128i shift = _mm_cvtsi32_si128(8 - params_.weight_bits);
+    const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    const __m256i own_pair = _mm256_srli_epi32(lane, 1), next_pair = _mm256_srli_epi32(_mm256_add_epi32(lane, _mm256_set1_epi32(1)), 1);
+    const __m256i chroma = _mm256_set1_epi32(0x00FF00FF);
+    __m256i swo = zero, swoo = zero, sp = zero;  // as in ring_weights_simd
+    uint32_t pn = 0;
+    for (int base = xe; m != 0; base += 8, m >>= 8) {
+        const int k = static_cast<int>(m & 0xFFu);
+        if (k == 0) continue;
+        const __m256i sel = _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(k), bit), bit);
+        const __m256i bytes = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(line + 2 * base));
+        const __m256i c2 = _mm256_add_epi16(_mm256_and_si256(_mm256_permutevar8x32_epi32(bytes, own_pair), chroma),
+                                            _mm256_and_si256(_mm256_permutevar8x32_epi32(bytes, next_pair), chroma));
+        const __m256i e = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kCellLerp.data() + base)));
+        const __m256i f = _mm256_and_si256(e, _mm256_set1_epi32(kBgCellPixels - 1));
+        const int jb = kCellLerp[static_cast<size_t>(base)] >> 3;
+        const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4_.data() + 2 * jb));
+        const __m256i rel = _mm256_sub_epi32(_mm256_srli_epi32(e, 3), _mm256_set1_epi32(jb));
+        const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
+        const __m256i g1 = _mm256_permutevar8x32_epi32(cells, _mm256_add_epi32(rel, _mm256_set1_epi32(1)));
+        const __m256i nf = _mm256_sub_epi32(_mm256_set1_epi32(kBgCellPixels), f);
+        const __m256i bg = _mm256_add_epi16(_mm256_mullo_epi16(g0, _mm256_or_si256(nf, _mm256_slli_epi32(nf, 16))),
+                                            _mm256_mullo_epi16(g1, _mm256_or_si256(f, _mm256_slli_epi32(f, 16))));
+        const __m256i d = _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
+        const __m256i v = _mm256_srai_epi32(_mm256_add_epi32(_mm256_madd_epi16(d, dir), _mm256_set1_epi32(1 << 15)), 16);
+        __m256i w = _mm256_min_epi32(_mm256_max_epi32(_mm256_sub_epi32(v, level), zero), _mm256_set1_epi32(255));
+        w = _mm256_and_si256(sel, _mm256_srl_epi32(w, shift));
+        const __m256i o = _mm256_add_epi32(_mm256_set1_epi32(base - xe), lane);
+        const __m256i wo = _mm256_mullo_epi32(w, o);
+        swo = _mm256_add_epi32(swo, wo);
+        swoo = _mm256_add_epi32(swoo, _mm256_mullo_epi32(wo, o));
+        const __m256i nz = _mm256_andnot_si256(_mm256_cmpeq_epi32(w, zero), sel);
+        pn += static_cast<uint32_t>(__builtin_popcount(_mm256_movemask_ps(_mm256_castsi256_ps(nz))));
+        sp = _mm256_add_epi32(sp, _mm256_add_epi32(w, _mm256_slli_epi32(_mm256_and_si256(nz, o), 16)));
+    }
+    auto total = [](__m256i u) __attribute__((target("avx2"))) {  // the eight 32-bit lanes, summed (mod 2^32)
+        __m128i t = _mm_add_epi32(_mm256_castsi256_si128(u), _mm256_extracti128_si256(u, 1));
+        t = _mm_add_epi32(t, _mm_shuffle_epi32(t, _MM_SHUFFLE(1, 0, 3, 2)));
+        t = _mm_add_epi32(t, _mm_shuffle_epi32(t, _MM_SHUFFLE(2, 3, 0, 1)));
+        return static_cast<uint32_t>(_mm_cvtsi128_si32(t));
+    };
+    const uint32_t sum_p = total(sp);
+    const uint64_t sw = sum_p & 0xFFFFu, so = sum_p >> 16;
+    const uint64_t swo_t = total(swo), swoo_t = total(swoo);
+    const uint64_t ux = static_cast<uint64_t>(xe);
+    r.sw += sw;
+    r.swx += swo_t + ux * sw;
+    r.swxx += swoo_t + 2 * ux * swo_t + ux * ux * sw;
+    r.psx += so + ux * pn;
+    r.pn += pn;
+    r.count += static_cast<uint32_t>(__builtin_popcountll(free));
+    _mm256_zeroupper();
+}
 #else
 void Pipeline::ring_weights_simd(const uint8_t*, uint8_t, int, uint64_t, RingSums&) const {}
+void Pipeline::ring_weights_avx2(const uint8_t*, uint8_t, int, uint64_t, RingSums&) const {}
 #endif
 
 // classify_pixel over [x0, x1] with the classes and weights of AVX2 chunks (the line's last pixels one by one).
@@ -1076,7 +1169,7 @@ void Pipeline::classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs
             break;
         }
         int last = xe + 7;
-        if (simd_ring_ && xe <= kSimdChunk16MaxX && x1 > xe + 7) {  // sixteen at a time (AVX-512)
+        if (simd16_ && xe <= kSimdChunk16MaxX && x1 > xe + 7) {  // sixteen at a time (AVX-512)
             chunk_weights16(line, xe, c);
             last = xe + 15;
         } else {
@@ -1226,6 +1319,10 @@ void Pipeline::update_background_cells() {
     if (bg_all_seeded_ && scan_isa_ == ScanIsa::kAvx512) {  // every cell steps but the held ones, by lane mask
         static_assert(kCellWords == 2 && 64 % 16 == 0);
         bg_step_held_avx512(bg, sums, n, held.data());
+        return;
+    }
+    if (bg_all_seeded_ && scan_isa_ == ScanIsa::kAvx2) {  // the same by a blend
+        bg_step_held_avx2(bg, sums, n, held.data());
         return;
     }
 #endif
@@ -1458,7 +1555,10 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         if (free == 0) return;
         if (simd_ring_ && xb <= kSimdRingMaxX && xb - xa < 63) {
             RingSums r;
-            ring_weights_simd(line, cls, xa, free, r);
+            if (simd16_)
+                ring_weights_simd(line, cls, xa, free, r);
+            else
+                ring_weights_avx2(line, cls, xa, free, r);
             sw = r.sw, swx = r.swx, swxx = r.swxx, psx = r.psx, count = r.count, pn = r.pn;
         } else {
             for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));

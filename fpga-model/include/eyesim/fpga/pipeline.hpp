@@ -332,7 +332,9 @@ private:
         uint32_t count = 0, pn = 0;
     };
     void ring_weights_simd(const uint8_t* line, uint8_t cls, int xa, uint64_t free, RingSums& r) const;
-    bool simd_ring_ = false;  // ring weights sixteen at a time (AVX-512 line scan, chroma weights)
+    void ring_weights_avx2(const uint8_t* line, uint8_t cls, int xa, uint64_t free, RingSums& r) const;
+    bool simd_ring_ = false;  // ring weights in vector lanes (AVX2 or AVX-512 line scan, chroma weights)
+    bool simd16_ = false;     // sixteen-lane ring weights and classification (AVX-512 line scan)
     void classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n);
 
     // Blob table.
