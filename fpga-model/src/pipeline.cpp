@@ -912,6 +912,54 @@ void Pipeline::classify_line(const uint8_t* line, int y) {
 constexpr int kSimdChunkMaxX = static_cast<int>(kActivePixelsPerLine) - 16;
 
 #if defined(EYESIM_FPGA_AVX2)
+// weight_at's residual before the projection for eight pixels from x0 (even): 64·(Cb×2, Cr×2) of each pixel (c2,
+// 16-bit halves) minus the tracked background interpolated at it. Each pixel's cell and weight come from the
+// cell_lerp table; the cells' (Cb, Cr) pairs from eight consecutive cells (the first pixel's cell is the smallest).
+__attribute__((target("avx2"))) inline __m256i bg_residual8(__m256i c2, int x0, const int16_t* bg_q4) {
+    const __m256i e = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kCellLerp.data() + x0)));
+    const __m256i f = _mm256_and_si256(e, _mm256_set1_epi32(kBgCellPixels - 1));
+    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
+    const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4 + 2 * jb));
+    const __m256i rel = _mm256_sub_epi32(_mm256_srli_epi32(e, 3), _mm256_set1_epi32(jb));
+    const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
+    const __m256i g1 = _mm256_permutevar8x32_epi32(cells, _mm256_add_epi32(rel, _mm256_set1_epi32(1)));
+    const __m256i nf = _mm256_sub_epi32(_mm256_set1_epi32(kBgCellPixels), f);
+    const __m256i bg = _mm256_add_epi16(_mm256_mullo_epi16(g0, _mm256_or_si256(nf, _mm256_slli_epi32(nf, 16))),
+                                        _mm256_mullo_epi16(g1, _mm256_or_si256(f, _mm256_slli_epi32(f, 16))));
+    return _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
+}
+
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// bg_residual8 for sixteen pixels from x0 (AVX-512); the cells past the table's end read as zero (weight 0).
+EYESIM_FPGA_AVX512_TARGET inline __m512i bg_residual16(__m512i c2, int x0, const int16_t* bg_q4) {
+    const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + x0)));
+    const __m512i f = _mm512_and_si512(e, _mm512_set1_epi32(kBgCellPixels - 1));
+    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
+    const __mmask16 in_table = static_cast<__mmask16>(jb + 16 <= kBgCells ? 0xFFFFu : (1u << (kBgCells - jb)) - 1);
+    const __m512i cells = _mm512_maskz_loadu_epi32(in_table, bg_q4 + 2 * jb);
+    const __m512i rel = _mm512_sub_epi32(_mm512_srli_epi32(e, 3), _mm512_set1_epi32(jb));
+    const __m512i g0 = _mm512_maskz_permutexvar_epi32(0xFFFF, rel, cells);
+    const __m512i g1 = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_add_epi32(rel, _mm512_set1_epi32(1)), cells);
+    const __m512i nf = _mm512_sub_epi32(_mm512_set1_epi32(kBgCellPixels), f);
+    const __m512i bg = _mm512_add_epi16(_mm512_mullo_epi16(g0, _mm512_or_si512(nf, _mm512_slli_epi32(nf, 16))),
+                                        _mm512_mullo_epi16(g1, _mm512_or_si512(f, _mm512_slli_epi32(f, 16))));
+    return _mm512_sub_epi16(_mm512_slli_epi16(c2, 6), bg);
+}
+
+// (Cb×2, Cr×2) of sixteen pixels from an even x0 in 16-bit halves, from `bytes` (the pairs from x0 / 2 on): a
+// pixel's own pair plus its own again (even pixel) or the next pair (odd pixel).
+EYESIM_FPGA_AVX512_TARGET inline __m512i chroma2_16(__m512i bytes, __m512i lane, __m512i& own) {
+    own = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(lane, 1), bytes);
+    const __m512i next = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1), bytes);
+    const __m512i chroma = _mm512_set1_epi32(0x00FF00FF);
+    return _mm512_add_epi16(_mm512_and_si512(own, chroma), _mm512_and_si512(next, chroma));
+}
+#pragma GCC diagnostic pop
+#endif
+
+#if defined(EYESIM_FPGA_AVX2)
 // Pixels x0..x0+7 (x0 even, x0 <= kSimdChunkMaxX): their classes from the LUT and its luma band (classify_pixel)
 // and chroma weights against the tracked background (weight_at with WEIGHT_MODE 1), the same integer arithmetic
 // in eight lanes.
@@ -938,20 +986,8 @@ __attribute__((target("avx2"))) void Pipeline::chunk_weights(const uint8_t* line
     const __m256i outside = _mm256_or_si256(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_srli_epi32(band, 8), byte), luma),
                                             _mm256_cmpgt_epi32(luma, _mm256_srli_epi32(band, 16)));
     const __m256i c = _mm256_andnot_si256(outside, _mm256_and_si256(band, byte));
-    // Background: each pixel's cell and weight from the cell_lerp table, the cells' (Cb, Cr) pairs picked from
-    // eight consecutive cells (the chunk's first cell is its smallest).
-    const __m256i e = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kCellLerp.data() + x0)));
-    const __m256i j = _mm256_srli_epi32(e, 3), f = _mm256_and_si256(e, _mm256_set1_epi32(kBgCellPixels - 1));
-    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
-    const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4_.data() + 2 * jb));
-    const __m256i rel = _mm256_sub_epi32(j, _mm256_set1_epi32(jb));
-    const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
-    const __m256i g1 = _mm256_permutevar8x32_epi32(cells, _mm256_add_epi32(rel, _mm256_set1_epi32(1)));
-    const __m256i nf = _mm256_sub_epi32(_mm256_set1_epi32(kBgCellPixels), f);
-    const __m256i bg = _mm256_add_epi16(_mm256_mullo_epi16(g0, _mm256_or_si256(nf, _mm256_slli_epi32(nf, 16))),
-                                        _mm256_mullo_epi16(g1, _mm256_or_si256(f, _mm256_slli_epi32(f, 16))));
     // band_residual: ((64·cb2 − bcb)·dcb + (64·cr2 − bcr)·dcr + 2^15) >> 16, then level, clamp and width.
-    const __m256i d = _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
+    const __m256i d = bg_residual8(c2, x0, bg_q4_.data());
     const __m256i dir = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(dir_pair_.data())), c);
     const __m256i level = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(level_.data())), c);
     const __m256i v = _mm256_srai_epi32(_mm256_add_epi32(_mm256_madd_epi16(d, dir), _mm256_set1_epi32(1 << 15)), 16);
@@ -968,8 +1004,12 @@ void Pipeline::chunk_weights(const uint8_t*, int, ChunkOut&) const {}
 
 // Sixteen-pixel chunks (AVX-512): x0 + 15 stays off the line's last pixel and the 36-byte read stays in the line.
 constexpr int kSimdChunk16MaxX = static_cast<int>(kActivePixelsPerLine) - 24;
+// Ring spans whose pixels all lie at or before this x take the vector weights: their 36-byte reads stay in the
+// line, and none of them holds the line's last pixel (whose odd chroma has no right neighbour).
+constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
 
 #if defined(EYESIM_FPGA_AVX2)
+// GCC 12's AVX-512 headers fill unused lanes from a self-initialised variable, which -Wuninitialized flags.
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
@@ -977,10 +1017,9 @@ constexpr int kSimdChunk16MaxX = static_cast<int>(kActivePixelsPerLine) - 24;
 EYESIM_FPGA_AVX512_TARGET void Pipeline::chunk_weights16(const uint8_t* line, int x0, ChunkOut& out) const {
     const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     const __m512i bytes = _mm512_maskz_loadu_epi8(0xFFFFFFFFFull, line + 2 * x0);  // pairs x0/2 .. x0/2 + 8
-    const __m512i own = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(lane, 1), bytes);
-    const __m512i next = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1), bytes);
-    const __m512i chroma = _mm512_set1_epi32(0x00FF00FF), byte = _mm512_set1_epi32(0xFF);
-    const __m512i c2 = _mm512_add_epi16(_mm512_and_si512(own, chroma), _mm512_and_si512(next, chroma));
+    const __m512i byte = _mm512_set1_epi32(0xFF);
+    __m512i own;
+    const __m512i c2 = chroma2_16(bytes, lane, own);
     // An even pixel's luma is its pair's byte 1, an odd one's byte 3.
     const __m512i luma = _mm512_and_si512(
         _mm512_srlv_epi32(own, _mm512_add_epi32(_mm512_set1_epi32(8), _mm512_slli_epi32(_mm512_and_si512(lane, _mm512_set1_epi32(1)), 4))), byte);
@@ -991,18 +1030,7 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::chunk_weights16(const uint8_t* line, in
     const __mmask16 outside = _mm512_cmpgt_epi32_mask(_mm512_and_si512(_mm512_srli_epi32(band, 8), byte), luma) |
                               _mm512_cmpgt_epi32_mask(luma, _mm512_srli_epi32(band, 16));
     const __m512i c = _mm512_maskz_mov_epi32(static_cast<__mmask16>(~outside), _mm512_and_si512(band, byte));
-    const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + x0)));
-    const __m512i f = _mm512_and_si512(e, _mm512_set1_epi32(kBgCellPixels - 1));
-    const int jb = kCellLerp[static_cast<size_t>(x0)] >> 3;
-    const __mmask16 in_table = static_cast<__mmask16>(jb + 16 <= kBgCells ? 0xFFFFu : (1u << (kBgCells - jb)) - 1);
-    const __m512i cells = _mm512_maskz_loadu_epi32(in_table, bg_q4_.data() + 2 * jb);
-    const __m512i rel = _mm512_sub_epi32(_mm512_srli_epi32(e, 3), _mm512_set1_epi32(jb));
-    const __m512i g0 = _mm512_maskz_permutexvar_epi32(0xFFFF, rel, cells);
-    const __m512i g1 = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_add_epi32(rel, _mm512_set1_epi32(1)), cells);
-    const __m512i nf = _mm512_sub_epi32(_mm512_set1_epi32(kBgCellPixels), f);
-    const __m512i bg = _mm512_add_epi16(_mm512_mullo_epi16(g0, _mm512_or_si512(nf, _mm512_slli_epi32(nf, 16))),
-                                        _mm512_mullo_epi16(g1, _mm512_or_si512(f, _mm512_slli_epi32(f, 16))));
-    const __m512i d = _mm512_sub_epi16(_mm512_slli_epi16(c2, 6), bg);
+    const __m512i d = bg_residual16(c2, x0, bg_q4_.data());
     const __m512i dir = _mm512_maskz_permutexvar_epi32(0xFFFF, c, _mm512_maskz_loadu_epi32(0xFF, dir_pair_.data()));
     const __m512i level = _mm512_maskz_permutexvar_epi32(0xFFFF, c, _mm512_maskz_loadu_epi32(0xFF, level_.data()));
     const __m512i v = _mm512_srai_epi32(_mm512_add_epi32(_mm512_madd_epi16(d, dir), _mm512_set1_epi32(1 << 15)), 16);
@@ -1012,20 +1040,7 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::chunk_weights16(const uint8_t* line, in
     _mm512_store_si512(out.w, _mm512_srl_epi32(w, _mm_cvtsi32_si128(8 - params_.weight_bits)));
     _mm256_zeroupper();
 }
-#pragma GCC diagnostic pop
-#else
-void Pipeline::chunk_weights16(const uint8_t*, int, ChunkOut&) const {}
-#endif
 
-// Ring spans whose pixels all lie at or before this x take the sixteen-lane weights: their 36-byte reads stay in
-// the line, and none of them holds the line's last pixel (whose odd chroma has no right neighbour).
-constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
-
-#if defined(EYESIM_FPGA_AVX2)
-// GCC 12's AVX-512 headers fill unused lanes from a self-initialised variable, which -Wuninitialized flags.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 // add_ring_span's weights and sums for the free pixels of a span from xa (bit i of `free`: pixel xa + i; fewer
 // than 64 pixels, the last at most kSimdRingMaxX) for class cls: chunk_weights' arithmetic (weight_at with
 // WEIGHT_MODE 1) in sixteen 32-bit lanes from the even pixel at or before xa, the same integers.
@@ -1037,9 +1052,6 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
     const __m512i dir = _mm512_set1_epi32(dir_pair_[cls]), level = _mm512_set1_epi32(level_[cls]);
     const __m128i shift = _mm_cvtsi32_si128(8 - params_.weight_bits);
     const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    // Lane i's own pair (i / 2) and its right neighbour's for odd i (even i: its own again), as dwords U Y V Y.
-    const __m512i own_pair = _mm512_srli_epi32(lane, 1), next_pair = _mm512_srli_epi32(_mm512_add_epi32(lane, _mm512_set1_epi32(1)), 1);
-    const __m512i chroma = _mm512_set1_epi32(0x00FF00FF);
     // Sums over offsets o = x - xe (< 64), which keep every lane and total within 32 bits: Σw ≤ 16 320,
     // Σ o over positive weights ≤ 4 032 (both in one lane: Σw | Σo << 16), Σw·o ≤ 1 028 160, Σw·o² ≤ 64.8 M.
     __m512i swo = zero, swoo = zero, sp = zero;
@@ -1048,21 +1060,8 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
         const __mmask16 k = static_cast<__mmask16>(m & 0xFFFFu);
         if (k == 0) continue;
         const __m512i bytes = _mm512_maskz_loadu_epi8(0xFFFFFFFFFull, line + 2 * base);  // pairs base/2 .. base/2 + 8
-        const __m512i c2 = _mm512_add_epi16(_mm512_and_si512(_mm512_maskz_permutexvar_epi32(0xFFFF, own_pair, bytes), chroma),
-                                            _mm512_and_si512(_mm512_maskz_permutexvar_epi32(0xFFFF, next_pair, bytes), chroma));
-        // Background: each pixel's two cells and the right one's weight from the cell_lerp table.
-        const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + base)));
-        const __m512i f = _mm512_and_si512(e, _mm512_set1_epi32(kBgCellPixels - 1));
-        const int jb = kCellLerp[static_cast<size_t>(base)] >> 3;
-        const __mmask16 in_table = static_cast<__mmask16>(jb + 16 <= kBgCells ? 0xFFFFu : (1u << (kBgCells - jb)) - 1);
-        const __m512i cells = _mm512_maskz_loadu_epi32(in_table, bg_q4_.data() + 2 * jb);
-        const __m512i rel = _mm512_sub_epi32(_mm512_srli_epi32(e, 3), _mm512_set1_epi32(jb));
-        const __m512i g0 = _mm512_maskz_permutexvar_epi32(0xFFFF, rel, cells);
-        const __m512i g1 = _mm512_maskz_permutexvar_epi32(0xFFFF, _mm512_add_epi32(rel, _mm512_set1_epi32(1)), cells);
-        const __m512i nf = _mm512_sub_epi32(_mm512_set1_epi32(kBgCellPixels), f);
-        const __m512i bg = _mm512_add_epi16(_mm512_mullo_epi16(g0, _mm512_or_si512(nf, _mm512_slli_epi32(nf, 16))),
-                                            _mm512_mullo_epi16(g1, _mm512_or_si512(f, _mm512_slli_epi32(f, 16))));
-        const __m512i d = _mm512_sub_epi16(_mm512_slli_epi16(c2, 6), bg);
+        __m512i own;
+        const __m512i d = bg_residual16(chroma2_16(bytes, lane, own), base, bg_q4_.data());
         const __m512i v = _mm512_srai_epi32(_mm512_add_epi32(_mm512_madd_epi16(d, dir), _mm512_set1_epi32(1 << 15)), 16);
         __m512i w = _mm512_min_epi32(_mm512_max_epi32(_mm512_sub_epi32(v, level), zero), _mm512_set1_epi32(255));
         w = _mm512_maskz_mov_epi32(k, _mm512_srl_epi32(w, shift));
@@ -1111,17 +1110,7 @@ __attribute__((target("avx2"))) void Pipeline::ring_weights_avx2(const uint8_t* 
         const __m256i bytes = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(line + 2 * base));
         const __m256i c2 = _mm256_add_epi16(_mm256_and_si256(_mm256_permutevar8x32_epi32(bytes, own_pair), chroma),
                                             _mm256_and_si256(_mm256_permutevar8x32_epi32(bytes, next_pair), chroma));
-        const __m256i e = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(kCellLerp.data() + base)));
-        const __m256i f = _mm256_and_si256(e, _mm256_set1_epi32(kBgCellPixels - 1));
-        const int jb = kCellLerp[static_cast<size_t>(base)] >> 3;
-        const __m256i cells = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(bg_q4_.data() + 2 * jb));
-        const __m256i rel = _mm256_sub_epi32(_mm256_srli_epi32(e, 3), _mm256_set1_epi32(jb));
-        const __m256i g0 = _mm256_permutevar8x32_epi32(cells, rel);
-        const __m256i g1 = _mm256_permutevar8x32_epi32(cells, _mm256_add_epi32(rel, _mm256_set1_epi32(1)));
-        const __m256i nf = _mm256_sub_epi32(_mm256_set1_epi32(kBgCellPixels), f);
-        const __m256i bg = _mm256_add_epi16(_mm256_mullo_epi16(g0, _mm256_or_si256(nf, _mm256_slli_epi32(nf, 16))),
-                                            _mm256_mullo_epi16(g1, _mm256_or_si256(f, _mm256_slli_epi32(f, 16))));
-        const __m256i d = _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
+        const __m256i d = bg_residual8(c2, base, bg_q4_.data());
         const __m256i v = _mm256_srai_epi32(_mm256_add_epi32(_mm256_madd_epi16(d, dir), _mm256_set1_epi32(1 << 15)), 16);
         __m256i w = _mm256_min_epi32(_mm256_max_epi32(_mm256_sub_epi32(v, level), zero), _mm256_set1_epi32(255));
         w = _mm256_and_si256(sel, _mm256_srl_epi32(w, shift));
@@ -1152,6 +1141,7 @@ __attribute__((target("avx2"))) void Pipeline::ring_weights_avx2(const uint8_t* 
     _mm256_zeroupper();
 }
 #else
+void Pipeline::chunk_weights16(const uint8_t*, int, ChunkOut&) const {}
 void Pipeline::ring_weights_simd(const uint8_t*, uint8_t, int, uint64_t, RingSums&) const {}
 void Pipeline::ring_weights_avx2(const uint8_t*, uint8_t, int, uint64_t, RingSums&) const {}
 #endif
@@ -1563,30 +1553,18 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         } else {
             for (uint64_t f = free; f != 0; f &= f - 1) add_pixel(xa + __builtin_ctzll(f));
         }
-        claimed_dirty_[cur_buf_] = true;
-        Slot& s = slots_[root];
-        const uint64_t uy = static_cast<uint64_t>(y);
-        s.sw += sw;
-        s.swx += swx;
-        s.swy += sw * uy;
-        s.swxx += swxx;
-        s.swyy += sw * uy * uy;
-        s.swxy += swx * uy;
-        s.pn += pn;
-        s.psx += psx;
-        stats_.ring_pixels += count;
-        return;
+    } else {
+        for (int w = xa >> 6; w <= xb >> 6; ++w) {
+            uint64_t range = ~0ull;
+            if (w == xa >> 6) range &= ~0ull << (xa & 63);
+            if (w == xb >> 6 && (xb & 63) != 63) range &= (1ull << ((xb & 63) + 1)) - 1;
+            uint64_t free = range & ~occ[static_cast<size_t>(w)] & ~clm[static_cast<size_t>(w)];
+            if (free == 0) continue;
+            clm[static_cast<size_t>(w)] |= free;
+            for (; free != 0; free &= free - 1) add_pixel(64 * w + __builtin_ctzll(free));
+        }
+        if (count == 0) return;
     }
-    for (int w = xa >> 6; w <= xb >> 6; ++w) {
-        uint64_t range = ~0ull;
-        if (w == xa >> 6) range &= ~0ull << (xa & 63);
-        if (w == xb >> 6 && (xb & 63) != 63) range &= (1ull << ((xb & 63) + 1)) - 1;
-        uint64_t free = range & ~occ[static_cast<size_t>(w)] & ~clm[static_cast<size_t>(w)];
-        if (free == 0) continue;
-        clm[static_cast<size_t>(w)] |= free;
-        for (; free != 0; free &= free - 1) add_pixel(64 * w + __builtin_ctzll(free));
-    }
-    if (count == 0) return;
     claimed_dirty_[cur_buf_] = true;
     Slot& s = slots_[root];
     const uint64_t uy = static_cast<uint64_t>(y);
