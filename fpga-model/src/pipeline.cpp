@@ -929,9 +929,11 @@ __attribute__((target("avx2"))) inline __m256i bg_residual8(__m256i c2, int x0, 
     return _mm256_sub_epi16(_mm256_slli_epi16(c2, 6), bg);
 }
 
+#if !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 // bg_residual8 for sixteen pixels from x0 (AVX-512); the cells past the table's end read as zero (weight 0).
 EYESIM_FPGA_AVX512_TARGET inline __m512i bg_residual16(__m512i c2, int x0, const int16_t* bg_q4) {
     const __m512i e = _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCellLerp.data() + x0)));
@@ -956,7 +958,9 @@ EYESIM_FPGA_AVX512_TARGET inline __m512i chroma2_16(__m512i bytes, __m512i lane,
     const __m512i chroma = _mm512_set1_epi32(0x00FF00FF);
     return _mm512_add_epi16(_mm512_and_si512(own, chroma), _mm512_and_si512(next, chroma));
 }
+#if !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 #endif
 
 #if defined(EYESIM_FPGA_AVX2)
@@ -1010,9 +1014,11 @@ constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
 
 #if defined(EYESIM_FPGA_AVX2)
 // GCC 12's AVX-512 headers fill unused lanes from a self-initialised variable, which -Wuninitialized flags.
+#if !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 // chunk_weights for pixels x0..x0+15 (x0 even, x0 <= kSimdChunk16MaxX) in sixteen 32-bit lanes: the same integers.
 EYESIM_FPGA_AVX512_TARGET void Pipeline::chunk_weights16(const uint8_t* line, int x0, ChunkOut& out) const {
     const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
@@ -1086,7 +1092,9 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
     r.count += static_cast<uint32_t>(__builtin_popcountll(free));
     _mm256_zeroupper();
 }
+#if !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 
 // ring_weights_simd in eight lanes (AVX2): the same integers. Its 32-byte reads from pixel base (<= kSimdRingMaxX)
 // stay in the line, and the eight cells it reads from bg_q4_ stay in its padding.
