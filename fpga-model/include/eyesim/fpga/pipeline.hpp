@@ -81,7 +81,7 @@ enum class ScanIsa : uint8_t {
     kScalar,    ///< portable C++
     kSse2,      ///< 16-byte vectors (x86-64 baseline)
     kAvx2,      ///< 32-byte vectors (selected at run time where the CPU has AVX2)
-    kAvx512,    ///< 64-byte vectors (AVX-512 F, BW, VL; the weights as kAvx2)
+    kAvx512,    ///< 64-byte vectors (AVX-512 F, BW, VL), with sixteen-pixel weights
 };
 
 /// Construction-time options (hardware build parameters, not registers).
