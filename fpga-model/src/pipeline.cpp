@@ -233,14 +233,16 @@ EYESIM_FPGA_AVX512_TARGET void scan_line_avx512(const uint8_t* line, int T, uint
 
 // Background step of every cell (Pipeline::update_background's arithmetic, 16-bit lanes: Cb, Cr interleaved as in
 // the cell sums): bg += (4 · sum − bg + 2^(n−1)) >> n.
-void bg_step_scalar(int16_t* bg, const uint32_t* sums, int n) {
+inline void bg_step_cell(int16_t* bg, const uint32_t* sums, int j, int n) {
     const int half = 1 << (n - 1);
-    for (int j = 0; j < kBgCells; ++j) {
-        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);
-        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
-        bg[2 * j] = static_cast<int16_t>(bg[2 * j] + ((mcb - bg[2 * j] + half) >> n));
-        bg[2 * j + 1] = static_cast<int16_t>(bg[2 * j + 1] + ((mcr - bg[2 * j + 1] + half) >> n));
-    }
+    const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);  // cell mean ×16
+    const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
+    bg[2 * j] = static_cast<int16_t>(bg[2 * j] + ((mcb - bg[2 * j] + half) >> n));
+    bg[2 * j + 1] = static_cast<int16_t>(bg[2 * j + 1] + ((mcr - bg[2 * j + 1] + half) >> n));
+}
+
+void bg_step_scalar(int16_t* bg, const uint32_t* sums, int n) {
+    for (int j = 0; j < kBgCells; ++j) bg_step_cell(bg, sums, j, n);
 }
 
 #if defined(__SSE2__)
@@ -264,6 +266,12 @@ void bg_step_sse2(int16_t* bg, const uint32_t* sums, int n) {
 #endif
 
 #if defined(EYESIM_FPGA_AVX2)
+// Eight cells' step from their sums s and values b (16-bit lanes).
+__attribute__((target("avx2"))) inline __m256i bg_step8_avx2(__m256i s, __m256i b, __m256i v_half, __m128i v_shift) {
+    const __m256i m = _mm256_slli_epi16(s, 4 - kBgCellLog2);
+    return _mm256_add_epi16(b, _mm256_sra_epi16(_mm256_add_epi16(_mm256_sub_epi16(m, b), v_half), v_shift));
+}
+
 __attribute__((target("avx2"))) void bg_step_avx2(int16_t* bg, const uint32_t* sums, int n) {
     static_assert(kBgCells % 2 == 0);
     const __m256i v_half = _mm256_set1_epi16(static_cast<short>(1 << (n - 1)));
@@ -271,9 +279,8 @@ __attribute__((target("avx2"))) void bg_step_avx2(int16_t* bg, const uint32_t* s
     int j = 0;
     for (; j + 8 <= kBgCells; j += 8) {
         __m256i* bp = reinterpret_cast<__m256i*>(bg + 2 * j);
-        const __m256i b = _mm256_loadu_si256(bp);
-        const __m256i m = _mm256_slli_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)), 4 - kBgCellLog2);
-        _mm256_storeu_si256(bp, _mm256_add_epi16(b, _mm256_sra_epi16(_mm256_add_epi16(_mm256_sub_epi16(m, b), v_half), v_shift)));
+        _mm256_storeu_si256(bp, bg_step8_avx2(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)),
+                                              _mm256_loadu_si256(bp), v_half, v_shift));
     }
     _mm256_zeroupper();
     for (; j < kBgCells; j += 2) {  // two cells in the low 64 bits
@@ -314,21 +321,14 @@ __attribute__((target("avx2"))) void bg_step_held_avx2(int16_t* bg, const uint32
     for (; j + 8 <= kBgCells; j += 8) {
         __m256i* bp = reinterpret_cast<__m256i*>(bg + 2 * j);
         const __m256i b = _mm256_loadu_si256(bp);
-        const __m256i m = _mm256_slli_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)), 4 - kBgCellLog2);
-        const __m256i stepped = _mm256_add_epi16(b, _mm256_sra_epi16(_mm256_add_epi16(_mm256_sub_epi16(m, b), v_half), v_shift));
+        const __m256i stepped = bg_step8_avx2(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(sums + j)), b, v_half, v_shift);
         const short h = static_cast<short>((held[j >> 6] >> (j & 63)) & 0xFFu);
         const __m256i keep = _mm256_cmpeq_epi16(_mm256_and_si256(_mm256_set1_epi16(h), lane_bit), lane_bit);
         _mm256_storeu_si256(bp, _mm256_blendv_epi8(stepped, b, keep));
     }
     _mm256_zeroupper();
-    const int half = 1 << (n - 1);
-    for (; j < kBgCells; ++j) {  // the last two cells one by one (bg_step_scalar's arithmetic)
-        if ((held[j >> 6] >> (j & 63)) & 1) continue;
-        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);
-        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
-        bg[2 * j] = static_cast<int16_t>(bg[2 * j] + ((mcb - bg[2 * j] + half) >> n));
-        bg[2 * j + 1] = static_cast<int16_t>(bg[2 * j + 1] + ((mcr - bg[2 * j + 1] + half) >> n));
-    }
+    for (; j < kBgCells; ++j)  // the last two cells one by one
+        if (((held[j >> 6] >> (j & 63)) & 1) == 0) bg_step_cell(bg, sums, j, n);
 }
 
 // bg_step_avx512 that leaves the held cells (bit j of held: cell j) as they are, by the store's lane mask.
@@ -580,7 +580,6 @@ PipelineStatus Pipeline::begin_field(uint32_t field_counter, uint8_t parity) {
     hold_cells_older_ = {};
     cells_path_ = fast_half_width_ > 0 && params_.roi_enable == 0 && !config_.float_reference;
     simd_weights_ = cells_path_ && (scan_isa_ == ScanIsa::kAvx2 || scan_isa_ == ScanIsa::kAvx512) && params_.weight_mode == 1;
-    simd_ring_ = simd_weights_;
     simd16_ = simd_weights_ && scan_isa_ == ScanIsa::kAvx512;
     return PipelineStatus::kOk;
 }
@@ -734,7 +733,6 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
 }
 
 namespace {
-// Sets bits [b0, b1] of a multi-word mask.
 // Sets bits [b0, b1] (at most 64 of them) of a mask with a spare word after the last one it needs: one two-word window.
 inline void mark_bits_window(uint64_t* mask, int b0, int b1) {
     const size_t w0 = static_cast<size_t>(b0 >> 6);
@@ -744,6 +742,7 @@ inline void mark_bits_window(uint64_t* mask, int b0, int b1) {
     mask[w0 + 1] |= (bits >> 1) >> (63 - sh);
 }
 
+// Sets bits [b0, b1] of a multi-word mask.
 inline void mark_bits(uint64_t* mask, int b0, int b1) {
     for (int b = b0; b <= b1;) {
         const int wi = b >> 6, l0 = b & 63, l1 = std::min(63, l0 + (b1 - b));
@@ -1008,6 +1007,20 @@ void Pipeline::chunk_weights(const uint8_t*, int, ChunkOut&) const {}
 
 // Sixteen-pixel chunks (AVX-512): x0 + 15 stays off the line's last pixel and the 36-byte read stays in the line.
 constexpr int kSimdChunk16MaxX = static_cast<int>(kActivePixelsPerLine) - 24;
+// The ring sums over x of a span's free pixels from the sums over offsets o = x - xe the vector weights keep (exact
+// integers): sum_p = Σw | Σo₊ << 16 (o₊: pixels of positive weight), Σw·o, Σw·o² and the count of positive weights.
+// Inline: an out-of-line call from the AVX-512 code cost ≈ 4 µs a field (measured).
+inline void Pipeline::add_offset_sums(RingSums& r, int xe, uint32_t sum_p, uint64_t swo, uint64_t swoo, uint32_t pn,
+                                      uint64_t free) {
+    const uint64_t sw = sum_p & 0xFFFFu, so = sum_p >> 16, ux = static_cast<uint64_t>(xe);
+    r.sw += sw;
+    r.swx += swo + ux * sw;
+    r.swxx += swoo + 2 * ux * swo + ux * ux * sw;
+    r.psx += so + ux * pn;
+    r.pn += pn;
+    r.count += static_cast<uint32_t>(__builtin_popcountll(free));
+}
+
 // Ring spans whose pixels all lie at or before this x take the vector weights: their 36-byte reads stay in the
 // line, and none of them holds the line's last pixel (whose odd chroma has no right neighbour).
 constexpr int kSimdRingMaxX = static_cast<int>(kActivePixelsPerLine) - 18;
@@ -1079,17 +1092,9 @@ EYESIM_FPGA_AVX512_TARGET void Pipeline::ring_weights_simd(const uint8_t* line, 
         pn += static_cast<uint32_t>(__builtin_popcount(nz));
         sp = _mm512_add_epi32(sp, _mm512_add_epi32(w, _mm512_maskz_slli_epi32(nz, o, 16)));
     }
-    const uint32_t sum_p = static_cast<uint32_t>(_mm512_reduce_add_epi32(sp));
-    const uint64_t sw = sum_p & 0xFFFFu, so = sum_p >> 16;
-    const uint64_t swo_t = static_cast<uint32_t>(_mm512_reduce_add_epi32(swo));
-    const uint64_t swoo_t = static_cast<uint32_t>(_mm512_reduce_add_epi32(swoo));
-    const uint64_t ux = static_cast<uint64_t>(xe);  // x = xe + o: back to the sums over x, exact integers
-    r.sw += sw;
-    r.swx += swo_t + ux * sw;
-    r.swxx += swoo_t + 2 * ux * swo_t + ux * ux * sw;
-    r.psx += so + ux * pn;
-    r.pn += pn;
-    r.count += static_cast<uint32_t>(__builtin_popcountll(free));
+    add_offset_sums(r, xe, static_cast<uint32_t>(_mm512_reduce_add_epi32(sp)),
+                    static_cast<uint32_t>(_mm512_reduce_add_epi32(swo)), static_cast<uint32_t>(_mm512_reduce_add_epi32(swoo)),
+                    pn, free);
     _mm256_zeroupper();
 }
 #if !defined(__clang__)
@@ -1136,16 +1141,7 @@ __attribute__((target("avx2"))) void Pipeline::ring_weights_avx2(const uint8_t* 
         t = _mm_add_epi32(t, _mm_shuffle_epi32(t, _MM_SHUFFLE(2, 3, 0, 1)));
         return static_cast<uint32_t>(_mm_cvtsi128_si32(t));
     };
-    const uint32_t sum_p = total(sp);
-    const uint64_t sw = sum_p & 0xFFFFu, so = sum_p >> 16;
-    const uint64_t swo_t = total(swo), swoo_t = total(swoo);
-    const uint64_t ux = static_cast<uint64_t>(xe);
-    r.sw += sw;
-    r.swx += swo_t + ux * sw;
-    r.swxx += swoo_t + 2 * ux * swo_t + ux * ux * sw;
-    r.psx += so + ux * pn;
-    r.pn += pn;
-    r.count += static_cast<uint32_t>(__builtin_popcountll(free));
+    add_offset_sums(r, xe, total(sp), total(swo), total(swoo), pn, free);
     _mm256_zeroupper();
 }
 #else
@@ -1324,15 +1320,8 @@ void Pipeline::update_background_cells() {
         return;
     }
 #endif
-    const int half = 1 << (n - 1);
     auto is_held = [&](int j) { return ((held[static_cast<size_t>(j >> 6)] >> (j & 63)) & 1) != 0; };
-    auto step_cell = [&](int j) {
-        const size_t i = static_cast<size_t>(2 * j);
-        const int mcb = static_cast<int>(sums[j] & 0xFFFFu) << (4 - kBgCellLog2);  // cell mean ×16
-        const int mcr = static_cast<int>(sums[j] >> 16) << (4 - kBgCellLog2);
-        bg[i] = static_cast<int16_t>(bg[i] + ((mcb - bg[i] + half) >> n));
-        bg[i + 1] = static_cast<int16_t>(bg[i + 1] + ((mcr - bg[i + 1] + half) >> n));
-    };
+    auto step_cell = [&](int j) { bg_step_cell(bg, sums, j, n); };
     if (!bg_all_seeded_) {  // the field's first lines: cell by cell
         for (int j = 0; j < kBgCells; ++j) {
             if (is_held(j)) continue;
@@ -1478,6 +1467,14 @@ bool Pipeline::in_roi(int x, int y) const {
     return false;
 }
 
+// Chroma ×2 of pixel x from its pair q: twice the pair's own, or an odd pixel's sum with the next pair's (the line's
+// last pixel: twice its own); no branch on the parity, which has no pattern on ring pixels.
+static inline void chroma2_at(const uint8_t* q, int x, int& cb2, int& cr2) {
+    const size_t next = ((x & 1) != 0 && (x >> 1) < kPairs - 1) ? 4 : 0;
+    cb2 = q[0] + q[next];
+    cr2 = q[2] + q[2 + next];
+}
+
 // Adds background pixel (x, y) of `line` to blob `root` unless it is classified, already claimed or outside the
 // ROI. Uses the line masks of buffer cur_buf_ (the caller selects the line).
 void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) {
@@ -1489,8 +1486,8 @@ void Pipeline::add_ring_pixel(uint16_t root, const uint8_t* line, int x, int y) 
     Slot& s = slots_[root];
     const int k = x >> 1;
     const uint8_t* q = line + 4 * k;
-    const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;  // as add_ring_span
-    const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
+    int cb2, cr2;
+    chroma2_at(q, x, cb2, cr2);
     const int luma = q[1 + 2 * (x & 1)];
     const uint64_t w = weight_at(s.cls, luma, cb2, cr2, x);
     const uint64_t ux = static_cast<uint64_t>(x), uy = static_cast<uint64_t>(y);
@@ -1526,10 +1523,8 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
     auto add_pixel = [&](int x) {
         const int k = x >> 1;
         const uint8_t* q = line + 4 * k;
-        // Chroma ×2: twice the own pair's, or an odd pixel's sum with the next pair's (no branch on the
-        // pixel's parity, which has no pattern here).
-        const size_t next = ((x & 1) != 0 && k < kPairs - 1) ? 4 : 0;
-        const int cb2 = q[0] + q[next], cr2 = q[2] + q[2 + next];
+        int cb2, cr2;
+        chroma2_at(q, x, cb2, cr2);
         const int luma = q[1 + 2 * (x & 1)];
         const uint64_t wt = weight_at(cls, luma, cb2, cr2, x);
         const uint64_t ux = static_cast<uint64_t>(x);
@@ -1551,7 +1546,7 @@ __attribute__((always_inline)) inline void Pipeline::add_ring_span(uint16_t root
         clm[w0] |= free << sh;
         clm[w0 + 1] |= (free >> 1) >> (63 - sh);
         if (free == 0) return;
-        if (simd_ring_ && xb <= kSimdRingMaxX && xb - xa < 63) {
+        if (simd_weights_ && xb <= kSimdRingMaxX && xb - xa < 63) {
             RingSums r;
             if (simd16_)
                 ring_weights_simd(line, cls, xa, free, r);

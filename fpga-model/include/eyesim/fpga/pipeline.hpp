@@ -333,7 +333,7 @@ private:
     };
     void ring_weights_simd(const uint8_t* line, uint8_t cls, int xa, uint64_t free, RingSums& r) const;
     void ring_weights_avx2(const uint8_t* line, uint8_t cls, int xa, uint64_t free, RingSums& r) const;
-    bool simd_ring_ = false;  // ring weights in vector lanes (AVX2 or AVX-512 line scan, chroma weights)
+    static void add_offset_sums(RingSums& r, int xe, uint32_t sum_p, uint64_t swo, uint64_t swoo, uint32_t pn, uint64_t free);
     bool simd16_ = false;     // sixteen-lane ring weights and classification (AVX-512 line scan)
     void classify_span_simd(const uint8_t* line, int x0, int x1, Run* runs, int& n);
 
