@@ -2,6 +2,7 @@
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/fpga_run.hpp"
 #include "eyesim/app/refine.hpp"
+#include "eyesim/frame/session.hpp"
 #include "eyesim/fpga/pipeline.hpp"
 #include "eyesim/fpga/wire.hpp"
 #include "eyesim/firmware/latency.hpp"
@@ -12,7 +13,10 @@
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/marker_prediction.hpp"
 #include "eyesim/tracking/refine.hpp"
+#include "eyesim/tracking/rig_adapter.hpp"
+#include "eyesim/tracking/tracker.hpp"
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -44,6 +48,7 @@ struct FpgaOptions {
     std::vector<std::string> regs;
     bool json = false;
     bool refine = false;
+    bool no_hints = false;  ///< --refine without occlusion hints
 };
 
 // Percentile of a sorted vector (nearest rank).
@@ -219,6 +224,28 @@ int run(const FpgaOptions& opt) {
     // Refinement stage: a model fit on each blob's patch with the rig's marker colours (tracking/refine.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
+    // What hides part of a marker (its shaft, the eye) for the fits, as the host's live chain has it: a tracker runs
+    // on the refined blobs, and each field's fits take the occluders of the newest poses it gave (earlier fields).
+    std::unique_ptr<eyesim::tracking::Tracker> hint_tracker;
+    eyesim::tracking::MarkerHintSource marker_hints;
+    eyesim::tracking::TrackingFrame hint_frame;
+    std::vector<std::pair<double, proto::FieldMarkers>> hint_msgs;
+    if (opt.refine && !opt.no_hints) {
+        try {
+            const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
+            std::vector<eyesim::tracking::SceneInstrument> scene;
+            if (!truth.empty())
+                for (const rig::InstrumentTruth& it : truth.front().instruments) scene.push_back({it.kind, it.trocar});
+            else
+                scene = eyesim::tracking::all_instruments(bodies);
+            eyesim::tracking::TrackerConfig tcfg = eyesim::frame::tracker_config(rec.cameras(), bodies, scene);
+            marker_hints = eyesim::tracking::MarkerHintSource(tcfg.cameras, tcfg.bodies);
+            hint_tracker = std::make_unique<eyesim::tracking::Tracker>(std::move(tcfg));
+            refiner->set_hints(&marker_hints);
+        } catch (const std::invalid_argument& e) {
+            throw eyesim::app::Error(std::string("bodies: ") + e.what());
+        }
+    }
     const bool progress = eyesim::app::show_progress(opt.json);
 
     // The pedal, as eyesim-device sends it: one PedalState per field period from the truth (when there is one).
@@ -236,8 +263,12 @@ int run(const FpgaOptions& opt) {
             CameraStats& st = stats[k++];
             if (opt.refine) {
                 const auto r0 = std::chrono::steady_clock::now();
-                st.refined += refiner->refine(f.uyvy, rig::kFieldHeight, *f.blobs);
+                st.refined += refiner->refine(f.uyvy, rig::kFieldHeight, *f.blobs, f.camera);
                 refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
+                if (hint_tracker) {
+                    const double ready_us = 1e-3 * static_cast<double>(eyesim::app::field_ready_ns(f));
+                    for (const proto::FieldMarkers& m : eyesim::app::field_messages(f)) hint_msgs.push_back({ready_us, m});
+                }
             }
             ++st.fields;
             st.blobs += static_cast<int64_t>(blobs.size());
@@ -264,6 +295,15 @@ int run(const FpgaOptions& opt) {
                 }
             }
         });
+        if (hint_tracker) {
+            std::stable_sort(hint_msgs.begin(), hint_msgs.end(),
+                             [](const auto& a, const auto& b) { return a.first < b.first; });
+            for (const auto& [t_us, m] : hint_msgs) {
+                hint_tracker->push(m, t_us);
+                while (hint_tracker->pop(hint_frame, t_us)) marker_hints.update(hint_frame);
+            }
+            hint_msgs.clear();
+        }
         if (capture_on) {
             // Everything of the next field is ready no earlier than its earliest camera's vertical sync.
             uint64_t horizon_ns = ~uint64_t{0};
@@ -328,6 +368,7 @@ int run(const FpgaOptions& opt) {
             j["refined"] = refined;
             j["refine_fields_per_s"] = refine_s > 0 ? total_fields / refine_s : 0.0;
             j["refused"] = refiner->refusals_json();  // blobs whose fit was refused, by reason
+            j["hinted_fits"] = refiner->hinted_fits();  // fits with an occluder (shaft, eye) left out
         }
         if (!opt.out.empty()) j["out"] = opt.out;
         if (!opt.csv.empty()) j["csv"] = opt.csv;
@@ -366,8 +407,13 @@ eyesim::app::Registrar reg{"fpga", "Run the FPGA pipeline model over a recording
     sub.add_flag("--refine", opt->refine,
                  "refine each blob's centroid by a shaded-sphere fit on its patch (refinement stage; the pipeline's "
                  "centroid stands where the fit is refused)");
+    sub.add_flag("--no-hints", opt->no_hints,
+                 "with --refine: fit every marker as a whole sphere (by default a marker's fit leaves out what hides "
+                 "part of it, its instrument's shaft or the eye, placed from the newest poses of a tracker run on the "
+                 "refined blobs)");
     return [opt]() -> int {
         try {
+            if (opt->no_hints && !opt->refine) throw eyesim::app::Error("fpga: --no-hints needs --refine", 2);
             return run(*opt);
         } catch (const rig::RigError& e) {
             throw eyesim::app::Error(e.what());

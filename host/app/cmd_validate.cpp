@@ -69,6 +69,7 @@ struct ValidateOptions {
     std::string bodies;
     std::uint64_t seed = 1;
     bool refine = false;
+    bool no_hints = false;  ///< --refine without occlusion hints: every fit a whole sphere
     std::string emit = "field";  ///< device emission: "field" (a field's parts at its end) or "blob" (low latency)
 };
 
@@ -152,6 +153,8 @@ public:
 
     RunStats& stats() { return stats_; }
     const tr::TruthFreeStats& truth_free() const { return free_; }
+    /// The newest frame the tracker gave (nullptr before the first).
+    const tr::TrackingFrame* last_frame() const { return stats_.frames > 0 ? &frame_ : nullptr; }
 
 private:
     void drain(double now_us) {
@@ -987,7 +990,7 @@ long count_capture_messages(const std::string& path) {
 int run_validate_capture(const ValidateOptions& opt) {
     for (const auto& [given, name] : std::vector<std::pair<bool, const char*>>{
              {!opt.write_capture.empty(), "--write-capture"}, {opt.refine, "--refine"},
-             {opt.max_fields > 0, "--max-fields"}, {opt.truth_projected, "--truth-projected"}})
+             {opt.max_fields > 0, "--max-fields"}, {opt.truth_projected, "--truth-projected"}, {opt.no_hints, "--no-hints"}})
         if (given) throw Error(std::string("validate: ") + name + " needs --recording (a capture holds no fields)", 2);
     if (opt.rig.empty()) throw Error("validate: --capture needs --rig FILE (the cameras the capture was made with)", 2);
     const bool progress = eyesim::app::show_progress(opt.json);
@@ -1242,6 +1245,10 @@ int run_validate(const ValidateOptions& opt) {
     // Refinement stage on each blob's patch (eyesim/app/refine.hpp); the modelled link timing does not include it.
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
     if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
+    // What hides part of a marker (its shaft, the eye) for the fits, from the chain's own newest poses (the fields
+    // before this one).
+    tr::MarkerHintSource marker_hints(cfg.cameras, cfg.bodies);
+    if (refiner && !opt.no_hints) refiner->set_hints(&marker_hints);
     long refined = 0;
     Progress pr(progress, "validate", "fields");
 
@@ -1267,7 +1274,7 @@ int run_validate(const ValidateOptions& opt) {
             fpga_us += us_now() - f0;
             if (refiner) {
                 const double r0 = us_now();
-                refined += refiner->refine(field.data(), rig::kFieldHeight, blobs);
+                refined += refiner->refine(field.data(), rig::kFieldHeight, blobs, c);
                 refine_us += us_now() - r0;
             }
             const eyesim::fpga::FieldInfo info =
@@ -1417,6 +1424,7 @@ int run_validate(const ValidateOptions& opt) {
             truth_msgs.push_back({double(tm.field_end_us), tm});
         }
         fpga_run.push(fpga_msgs);
+        if (const tr::TrackingFrame* f = fpga_run.last_frame()) marker_hints.update(*f);
         if (have_truth) truth_run.push(truth_msgs);
         pr.update(long(i + 1), long(n));
     }
@@ -1521,6 +1529,7 @@ int run_validate(const ValidateOptions& opt) {
     if (refiner) {
         j["refined"] = refined;
         j["refused"] = refiner->refusals_json();
+        j["hinted_fits"] = refiner->hinted_fits();
         j["refine_us_per_field"] = refine_us / double(n * ncam);
     }
     // Headline keys: the full chain from the FPGA model (null without truth).
@@ -1669,6 +1678,9 @@ eyesim::app::Registrar reg{"validate",
     sub.add_option("--bodies", opt->bodies, "marker bodies JSON (default: scenes/bodies.json)");
     sub.add_flag("--refine", opt->refine,
                  "refine each blob's centroid by the refinement stage (a marker model fit on its patch) before packing");
+    sub.add_flag("--no-hints", opt->no_hints,
+                 "with --refine: fit every marker as a whole sphere (by default a marker's fit leaves out what hides "
+                 "part of it, its instrument's shaft or the eye, placed from the chain's newest poses)");
     sub.add_option("--seed", opt->seed, "seed of the truth-centroid noise")->check(eyesim::app::unsigned_integer());
     sub.add_option("--write-capture", opt->write_capture,
                    "also write the FPGA chain's packets as a capture file (modelled receive times)");

@@ -31,10 +31,15 @@ BlobRefiner::BlobRefiner() : BlobRefiner(rig_sphere_fit_config()) {}
 BlobRefiner::BlobRefiner(const tracking::SphereFitConfig& config)
     : config_(config), work_(std::make_unique<tracking::SphereFitWorkspace>()) {}
 
-int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs) {
+int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs, int camera) {
     int refined = 0;
     for (fpga::Blob& b : blobs) {
-        const tracking::SphereFitResult r = tracking::fit_sphere(field, height, tracking::blob_box(b), config_, *work_);
+        const tracking::BlobBox box = tracking::blob_box(b);
+        tracking::MarkerHint shaft;
+        const bool hinted = hints_ && hints_->hint(camera, box, shaft);
+        hinted_fits_ += hinted;
+        const tracking::SphereFitResult r =
+            tracking::fit_sphere(field, height, box, config_, *work_, hinted ? &shaft : nullptr);
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];
             continue;

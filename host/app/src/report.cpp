@@ -100,6 +100,7 @@ nlohmann::json precision_json(const RunStats& s) {
             {"refused", why},
             {"refused_total", p.refused_total()},
             {"missing_patch", p.missing_patch},
+            {"hinted_fits", p.hinted_fits},
             {"unmatched_patches", p.unmatched},
             {"incomplete_patches", p.incomplete},
             {"refined_fraction", tried ? nlohmann::json(double(p.refined) / double(tried)) : nlohmann::json(nullptr)}};
@@ -113,10 +114,10 @@ std::string precision_line(const RunStats& s) {
         if (p.refused[static_cast<size_t>(r)] > 0)
             why += fmt::format("{}{} {}", why.empty() ? "" : ", ", tracking::to_string(static_cast<tracking::FitRefusal>(r)),
                                p.refused[static_cast<size_t>(r)]);
-    return fmt::format("Precision: {} patches; {} markers refined, {} refused ({}), {} missing a patch; {} patches "
-                       "unmatched, {} incomplete",
+    return fmt::format("Precision: {} patches; {} markers refined, {} refused ({}), {} missing a patch; {} fits "
+                       "with the instrument's shaft left out; {} patches unmatched, {} incomplete",
                        p.patches, p.refined, p.refused_total(), why.empty() ? "none" : why, p.missing_patch,
-                       p.unmatched, p.incomplete);
+                       p.hinted_fits, p.unmatched, p.incomplete);
 }
 
 std::string html_escape(const std::string& s) {

@@ -74,6 +74,7 @@ HostRun::HostRun(tr::TrackerConfig config, Simulator& sim) : HostRun(std::move(c
 
 HostRun::HostRun(tr::TrackerConfig config) : adapter_(config.bodies) {
     step_once_per_time_ = config.sync.mode == tr::SyncMode::Async;
+    marker_hints_ = tr::MarkerHintSource(config.cameras, config.bodies);
     try {
         tracker_ = std::make_unique<tr::Tracker>(std::move(config));
     } catch (const std::invalid_argument& e) {
@@ -89,6 +90,7 @@ void HostRun::set_clock_offset_us(double offset) {
 void HostRun::enable_precision(const tr::SphereFitConfig& config, uint8_t class_mask) {
     precision_ = std::make_unique<PatchRefiner>(config, class_mask,
                                                 [this](const proto::FieldMarkers& part) { push_markers(part); });
+    precision_->set_hints(&marker_hints_);
     stats_.precision = true;
 }
 
@@ -200,6 +202,7 @@ void HostRun::finish() {
 
 void HostRun::drain(double now_us) {
     while (tracker_->pop(frame_, now_us)) {
+        if (precision_) marker_hints_.update(frame_);
         frame_.timing.compute_us += refine_wall_us_;
         refine_wall_us_ = 0.0;
         adapter_.convert(frame_, poses_);

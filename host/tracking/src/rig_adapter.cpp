@@ -37,6 +37,7 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
         BodyMarker& b = set.eye.markers[std::size_t(set.eye.marker_count++)];
         b.colour_class = std::uint8_t(m.colour_class);
         b.pos_body_mm = m.position_eye_mm;
+        b.radius_mm = m.radius_mm;
     }
     if (scene.size() > std::size_t(kMaxInstruments))
         throw std::invalid_argument("scene: more than " + std::to_string(kMaxInstruments) + " instruments");
@@ -59,6 +60,7 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
             BodyMarker& b = im.markers[std::size_t(im.marker_count++)];
             b.colour_class = std::uint8_t(body->markers[i].colour_class);
             b.pos_body_mm = body->marker_position_mm(i);
+            b.radius_mm = body->markers[i].radius_mm;
             set.marker_radius_mm = std::max(set.marker_radius_mm, body->markers[i].radius_mm);
         }
         if (si.trocar >= 0) {

@@ -5,6 +5,7 @@
 
 #include "eyesim/fpga/blob.hpp"
 #include "eyesim/rig/recording.hpp"
+#include "eyesim/tracking/marker_prediction.hpp"
 #include "eyesim/tracking/refine.hpp"
 
 #include <array>
@@ -32,7 +33,14 @@ public:
 
     /// Refines `blobs` of `field` (UYVY, 720 × `height`) in place: centroids only, the blob set is unchanged.
     /// Returns how many were refined.
-    int refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs);
+    /// With shaft hints set, `camera` names the field's camera.
+    int refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs, int camera = -1);
+
+    /// Where the instruments are (nullptr: unknown): a blob the source knows as an instrument marker is fitted
+    /// with its shaft left out (tracking::MarkerHint). The source must outlive the refiner's use of it.
+    void set_hints(const tracking::MarkerHintSource* source) { hints_ = source; }
+    /// Fits made with a shaft hint (accepted or not).
+    int64_t hinted_fits() const { return hinted_fits_; }
 
     /// Blobs whose fit was refused, by tracking::FitRefusal.
     const std::array<int64_t, tracking::kFitRefusalCount>& refusals() const { return refusals_; }
@@ -43,6 +51,8 @@ private:
     tracking::SphereFitConfig config_;
     std::unique_ptr<tracking::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
     std::array<int64_t, tracking::kFitRefusalCount> refusals_{};
+    const tracking::MarkerHintSource* hints_ = nullptr;
+    int64_t hinted_fits_ = 0;
 };
 
 }  // namespace eyesim::app

@@ -11,6 +11,7 @@
 /// the per-field path.
 
 #include "eyesim/protocol/messages.hpp"
+#include "eyesim/tracking/marker_prediction.hpp"
 #include "eyesim/tracking/refine.hpp"
 #include "eyesim/transport/patch_assembler.hpp"
 
@@ -30,6 +31,7 @@ struct PrecisionStats {
     std::uint64_t missing_patch = 0;  ///< markers that should have had a patch and whose patch never came
     std::uint64_t unmatched = 0;      ///< patches whose marker was not held (already released, or never seen)
     std::uint64_t incomplete = 0;     ///< patches lost in transit (a fragment missing)
+    std::uint64_t hinted_fits = 0;     ///< fits made with the instrument's shaft left out (a pose was at hand)
     /// Sum of refused[].
     std::uint64_t refused_total() const;
 };
@@ -62,6 +64,10 @@ public:
     /// Emits every part still held (end of stream, link dropped); their missing patches are counted.
     void flush();
 
+    /// Where the instruments are (nullptr: unknown): a marker the source knows as an instrument's is fitted with
+    /// its shaft left out (tracking::MarkerHint). The source must outlive the refiner's use of it.
+    void set_hints(const tracking::MarkerHintSource* source) { hints_ = source; }
+
     /// Counters.
     PrecisionStats stats() const;
     /// The class mask.
@@ -93,6 +99,7 @@ private:
     std::unique_ptr<tracking::SphereFitWorkspace> work_;
     std::vector<std::uint8_t> field_;  // one UYVY field; only the current patch's area is meaningful
     PrecisionStats stats_;
+    const tracking::MarkerHintSource* hints_ = nullptr;
 };
 
 }  // namespace eyesim::frame

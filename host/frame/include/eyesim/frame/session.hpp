@@ -137,6 +137,7 @@ private:
     void push_markers(const protocol::FieldMarkers& part);
     std::unique_ptr<tracking::Tracker> tracker_;
     std::unique_ptr<PatchRefiner> precision_;
+    tracking::MarkerHintSource marker_hints_;  // the precision fits' occluders, from the newest frame's poses
     // Precision mode: wall time spent refining since the last frame, added to the next frame's tracking compute
     // (the refinement is tracking work, done as the patches arrive rather than when the frame is built).
     double refine_wall_us_ = 0.0;

@@ -20,6 +20,7 @@ inline constexpr int kMaxInstruments = 6;
 struct BodyMarker {
     std::uint8_t colour_class = 0;                      ///< 1..4
     Eigen::Vector3d pos_body_mm = Eigen::Vector3d::Zero();  ///< marker centre in the body frame (mm)
+    double radius_mm = 0.0;                             ///< sphere radius (0: unknown)
 };
 
 /// The mechanical eye: body frame = eye frame, origin at the eye's rotation centre.

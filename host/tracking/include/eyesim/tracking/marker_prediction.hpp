@@ -1,0 +1,79 @@
+#pragma once
+/// \file
+/// What a body's pose predicts about one marker's image in one camera, for the refinement's occlusion-aware fit
+/// (refine.hpp MarkerHint): the outline the sphere projects to (through the full camera model, distortion
+/// included) and what hides part of it: for an instrument marker the shaft it is threaded on, for an eye marker
+/// near the eye's outline the eye itself.
+
+#include "eyesim/tracking/body_model.hpp"
+#include "eyesim/tracking/camera_geometry.hpp"
+#include "eyesim/tracking/pose.hpp"
+#include "eyesim/tracking/refine.hpp"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <span>
+
+namespace eyesim::tracking {
+
+/// The sphere's projected outline in the fit's convention (frame px): centre (x, v = frame row), and
+/// (1 + e1)·dx² + 2·e2·dx·dv + (1 − e1)·dv² = r². False when the sphere does not project whole.
+struct ProjectedOutline {
+    double x_px = 0, v_px = 0, r_px = 0, e1 = 0, e2 = 0;
+};
+bool project_sphere_outline(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                            ProjectedOutline& out);
+
+/// MarkerHint of an instrument marker of radius `radius_mm` at `centre_rig_mm` threaded on a shaft of radius
+/// `shaft_radius_mm` along `axis_rig` (unit), with the outline prior from project_sphere_outline(). False when the
+/// marker does not project.
+bool predict_shaft_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                        const Eigen::Vector3d& axis_rig, double shaft_radius_mm, MarkerHint& out);
+
+/// MarkerHint of an eye marker (radius `radius_mm`, at `centre_rig_mm`) with the eye's sphere as the occluder; false
+/// when the marker does not project or the eye hides none of it (a plain fit).
+bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                      const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out);
+
+struct TrackingFrame;
+
+/// Hints for the refinement from the tracker's newest poses (eye and instruments): which marker a blob is (its
+/// class, and the marker's predicted projection nearest the blob's centroid), and the occluders and outline the
+/// poses predict for it in that camera. Fixed capacity, no allocation after construction.
+class MarkerHintSource {
+public:
+    /// A blob further than this from every predicted marker of its class gets no hint (frame px): a pose one or
+    /// two fields old, and the visible part's centroid up to a radius from the centre.
+    static constexpr double kGatePx = 6.0;
+    /// A pose not measured for this many updates gives no hints.
+    static constexpr int kMaxAgeFrames = 5;
+
+    MarkerHintSource() = default;
+    /// The cameras (at most kMaxCameras) and bodies of the tracker whose frames update() gets.
+    MarkerHintSource(std::span<const CameraGeometry> cameras, const BodySet& bodies);
+
+    /// The poses of a new frame: measured instrument poses replace the held ones.
+    void update(const TrackingFrame& frame);
+    /// The same from the eye's pose and the instrument poses in BodySet order (measured() ones count).
+    void update(const EyePose& eye, std::span<const InstrumentPose> instruments);
+
+    /// The hint for `blob` of camera `camera` (its class, parity and centroid): the marker of its class predicted
+    /// nearest, within kGatePx. An instrument marker's hint holds its shaft; an eye marker's the eye's sphere, and
+    /// only where the eye hides part of it. False: no marker near, or nothing hides it (a plain fit).
+    bool hint(int camera, const BlobBox& blob, MarkerHint& out) const;
+
+    /// Whether any instrument pose is at hand.
+    bool ready() const;
+
+private:
+    int ncam_ = 0;
+    std::array<CameraGeometry, kMaxCameras> cams_{};
+    BodySet bodies_;
+    std::array<InstrumentPose, kMaxInstruments> poses_{};
+    std::array<int, kMaxInstruments> age_{};  // updates since measured; > kMaxAgeFrames: none
+    EyePose eye_;
+    int eye_age_ = kMaxAgeFrames + 1;
+};
+
+}  // namespace eyesim::tracking

@@ -1,0 +1,216 @@
+#include "eyesim/tracking/marker_prediction.hpp"
+
+#include "eyesim/tracking/distortion.hpp"
+#include "eyesim/tracking/tracker.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <cmath>
+
+namespace eyesim::tracking {
+
+bool project_sphere_outline(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                            ProjectedOutline& out) {
+    const Eigen::Vector3d c = cam.R_cam_rig * centre_rig_mm + cam.t_cam_rig_mm;
+    const double dist = c.norm();
+    if (!(radius_mm > 0) || !(dist > 2.0 * radius_mm) || !(c.z() > radius_mm)) return false;
+    // The circle where the camera's tangent cone touches the sphere, projected point by point through the camera
+    // model (distortion bends it), then one conic through the points.
+    const Eigen::Vector3d d = c / dist;
+    const Eigen::Vector3d u = d.unitOrthogonal(), w = d.cross(u);
+    const double back = radius_mm * radius_mm / dist, rad = radius_mm * std::sqrt(1.0 - back / dist);
+    const Eigen::Matrix3d rt = cam.R_cam_rig.transpose();
+    const Eigen::Vector3d centre_cam = c - back * d;
+    constexpr int kPoints = 24;
+    Eigen::Vector2d p0;
+    if (!project_point(cam, centre_rig_mm, p0)) return false;
+    Eigen::Matrix<double, 5, 5> ata = Eigen::Matrix<double, 5, 5>::Zero();
+    Eigen::Matrix<double, 5, 1> atb = Eigen::Matrix<double, 5, 1>::Zero();
+    for (int k = 0; k < kPoints; ++k) {
+        const double phi = 2.0 * M_PI * k / kPoints;
+        const Eigen::Vector3d q_cam = centre_cam + rad * (std::cos(phi) * u + std::sin(phi) * w);
+        Eigen::Vector2d px;
+        if (!project_point(cam, rt * (q_cam - cam.t_cam_rig_mm), px)) return false;
+        const double x = px.x() - p0.x(), y = px.y() - p0.y();
+        // A·x² + 2B·x·y + C·y² + 2D·x + 2E·y = 1 about the centre's projection (well conditioned).
+        const Eigen::Matrix<double, 5, 1> row(x * x, 2 * x * y, y * y, 2 * x, 2 * y);
+        ata += row * row.transpose();
+        atb += row;
+    }
+    const Eigen::Matrix<double, 5, 1> s = ata.ldlt().solve(atb);
+    Eigen::Matrix2d m;
+    m << s(0), s(1), s(1), s(2);
+    const Eigen::Vector2d b(s(3), s(4));
+    if (!s.allFinite() || !(m.determinant() > 0) || !(m.trace() > 0)) return false;
+    const Eigen::Vector2d off = -m.inverse() * b;
+    const double k = 1.0 + b.dot(m.inverse() * b), norm = 2.0 / m.trace();
+    out.x_px = p0.x() + off.x();
+    out.v_px = p0.y() + off.y();
+    out.r_px = std::sqrt(k * norm);
+    out.e1 = 0.5 * (m(0, 0) - m(1, 1)) * norm;
+    out.e2 = m(0, 1) * norm;
+    return std::isfinite(out.r_px);
+}
+
+namespace {
+
+// The hint's view frame for a marker: outline prior and the map from frame px to marker radii; `ex`, `ey`, `d`
+// the view frame's axes in the rig frame.
+bool view_frame(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm, MarkerHint& out,
+                Eigen::Vector3d& ex, Eigen::Vector3d& ey, Eigen::Vector3d& d) {
+    ProjectedOutline o;
+    if (!project_sphere_outline(cam, centre_rig_mm, radius_mm, o)) return false;
+    Eigen::Vector2d px;
+    Eigen::Matrix<double, 2, 3> j;  // ∂px/∂X_rig at the centre (distortion included)
+    if (!project_point(cam, centre_rig_mm, px, &j)) return false;
+    // View frame: z along the line of sight, x and y across it; a view-frame offset projects by j (moving along the
+    // line of sight does not move the image), so its inverse maps frame-px offsets back to marker radii.
+    const Eigen::Vector3d los = centre_rig_mm - cam.centre_rig_mm();
+    d = los.normalized();
+    ex = d.unitOrthogonal();
+    ey = d.cross(ex);
+    Eigen::Matrix2d across;
+    across.col(0) = j * ex;
+    across.col(1) = j * ey;
+    // A frame row is a frame px: j is in frame px, as the fit's (x, v).
+    const Eigen::Matrix2d inv = (across * radius_mm).inverse();
+    if (!inv.allFinite()) return false;
+    out = MarkerHint{};
+    out.radius_px = o.r_px;
+    out.e1 = o.e1;
+    out.e2 = o.e2;
+    out.view_per_px[0] = inv(0, 0);
+    out.view_per_px[1] = inv(0, 1);
+    out.view_per_px[2] = inv(1, 0);
+    out.view_per_px[3] = inv(1, 1);
+    out.view_distance = los.norm() / radius_mm;
+    return true;
+}
+
+}  // namespace
+
+bool predict_shaft_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                        const Eigen::Vector3d& axis_rig, double shaft_radius_mm, MarkerHint& out) {
+    Eigen::Vector3d ex, ey, d;
+    if (!view_frame(cam, centre_rig_mm, radius_mm, out, ex, ey, d)) return false;
+    const Eigen::Vector3d a = axis_rig.normalized();
+    out.axis_view[0] = a.dot(ex);
+    out.axis_view[1] = a.dot(ey);
+    out.axis_view[2] = a.dot(d);
+    out.radius_ratio = shaft_radius_mm / radius_mm;
+    return true;
+}
+
+bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                      const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out) {
+    Eigen::Vector3d ex, ey, d;
+    if (!view_frame(cam, centre_rig_mm, radius_mm, out, ex, ey, d)) return false;
+    const Eigen::Vector3d e = (eye_centre_rig_mm - centre_rig_mm) / radius_mm;
+    out.occluder_view[0] = e.dot(ex);
+    out.occluder_view[1] = e.dot(ey);
+    out.occluder_view[2] = e.dot(d);
+    out.occluder_radius = eye_radius_mm / radius_mm;
+    // Only where the eye hides some of the marker's disc: elsewhere the plain fit stands.
+    for (int k = 0; k < 32; ++k) {
+        const double phi = 2.0 * M_PI * k / 32, rr = 0.97;
+        if (hint_covers(out, rr * std::cos(phi), rr * std::sin(phi))) return true;
+    }
+    return false;
+}
+
+MarkerHintSource::MarkerHintSource(std::span<const CameraGeometry> cameras, const BodySet& bodies) : bodies_(bodies) {
+    ncam_ = static_cast<int>(std::min<std::size_t>(cameras.size(), kMaxCameras));
+    for (int c = 0; c < ncam_; ++c) cams_[static_cast<std::size_t>(c)] = cameras[static_cast<std::size_t>(c)];
+    age_.fill(kMaxAgeFrames + 1);
+}
+
+void MarkerHintSource::update(const TrackingFrame& frame) {
+    update(frame.eye,
+           std::span<const InstrumentPose>(frame.instruments.data(), static_cast<std::size_t>(frame.instrument_count)));
+}
+
+void MarkerHintSource::update(const EyePose& eye, std::span<const InstrumentPose> instruments) {
+    if (eye.measured()) {
+        eye_ = eye;
+        eye_age_ = 0;
+    } else if (eye_age_ <= kMaxAgeFrames) {
+        ++eye_age_;
+    }
+    for (std::size_t b = 0; b < poses_.size(); ++b) {
+        if (b < instruments.size() && instruments[b].measured()) {
+            poses_[b] = instruments[b];
+            age_[b] = 0;
+        } else if (age_[b] <= kMaxAgeFrames) {
+            ++age_[b];
+        }
+    }
+}
+
+bool MarkerHintSource::ready() const {
+    if (eye_age_ <= kMaxAgeFrames) return true;
+    for (int b = 0; b < bodies_.instrument_count; ++b)
+        if (age_[static_cast<std::size_t>(b)] <= kMaxAgeFrames) return true;
+    return false;
+}
+
+bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) const {
+    if (camera < 0 || camera >= ncam_) return false;
+    const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
+    const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
+    double best = kGatePx;
+    int best_b = -1, best_m = -1;
+    Eigen::Vector3d best_centre = Eigen::Vector3d::Zero();
+    for (int b = 0; b < bodies_.instrument_count; ++b) {
+        const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
+        const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
+        if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames || !(im.shaft_radius_mm > 0)) continue;
+        const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
+        for (int m = 0; m < im.marker_count; ++m) {
+            const BodyMarker& bm = im.markers[static_cast<std::size_t>(m)];
+            if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) continue;
+            const Eigen::Vector3d centre = pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm);
+            Eigen::Vector2d px;
+            if (!project_point(cam, centre, px)) continue;
+            const double d = (px - seen).norm();
+            if (d < best) {
+                best = d;
+                best_b = b;
+                best_m = m;
+                best_centre = centre;
+            }
+        }
+    }
+    // The eye's markers: the nearest of all wins (an eye marker is not fitted with a shaft).
+    bool eye_nearest = false;
+    if (eye_age_ <= kMaxAgeFrames) {
+        const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
+        for (int m = 0; m < bodies_.eye.marker_count; ++m) {
+            const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(m)];
+            if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) continue;
+            const Eigen::Vector3d centre = eye_.centre_rig_mm + r * bm.pos_body_mm;
+            Eigen::Vector2d px;
+            if (!project_point(cam, centre, px)) continue;
+            const double d = (px - seen).norm();
+            if (d < best) {
+                best = d;
+                best_m = m;
+                best_centre = centre;
+                eye_nearest = true;
+            }
+        }
+    }
+    if (eye_nearest)
+        return predict_eye_hint(cam, best_centre, bodies_.eye.markers[static_cast<std::size_t>(best_m)].radius_mm,
+                                eye_.centre_rig_mm, bodies_.eye.radius_mm, out);
+    if (best_b < 0) return false;
+    const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(best_b)];
+    const InstrumentPose& pose = poses_[static_cast<std::size_t>(best_b)];
+    const Eigen::Vector3d axis = pose.rotation_body_to_rig * im.axis_body;
+    return predict_shaft_hint(cam, best_centre, im.markers[static_cast<std::size_t>(best_m)].radius_mm, axis,
+                              im.shaft_radius_mm, out);
+}
+
+}  // namespace eyesim::tracking
