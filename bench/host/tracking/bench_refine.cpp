@@ -1,12 +1,15 @@
 // Blob refinement (tracking/refine.hpp): run time per blob against centroid error, beside the pipeline's own
 // centroid, on fields with known truth:
 //  - rig: shaded spheres from the rig renderer (perspective, lens distortion, shading, motion blur, shot noise,
-//    the eye's limb), one recording per seed, truth = the rendered intensity centroid; unoccluded markers only;
+//    the eye's limb), one recording per seed, truth = the rendered intensity centroid (of the visible part);
+//    unoccluded markers, and apart the markers their shaft or the eye partly hides;
 //  - discs: flat discs from the pipeline tests' generator (field_gen.hpp), 24 per field with random sub-pixel
 //    centres and diameters, truth = the coverage centroid; the fit with its flat-disc model.
 // Each fit configuration runs on the same blobs; time is thread CPU per blob (every blob of every field, refused
 // ones included), error is the RMS (and the mean, the bias) over matched markers of the fit's centroid where it
-// accepts and the pipeline's where it refuses.
+// accepts and the pipeline's where it refuses. The occlusion-aware fit takes its hints (tracking::MarkerHintSource)
+// from the rig's eye and instrument poses at each field's reference time (cam0's exposure: the other cameras'
+// are up to a field off, as old as the live chain's poses).
 //
 // Usage: bench_refine [--seeds N=6] [--first-seed K=1] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20]
 //                     [--no-reference] [--json]
@@ -20,21 +23,26 @@
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/marker_prediction.hpp"
 #include "eyesim/tracking/refine.hpp"
+#include "eyesim/tracking/rig_adapter.hpp"
 #include "thread_cpu.hpp"
 
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <deque>
 #include <ctime>
 #include <filesystem>
 #include <map>
 #include <memory>
 #include <random>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -57,6 +65,7 @@ struct Method {
     std::string name;
     bool fit = true;  // false: the pipeline's centroid
     tracking::SphereFitConfig cfg;
+    bool hints = false;  // the occlusion-aware fit (MarkerHintSource)
 };
 
 // One (data, noise, method, size) cell.
@@ -76,7 +85,8 @@ struct Out {
 };
 
 std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, const std::vector<fpga::Blob>& blobs,
-                            tracking::SphereFitWorkspace& work, std::vector<double>& all_us) {
+                            tracking::SphereFitWorkspace& work, std::vector<double>& all_us,
+                            const tracking::MarkerHintSource* hints = nullptr, int camera = -1) {
     std::vector<Out> out;
     out.reserve(blobs.size());
     for (const fpga::Blob& b : blobs) {
@@ -84,7 +94,11 @@ std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, c
         if (m.fit) {
             const tracking::BlobBox box = tracking::blob_box(b);
             const double t0 = eyesim::bench::thread_cpu_s();
-            const tracking::SphereFitResult r = tracking::fit_sphere(field, height, box, m.cfg, work);
+            // The hint's prediction is part of the fit's cost.
+            tracking::MarkerHint hint;
+            const bool hinted = m.hints && hints && hints->hint(camera, box, hint);
+            const tracking::SphereFitResult r =
+                tracking::fit_sphere(field, height, box, m.cfg, work, hinted ? &hint : nullptr);
             o.us = 1e6 * (eyesim::bench::thread_cpu_s() - t0);
             all_us.push_back(o.us);
             o.iterations = r.iterations;
@@ -168,6 +182,13 @@ int main(int argc, char** argv) {
         ms.push_back({"sphere fit, analytic coverage (default)", true, fast});
         return ms;
     };
+    auto rig_methods = [&](double noise) {
+        std::vector<Method> ms = methods_for(rig_cfg, noise);
+        tracking::SphereFitConfig fast = rig_cfg;
+        fast.noise_dn = noise;
+        ms.push_back({"sphere fit, occlusion hints (default with poses)", true, fast, true});
+        return ms;
+    };
 
     auto work = std::make_unique<tracking::SphereFitWorkspace>();
     fpga::Pipeline pipe{fpga::RegisterMap{}};
@@ -178,7 +199,7 @@ int main(int argc, char** argv) {
         Cell bins[3];
         std::vector<double> all_us;
     };
-    std::vector<Row> rows;
+    std::deque<Row> rows;  // references stay valid as rows are added
     auto row_for = [&](const std::string& data, double noise, const std::string& method) -> Row& {
         for (Row& r : rows)
             if (r.data == data && r.noise == noise && r.method == method) return r;
@@ -189,8 +210,9 @@ int main(int argc, char** argv) {
     for (int s = first_seed; s < first_seed + seeds; ++s) seed_list.push_back(static_cast<uint64_t>(s));
 
     try {
+        const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
         for (double noise : {1.0, 2.0}) {
-            const std::vector<Method> ms = methods_for(rig_cfg, noise);
+            const std::vector<Method> ms = rig_methods(noise);
             for (uint64_t seed : seed_list) {
                 const std::string dir =
                     (std::filesystem::temp_directory_path() / ("eyesim_bench_refine_" + std::to_string(seed))).string();
@@ -206,7 +228,27 @@ int main(int argc, char** argv) {
                 const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
                 const int64_t n = std::min<int64_t>(rec.common_field_count(), static_cast<int64_t>(truth.size()));
                 std::vector<uint8_t> field(static_cast<size_t>(rig::kFieldBytes));
-                for (int64_t i = 0; i < n; ++i)
+                std::vector<tracking::SceneInstrument> scene;
+                for (const rig::InstrumentTruth& it : truth.front().instruments) scene.push_back({it.kind, it.trocar});
+                std::vector<tracking::CameraGeometry> cams;
+                for (const rig::CameraModel& cm : rec.cameras()) cams.push_back(tracking::camera_geometry(cm));
+                tracking::MarkerHintSource hints(cams, tracking::body_set(bodies, scene));
+                for (int64_t i = 0; i < n; ++i) {
+                    const rig::FieldTruth& tr = truth[static_cast<size_t>(i)];
+                    std::array<tracking::InstrumentPose, tracking::kMaxInstruments> poses{};
+                    const size_t ni = std::min(tr.instruments.size(), poses.size());
+                    for (size_t b = 0; b < ni; ++b) {
+                        poses[b].tip_rig_mm = tr.instruments[b].tip_rig_mm;
+                        poses[b].axis_rig = tr.instruments[b].axis_rig;
+                        poses[b].rotation_body_to_rig =
+                            Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), tr.instruments[b].axis_rig);
+                        poses[b].flags = tracking::kPoseOk;
+                    }
+                    tracking::EyePose eye;
+                    eye.centre_rig_mm = tr.eye_center_rig_mm;
+                    eye.rotation_eye_to_rig = tr.q_eye_to_rig;
+                    eye.flags = tracking::kPoseOk;
+                    hints.update(eye, std::span<const tracking::InstrumentPose>(poses.data(), ni));
                     for (int cam = 0; cam < rec.camera_count(); ++cam) {
                         rec.read_field(cam, i, field.data());
                         const std::vector<fpga::Blob> blobs = blobs_of(pipe, field.data(), rig::kFieldHeight);
@@ -216,9 +258,9 @@ int main(int argc, char** argv) {
                         std::vector<std::pair<int, const rig::MarkerCameraTruth*>> matched;
                         std::vector<bool> used;
                         rig::match_markers(
-                            truth[static_cast<size_t>(i)], cam, det, 3.0,
+                            tr, cam, det, 3.0,
                             [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
-                                return v.visible && !(v.area_px < 2.0) && !(v.occluded_fraction > 0.0);
+                                return v.visible && !(v.area_px < 2.0);
                             },
                             [&](const rig::MarkerMatch& m) {
                                 if (m.detection >= 0) matched.emplace_back(m.detection, m.view);
@@ -226,13 +268,14 @@ int main(int argc, char** argv) {
                             used);
                         for (const Method& m : ms) {
                             Row& row = row_for("rig " + scenario, noise, m.name);
+                            Row& hidden = row_for("rig " + scenario + ", partly hidden", noise, m.name);
                             const std::vector<Out> out =
-                                run_method(m, field.data(), rig::kFieldHeight, blobs, *work, row.all_us);
+                                run_method(m, field.data(), rig::kFieldHeight, blobs, *work, row.all_us, &hints, cam);
                             for (const auto& [d, v] : matched) {
                                 const int bin = size_bin(2.0 * v->radius_px);
                                 if (bin < 0) continue;
                                 const Out& o = out[static_cast<size_t>(d)];
-                                Cell& c = row.bins[bin];
+                                Cell& c = (v->occluded_fraction > 0.0 ? hidden : row).bins[bin];
                                 c.se += std::pow(o.x - v->centroid_px.x(), 2) + std::pow(o.y - v->centroid_px.y(), 2);
                                 c.sum_dx += o.x - v->centroid_px.x();
                                 c.sum_dy += o.y - v->centroid_px.y();
@@ -243,6 +286,7 @@ int main(int argc, char** argv) {
                             }
                         }
                     }
+                }
                 std::filesystem::remove_all(dir);
             }
         }
@@ -307,8 +351,9 @@ int main(int argc, char** argv) {
     j["disc_fields_per_seed_and_size"] = disc_fields;
     j["rows"] = nlohmann::json::array();
     if (!json)
-        std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched, unoccluded markers; the "
-                    "pipeline's centroid where a fit refuses). Seeds %d-%d; rig: %s, %.2f s per seed.\n\n"
+        std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched markers, unoccluded and partly "
+                    "hidden apart; the pipeline's centroid where a fit refuses). Seeds %d-%d; rig: %s, %.2f s per "
+                    "seed.\n\n"
                     "| data | noise σ DN | method | size px | markers | refined | RMS px | bias x / y px | iterations | µs/blob p50 | µs/blob p99 |\n"
                     "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
                     first_seed, first_seed + seeds - 1, scenario.c_str(), seconds);

@@ -303,23 +303,47 @@ struct OutlineNorm {
     }
 };
 
-// Whether the shaft's image touches the box of half-sides hx, hv about the offset (dx, dv) from the sphere's centre
-// (frame px): a test of the box's centre against the shaft's band, then a grid at most 0.35 px apart.
+// The occluders' images are at least two pixels across (a shaft's band; the eye's rim is nearly straight at this
+// scale), so samples one pixel apart cannot pass between their edges: the tests below look at box corners only.
+
+// Whether an occluder's image touches the box of half-sides hx, hv about the offset (dx, dv) from the marker's
+// centre (frame px): its four corners and its centre.
 bool box_touches_occluder(const MarkerHint& hint, const OutlineNorm& nm, double dx, double dv, double hx, double hv) {
-    double qx, qy;
-    nm(dx, dv, qx, qy);
-    const double reach = std::hypot(hx, hv) * nm.stretch, axy = std::hypot(hint.axis_view[0], hint.axis_view[1]);
-    const double dist = axy > 1e-9 ? std::fabs(qy * hint.axis_view[0] - qx * hint.axis_view[1]) / axy : std::hypot(qx, qy);
-    if (!(hint.occluder_radius > 0) && dist - reach > hint.radius_ratio) return false;
-    const int nxs = static_cast<int>(std::ceil(2.0 * hx / 0.35)) + 1, nvs = static_cast<int>(std::ceil(2.0 * hv / 0.35)) + 1;
-    for (int b = 0; b < nvs; ++b) {
-        const double vv = dv - hv + 2.0 * hv * b / (nvs - 1);
-        for (int a = 0; a < nxs; ++a) {
-            nm(dx - hx + 2.0 * hx * a / (nxs - 1), vv, qx, qy);
-            if (hint_covers(hint, qx, qy)) return true;
-        }
+    const double px[5] = {dx - hx, dx + hx, dx - hx, dx + hx, dx}, pv[5] = {dv - hv, dv - hv, dv + hv, dv + hv, dv};
+    for (int k = 0; k < 5; ++k) {
+        double qx, qy;
+        nm(px[k], pv[k], qx, qy);
+        if (hint_covers(hint, qx, qy)) return true;
     }
     return false;
+}
+
+// Occluder cover of the boxes (half-sides 0.5 + m and hv) of the n pixels at offsets dx0 + k, k = 0 … n − 1, on the
+// line at dv: state[k] bit 0: a corner covered; bit 1: every corner covered. Corners one pixel apart along the
+// box's top and bottom edges (and its middle, for a box over 1.5 px tall), shared between neighbours.
+constexpr int kMaxCoverCols = kFitMaxCols + 24;
+void line_cover(const MarkerHint& hint, const OutlineNorm& nm, double dx0, double dv, int n, double m, double hv,
+                uint8_t* state) {
+    const int span = static_cast<int>(std::ceil(1.0 + 2.0 * m));  // corner steps across one widened box
+    const int nc = std::min(n + span, kMaxCoverCols);
+    const int rows = 2.0 * hv > 1.5 ? 3 : 2;
+    const double rv[3] = {dv - hv, dv + hv, dv};
+    uint8_t corner[kMaxCoverCols + 1];
+    for (int i = 0; i <= nc; ++i) corner[i] = 0;
+    for (int r = 0; r < rows; ++r)
+        for (int i = 0; i <= nc; ++i) {
+            double qx, qy;
+            nm(dx0 - 0.5 - m + i, rv[r], qx, qy);
+            corner[i] = static_cast<uint8_t>(corner[i] + (hint_covers(hint, qx, qy) ? 1 : 0));
+        }
+    for (int k = 0; k < n; ++k) {
+        int any = 0, all = 1;
+        for (int i = k; i <= std::min(k + span, nc); ++i) {
+            any |= corner[i] != 0;
+            all &= corner[i] == rows;
+        }
+        state[k] = static_cast<uint8_t>(any | (all << 1));
+    }
 }
 
 struct Patch {
@@ -1073,11 +1097,13 @@ public:
         const double hv = 0.5 * cfg_.aperture_lines_px + m;
         int covered = 0;
         changed = false;
+        uint8_t touched[kMaxCoverCols];  // columns x0 − 1 … x1 + 1: a chroma sample spans three
         for (int j = 0; j < p_.lines; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - t[kV0];
+            line_cover(hint, nm, p_.x0 - 1 - t[kX0], dv, nx + 2, m, hv, touched);
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x;
-                const uint8_t c = box_touches_occluder(hint, nm, p_.x0 + x - t[kX0], dv, 0.5 + m, hv);
+                const uint8_t c = touched[x + 1] != 0;
                 changed |= c != w_.hidden_y[o];
                 w_.hidden_y[o] = c;
                 w_.keep_y[o] = !c;
@@ -1085,8 +1111,8 @@ public:
             }
             int sidx = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++sidx) {
-                const int o = j * nx + sidx;
-                const uint8_t c = box_touches_occluder(hint, nm, x - t[kX0], dv, 1.5 + m, hv);
+                const int o = j * nx + sidx, i = x - p_.x0 + 1;
+                const uint8_t c = (touched[i - 1] | touched[i] | touched[i + 1]) != 0;
                 changed |= c != w_.hidden_c[o];
                 w_.hidden_c[o] = c;
                 w_.keep_cb[o] = w_.keep_cr[o] = !c;
@@ -1284,12 +1310,12 @@ void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, do
     cy = 0.5 * (sv / si - parity);
 }
 
-// Intensity centroid of the part of the fitted sphere a shaft leaves visible (field px), as intensity_centroid():
-// pixels the shaft cannot reach from their analytic integrals, the others from 8 × 8 sub-samples, each in the
-// sphere and not behind the shaft.
+// Intensity centroid of the part of the fitted sphere the hint's occluders leave visible (field px), as
+// intensity_centroid(): pixels clear of them or wholly behind them from their analytic integrals, the others from
+// n × n sub-samples, each in the sphere and not behind an occluder; `visible_fraction`: the share of the sphere's
+// light left.
 void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, const MarkerHint& hint, double& cx,
-                      double& cy, double* visible_fraction = nullptr) {
-    constexpr int n = 8;
+                      double& cy, double* visible_fraction = nullptr, int n = 8) {
     const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2], ap = cfg.aperture_lines_px;
     const double reach = r / std::sqrt(1.0 - std::min(0.9, std::hypot(e1, e2))) + 1.5, inv_r2 = 1.0 / (r * r);
     const OutlineNorm nm(hint, r, e1, e2);
@@ -1299,13 +1325,18 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
     lo_v += ((lo_v - parity) & 1);
     const int hi_v = static_cast<int>(std::ceil(v0 + reach));
     const int lo_x = static_cast<int>(std::floor(x0 - reach)), hi_x = static_cast<int>(std::ceil(x0 + reach));
-    for (int v = lo_v; v <= hi_v; v += 2)
-        for (int x = lo_x; x <= hi_x; ++x) {
+    uint8_t state[kMaxCoverCols];
+    const int ncols = std::min(hi_x - lo_x + 1, kMaxCoverCols - 1);
+    for (int v = lo_v; v <= hi_v; v += 2) {
+        line_cover(hint, nm, lo_x - x0, v - v0, ncols, 0.0, 0.5 * ap, state);
+        for (int k = 0; k < ncols; ++k) {
+            const int x = lo_x + k;
             double in = 0, whole_px = 0;
-            if (!box_touches_occluder(hint, nm, x - x0, v - v0, 0.5, 0.5 * ap)) {
+            if (state[k] != 1) {  // clear, or wholly covered: the analytic integral
                 if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi)) continue;
-                in = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
-                whole += in;
+                const double full = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
+                whole += full;
+                if (state[k] == 0) in = full;
             } else {
                 for (int b = 0; b < n; ++b) {
                     const double dv = v + ap * (-0.5 + (b + 0.5) / n) - v0;
@@ -1327,6 +1358,7 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
             sx += in * x;
             sv += in * v;
         }
+    }
     cx = si > 0 ? sx / si : x0;
     cy = si > 0 ? 0.5 * (sv / si - parity) : 0.5 * (v0 - parity);
     if (visible_fraction) *visible_fraction = whole > 0 ? si / whole : 0.0;
@@ -1530,7 +1562,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     auto start_behind_occluders = [&] {
         for (int k = 0; hint && k < 2; ++k) {
             double vx, vy;
-            visible_centroid(cfg, t, p.parity, *hint, vx, vy);
+            visible_centroid(cfg, t, p.parity, *hint, vx, vy, nullptr, 4);  // a start: 4 × 4 sub-samples do
             t[kX0] += cx0 - vx;
             t[kV0] += 2.0 * (cy0 - vy);
         }
