@@ -236,19 +236,9 @@ int main(int argc, char** argv) {
                 for (int64_t i = 0; i < n; ++i) {
                     const rig::FieldTruth& tr = truth[static_cast<size_t>(i)];
                     std::array<tracking::InstrumentPose, tracking::kMaxInstruments> poses{};
-                    const size_t ni = std::min(tr.instruments.size(), poses.size());
-                    for (size_t b = 0; b < ni; ++b) {
-                        poses[b].tip_rig_mm = tr.instruments[b].tip_rig_mm;
-                        poses[b].axis_rig = tr.instruments[b].axis_rig;
-                        poses[b].rotation_body_to_rig =
-                            Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), tr.instruments[b].axis_rig);
-                        poses[b].flags = tracking::kPoseOk;
-                    }
                     tracking::EyePose eye;
-                    eye.centre_rig_mm = tr.eye_center_rig_mm;
-                    eye.rotation_eye_to_rig = tr.q_eye_to_rig;
-                    eye.flags = tracking::kPoseOk;
-                    hints.update(eye, std::span<const tracking::InstrumentPose>(poses.data(), ni));
+                    const int ni = tracking::truth_poses(tr, eye, poses);
+                    hints.update(eye, std::span<const tracking::InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
                     for (int cam = 0; cam < rec.camera_count(); ++cam) {
                         rec.read_field(cam, i, field.data());
                         const std::vector<fpga::Blob> blobs = blobs_of(pipe, field.data(), rig::kFieldHeight);

@@ -87,10 +87,10 @@ void HostRun::set_clock_offset_us(double offset) {
     clock_fixed_ = clock_known_ = true;
 }
 
-void HostRun::enable_precision(const tr::SphereFitConfig& config, uint8_t class_mask) {
+void HostRun::enable_precision(const tr::SphereFitConfig& config, uint8_t class_mask, bool occlusion_hints) {
     precision_ = std::make_unique<PatchRefiner>(config, class_mask,
                                                 [this](const proto::FieldMarkers& part) { push_markers(part); });
-    precision_->set_hints(&marker_hints_);
+    if (occlusion_hints) precision_->set_hints(&marker_hints_);
     stats_.precision = true;
 }
 

@@ -86,4 +86,21 @@ std::vector<SceneInstrument> all_instruments(const rig::Bodies& bodies) {
     return out;
 }
 
+int truth_poses(const rig::FieldTruth& truth, EyePose& eye, std::span<InstrumentPose> instruments) {
+    eye = EyePose{};
+    eye.centre_rig_mm = truth.eye_center_rig_mm;
+    eye.rotation_eye_to_rig = truth.q_eye_to_rig;
+    eye.flags = kPoseOk;
+    const std::size_t n = std::min(truth.instruments.size(), instruments.size());
+    for (std::size_t b = 0; b < n; ++b) {
+        InstrumentPose& p = instruments[b];
+        p = InstrumentPose{};
+        p.tip_rig_mm = truth.instruments[b].tip_rig_mm;
+        p.axis_rig = truth.instruments[b].axis_rig;
+        p.rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), p.axis_rig);
+        p.flags = kPoseOk;
+    }
+    return static_cast<int>(n);
+}
+
 }  // namespace eyesim::tracking

@@ -14,6 +14,8 @@
 #include "eyesim/rig/match.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/rig/truth.hpp"
+#include "eyesim/tracking/marker_prediction.hpp"
+#include "eyesim/tracking/rig_adapter.hpp"
 #include "eyesim/transport/inproc.hpp"
 #include "../../firmware/transport_port.hpp"
 
@@ -26,6 +28,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <span>
 #include <string>
 #include <thread>
 
@@ -45,21 +48,17 @@ tracking::SphereFitConfig rig_fit_config() {
 
 }  // namespace
 
-TEST_CASE("precision mode live: run_live enables patches, the host refines markers as the offline fit on the field",
-          "[host][precision][e2e]") {
-    const auto tmp = std::filesystem::temp_directory_path() / ("eyesim_test_precision_" + std::to_string(::getpid()));
-    std::filesystem::remove_all(tmp);
-    std::filesystem::create_directories(tmp);
-    rig::SynthRequest req;
-    req.out_dir = (tmp / "rec").string();
-    req.scenario = "sweep";
-    req.seconds = 0.2;
-    req.seed = 5;
-    rig::write_recording(req);
-    rig::Recording rec = rig::Recording::open(req.out_dir);
-    const std::int64_t nfields = rec.common_field_count();
-    REQUIRE(nfields >= 10);
+namespace {
 
+// One live run of `rec`: the firmware core plays it over the in-process link, the host (tracker with precision on,
+// occlusion hints `hints`) runs run_live writing PATCH_ENABLE for every camera and class; the link's received bytes
+// go to `capture`.
+struct LiveRun {
+    frame::RunStats stats;
+    std::uint64_t patches_sent = 0, patches_dropped = 0;
+};
+LiveRun play_live(rig::Recording& rec, std::int64_t nfields, const std::vector<rig::FieldTruth>& truth,
+                  const std::string& capture, bool hints) {
     // The device: the firmware core playing the recording (field k of the stream is the recording's field k).
     firmware::pc::ModelledClock clock;
     std::vector<std::unique_ptr<firmware::pc::FieldSource>> sources;
@@ -96,26 +95,54 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     });
 
     // The host: tracker with precision on, the live loop writing PATCH_ENABLE for every camera and class.
-    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
     std::vector<tracking::SceneInstrument> instruments;
     for (const auto& it : truth[0].instruments) instruments.push_back({it.kind, it.trocar});
     frame::HostRun run(frame::tracker_config(rec.cameras(), rig::load_bodies(rig::default_bodies_path()), instruments));
-    run.enable_precision(rig_fit_config(), 0xF);
+    run.enable_precision(rig_fit_config(), 0xF, hints);
     frame::LiveOptions lo;
     lo.patch_enable = 0xF;
     lo.stall_seconds = 10.0;
-    lo.capture_out = (tmp / "live.capture").string();
+    lo.capture_out = capture;
     const frame::LiveResult live = frame::run_live(*host_end, run, lo);
     device.join();
     INFO(live.end);
     REQUIRE(core->counters().patches_sent > 0);
-    const frame::RunStats& st = run.stats();
+    return {run.stats(), core->counters().patches_sent, core->counters().patches_dropped};
+}
+
+
+}  // namespace
+
+TEST_CASE("precision mode live: run_live enables patches, the host refines markers as the offline fit on the field",
+          "[host][precision][e2e]") {
+    const auto tmp = std::filesystem::temp_directory_path() / ("eyesim_test_precision_" + std::to_string(::getpid()));
+    std::filesystem::remove_all(tmp);
+    std::filesystem::create_directories(tmp);
+    rig::SynthRequest req;
+    req.out_dir = (tmp / "rec").string();
+    req.scenario = "sweep";
+    req.seconds = 0.2;
+    req.seed = 5;
+    rig::write_recording(req);
+    rig::Recording rec = rig::Recording::open(req.out_dir);
+    const std::int64_t nfields = rec.common_field_count();
+    REQUIRE(nfields >= 10);
+
+    // Hints off: with them the fit also depends on the tracker's newest frame when the patch came, which the
+    // offline check below cannot replay; their own checks follow.
+    const std::vector<rig::FieldTruth> truth = rig::read_truth(rec.truth_path());
+    frame::LiveOptions lo;
+    lo.capture_out = (tmp / "live.capture").string();
+    const LiveRun lr = play_live(rec, nfields, truth, lo.capture_out, false);
+    const frame::RunStats& st = lr.stats;
+    REQUIRE(lr.patches_sent > 0);
     REQUIRE(st.precision);
     CHECK(st.frames > 0);
-    CHECK(st.patches.patches == core->counters().patches_sent);
+    CHECK(st.patches.patches == lr.patches_sent);
     CHECK(st.patches.unmatched == 0);
     CHECK(st.patches.incomplete == 0);
-    CHECK(st.patches.missing_patch == core->counters().patches_dropped);
+    CHECK(st.patches.missing_patch == lr.patches_dropped);
+    CHECK(st.patches.hinted_fits == 0);
 
     // Offline: what arrived (the capture of the live run) through a PatchRefiner, each marker against the fit on
     // the recording's whole field at the received (pipeline) marker.
@@ -224,6 +251,86 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     REQUIRE(n_ref * 10 >= n_all * 4);
     CHECK(rms_ref < rms_pipe);
     CHECK(rms_ref_all < rms_pipe_all);
+
+    // Occlusion hints. Live, as users run it: the host's own tracker places the shafts and the eye.
+    const LiveRun hinted = play_live(rec, nfields, truth, (tmp / "live_hints.capture").string(), true);
+    CHECK(hinted.stats.patches.hinted_fits > 0);
+    CHECK(hinted.stats.patches.refined > st.patches.refined);
+    // Offline on the same patches, with the rig's poses: what the patch (box and 2-px halo) gives a hinted fit on
+    // the markers their shaft or the eye partly hides, against the same refiner without hints.
+    const std::vector<tracking::CameraGeometry> cams = [&] {
+        std::vector<tracking::CameraGeometry> g;
+        for (const rig::CameraModel& m : rec.cameras()) g.push_back(tracking::camera_geometry(m));
+        return g;
+    }();
+    std::vector<tracking::SceneInstrument> scene;
+    for (const auto& it : truth[0].instruments) scene.push_back({it.kind, it.trocar});
+    tracking::MarkerHintSource source(cams, tracking::body_set(rig::load_bodies(rig::default_bodies_path()), scene));
+    std::map<std::tuple<int, std::uint32_t, int>, proto::Marker> with_hints;
+    std::map<std::pair<int, std::uint32_t>, int> with_count;
+    frame::PatchRefiner hinted_refiner(rig_fit_config(), 0xF, [&](const proto::FieldMarkers& p) {
+        int& n = with_count[{p.camera_id, p.field_counter}];
+        for (int k = 0; k < p.marker_count; ++k) with_hints[{p.camera_id, p.field_counter, n++}] = p.markers[std::size_t(k)];
+    });
+    hinted_refiner.set_hints(&source);
+    {
+        proto::CaptureReader reader;
+        REQUIRE(reader.open(lo.capture_out.c_str()));
+        proto::StreamParser parser;
+        proto::CaptureRecord r;
+        std::uint32_t posed = ~0u;
+        auto on = [&](const proto::DecodedFrame& f) {
+            if (const auto* fm = std::get_if<proto::FieldMarkers>(&f.message)) {
+                if (fm->field_counter != posed && fm->field_counter < truth.size()) {  // the field's poses
+                    std::array<tracking::InstrumentPose, tracking::kMaxInstruments> poses{};
+                    tracking::EyePose eye;
+                    const int ni = tracking::truth_poses(truth[fm->field_counter], eye, poses);
+                    source.update(eye, std::span<const tracking::InstrumentPose>(poses.data(), std::size_t(ni)));
+                    posed = fm->field_counter;
+                }
+                hinted_refiner.on_markers(*fm);
+            } else if (const auto* bp = std::get_if<proto::BlobPatch>(&f.message)) {
+                hinted_refiner.on_patch(*bp);
+            }
+        };
+        while (reader.next(r) == proto::CaptureStatus::Ok)
+            if (r.direction == proto::CaptureDirection::Received) parser.parse(r.bytes, on);
+        parser.finish(on);
+        hinted_refiner.flush();
+    }
+    REQUIRE(with_hints.size() == raw.size());
+    CHECK(hinted_refiner.stats().hinted_fits > 0);
+    double se_hidden_pipe = 0, se_hidden_plain = 0, se_hidden_hints = 0;
+    std::size_t n_hidden = 0;
+    for (const auto& [field_key, count] : raw_count) {
+        const auto [cam, fc] = field_key;
+        std::vector<rig::DetectedMarker> det;
+        for (int i = 0; i < count; ++i) {
+            const proto::Marker& m = raw.at({cam, fc, i});
+            det.push_back({m.colour_class, {double(m.x_q16) / 65536.0, double(m.y_q16) / 65536.0}});
+        }
+        rig::match_markers(
+            truth[fc], cam, std::span<const rig::DetectedMarker>(det), 3.0,
+            [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction > 0.02; },
+            [&](const rig::MarkerMatch& mm) {
+                if (mm.detection < 0) return;
+                const Eigen::Vector2d t = mm.view->centroid_px;
+                auto err = [&](const proto::Marker& m) {
+                    return (Eigen::Vector2d(m.x_q16 / 65536.0, m.y_q16 / 65536.0) - t).squaredNorm();
+                };
+                se_hidden_pipe += err(raw.at({cam, fc, mm.detection}));
+                se_hidden_plain += err(refined.at({cam, fc, mm.detection}));
+                se_hidden_hints += err(with_hints.at({cam, fc, mm.detection}));
+                ++n_hidden;
+            },
+            used);
+    }
+    INFO("partly hidden markers " << n_hidden << ": pipeline " << std::sqrt(se_hidden_pipe / double(n_hidden))
+                                  << " px, plain fit " << std::sqrt(se_hidden_plain / double(n_hidden))
+                                  << " px, with hints " << std::sqrt(se_hidden_hints / double(n_hidden)) << " px");
+    REQUIRE(n_hidden > 50);
+    CHECK(se_hidden_hints < 0.7 * se_hidden_plain);
+    CHECK(se_hidden_hints < 0.7 * se_hidden_pipe);
     std::filesystem::remove_all(tmp);
 }
 

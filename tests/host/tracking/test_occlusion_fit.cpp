@@ -207,17 +207,9 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
     for (int64_t i = 0; i < 20; ++i) {
         const rig::FieldTruth& tr = truth[static_cast<size_t>(i)];
         std::array<InstrumentPose, kMaxInstruments> poses{};
-        for (size_t b = 0; b < tr.instruments.size() && b < poses.size(); ++b) {
-            poses[b].tip_rig_mm = tr.instruments[b].tip_rig_mm;
-            poses[b].axis_rig = tr.instruments[b].axis_rig;
-            poses[b].rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), tr.instruments[b].axis_rig);
-            poses[b].flags = kPoseOk;
-        }
         EyePose eye;
-        eye.centre_rig_mm = tr.eye_center_rig_mm;
-        eye.rotation_eye_to_rig = tr.q_eye_to_rig;
-        eye.flags = kPoseOk;
-        source.update(eye, std::span<const InstrumentPose>(poses.data(), tr.instruments.size()));
+        const int ni = truth_poses(tr, eye, poses);
+        source.update(eye, std::span<const InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
         for (int cam = 0; cam < rec.camera_count(); ++cam) {
             rec.read_field(cam, i, f.bytes.data());
             const std::vector<Blob> blobs = run_field(p, f);

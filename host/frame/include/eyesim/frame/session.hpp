@@ -110,8 +110,9 @@ public:
     void set_clock_offset_us(double offset);
     /// Precision mode: FieldMarkers parts wait for their BlobPatch messages and each marker's centroid becomes
     /// the sphere fit on its patch where the fit accepts (PatchRefiner). `class_mask`: the PATCH_ENABLE bits the
-    /// device was given; `config`: the fit (see patch_fit_config).
-    void enable_precision(const tracking::SphereFitConfig& config, uint8_t class_mask);
+    /// device was given; `config`: the fit (see patch_fit_config); `occlusion_hints`: a marker the newest frame's
+    /// poses say is partly hidden by its shaft or the eye is fitted with that left out (tracking::MarkerHint).
+    void enable_precision(const tracking::SphereFitConfig& config, uint8_t class_mask, bool occlusion_hints = true);
     /// One decoded message received at `rx_host_us`.
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
     /// End of stream: frames still waiting are built (and simulated); the latency figures are settled.

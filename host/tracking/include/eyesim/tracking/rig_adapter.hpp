@@ -6,10 +6,13 @@
 #include "eyesim/tracking/body_model.hpp"
 #include "eyesim/tracking/camera_geometry.hpp"
 #include "eyesim/tracking/field_sync.hpp"
+#include "eyesim/tracking/pose.hpp"
 
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/camera.hpp"
+#include "eyesim/rig/truth.hpp"
 
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -37,5 +40,11 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
 /// (the usual rig), for live tracking when the scene is not known: each kind's colour order is unique, so only
 /// the instruments present are acquired.
 std::vector<SceneInstrument> all_instruments(const rig::Bodies& bodies);
+
+/// The rig's truth poses at a field's reference time as measured tracker poses (rig frame; instruments in the
+/// truth's order, as body_set() of the truth's scene lists them; the roll the shaft's axis does not give is the
+/// least turn from the body's z): what tests and benchmarks hand MarkerHintSource in place of a tracker. Returns
+/// how many instruments were written (at most instruments.size()).
+int truth_poses(const rig::FieldTruth& truth, EyePose& eye, std::span<InstrumentPose> instruments);
 
 }  // namespace eyesim::tracking
