@@ -161,8 +161,21 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
     double best = kGatePx;
-    int best_b = -1, best_m = -1;
+    int best_b = -1, best_m = -1;  // best_b −1 with best_m set: an eye marker
     Eigen::Vector3d best_centre = Eigen::Vector3d::Zero();
+    // A marker of the blob's class at `centre` (rig), nearer the blob than the best so far, becomes the best.
+    auto consider = [&](const BodyMarker& bm, const Eigen::Vector3d& centre, int body, int m) {
+        if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) return;
+        Eigen::Vector2d px;
+        if (!project_point(cam, centre, px)) return;
+        const double d = (px - seen).norm();
+        if (d < best) {
+            best = d;
+            best_b = body;
+            best_m = m;
+            best_centre = centre;
+        }
+    };
     for (int b = 0; b < bodies_.instrument_count; ++b) {
         const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
         const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
@@ -170,38 +183,18 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
         const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
         for (int m = 0; m < im.marker_count; ++m) {
             const BodyMarker& bm = im.markers[static_cast<std::size_t>(m)];
-            if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) continue;
-            const Eigen::Vector3d centre = pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm);
-            Eigen::Vector2d px;
-            if (!project_point(cam, centre, px)) continue;
-            const double d = (px - seen).norm();
-            if (d < best) {
-                best = d;
-                best_b = b;
-                best_m = m;
-                best_centre = centre;
-            }
+            consider(bm, pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm), b, m);
         }
     }
     // The eye's markers: the nearest of all wins (an eye marker is not fitted with a shaft).
-    bool eye_nearest = false;
     if (eye_age_ <= kMaxAgeFrames) {
         const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
         for (int m = 0; m < bodies_.eye.marker_count; ++m) {
             const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(m)];
-            if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) continue;
-            const Eigen::Vector3d centre = eye_.centre_rig_mm + r * bm.pos_body_mm;
-            Eigen::Vector2d px;
-            if (!project_point(cam, centre, px)) continue;
-            const double d = (px - seen).norm();
-            if (d < best) {
-                best = d;
-                best_m = m;
-                best_centre = centre;
-                eye_nearest = true;
-            }
+            consider(bm, eye_.centre_rig_mm + r * bm.pos_body_mm, -1, m);
         }
     }
+    const bool eye_nearest = best_b < 0 && best_m >= 0;
     if (eye_nearest)
         return predict_eye_hint(cam, best_centre, bodies_.eye.markers[static_cast<std::size_t>(best_m)].radius_mm,
                                 eye_.centre_rig_mm, bodies_.eye.radius_mm, out);

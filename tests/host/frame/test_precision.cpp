@@ -219,16 +219,21 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     // Against the rendered truth: over the wholly visible markers matched to a truth marker, the refined centroids
     // (the fit's where it accepted) are closer to the truth centroids than the pipeline's.
     REQUIRE(std::int64_t(truth.size()) >= nfields);
-    double se_pipe = 0, se_ref = 0, se_pipe_all = 0, se_ref_all = 0;
-    std::size_t n_ref = 0, n_all = 0;
-    std::vector<bool> used;
-    for (const auto& [field_key, count] : raw_count) {
-        const auto [cam, fc] = field_key;
+    // The markers camera `cam` sent for field `fc` (the pipeline's centroids), as detections to match.
+    auto received = [&](int cam, std::uint32_t fc, int count) {
         std::vector<rig::DetectedMarker> det;
         for (int i = 0; i < count; ++i) {
             const proto::Marker& m = raw.at({cam, fc, i});
             det.push_back({m.colour_class, {double(m.x_q16) / 65536.0, double(m.y_q16) / 65536.0}});
         }
+        return det;
+    };
+    double se_pipe = 0, se_ref = 0, se_pipe_all = 0, se_ref_all = 0;
+    std::size_t n_ref = 0, n_all = 0;
+    std::vector<bool> used;
+    for (const auto& [field_key, count] : raw_count) {
+        const auto [cam, fc] = field_key;
+        const std::vector<rig::DetectedMarker> det = received(cam, fc, count);
         rig::match_markers(
             truth[fc], cam, std::span<const rig::DetectedMarker>(det), 1.5,
             [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction == 0.0; },
@@ -304,11 +309,7 @@ TEST_CASE("precision mode live: run_live enables patches, the host refines marke
     std::size_t n_hidden = 0;
     for (const auto& [field_key, count] : raw_count) {
         const auto [cam, fc] = field_key;
-        std::vector<rig::DetectedMarker> det;
-        for (int i = 0; i < count; ++i) {
-            const proto::Marker& m = raw.at({cam, fc, i});
-            det.push_back({m.colour_class, {double(m.x_q16) / 65536.0, double(m.y_q16) / 65536.0}});
-        }
+        const std::vector<rig::DetectedMarker> det = received(cam, fc, count);
         rig::match_markers(
             truth[fc], cam, std::span<const rig::DetectedMarker>(det), 3.0,
             [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction > 0.02; },
