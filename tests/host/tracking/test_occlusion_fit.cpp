@@ -303,3 +303,73 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
         CHECK(std::fabs(sum_dy[par] / n_parity[par]) < 0.01);
     }
 }
+
+TEST_CASE("marker hints: the nearest predicted marker of the blob's class, within the gate, unambiguous, while the "
+          "pose is fresh",
+          "[tracking][refine]") {
+    CameraGeometry cam;
+    cam.fx = cam.fy = 800.0;
+    cam.cx = 360.0;
+    cam.cy = 288.0;
+    BodySet bodies;
+    bodies.instrument_count = 2;
+    for (int b = 0; b < 2; ++b) {
+        InstrumentModel& im = bodies.instruments[static_cast<size_t>(b)];
+        im.shaft_radius_mm = 0.25;
+        im.marker_count = 2;
+        im.markers[0] = {1, Eigen::Vector3d(0, 0, 5), 0.7};
+        im.markers[1] = {2, Eigen::Vector3d(0, 0, 10), 0.7};
+    }
+    MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
+    std::array<InstrumentPose, 2> poses{};
+    const Eigen::Vector3d axis = Eigen::Vector3d(0.4, 0.2, -0.9).normalized();
+    poses[0].tip_rig_mm = Eigen::Vector3d(-10, 0, 120);
+    poses[1].tip_rig_mm = Eigen::Vector3d(10, 0, 120);
+    for (InstrumentPose& p : poses) {
+        p.axis_rig = axis;
+        p.rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
+        p.flags = kPoseOk;
+    }
+    EyePose no_eye;  // never measured: no eye markers
+    source.update(no_eye, poses);
+    REQUIRE(source.ready());
+    // The field-px blob at a marker's projection (frame row v = 2·y + parity).
+    auto blob_at = [&](int b, int m, double dx_px) {
+        Eigen::Vector2d px;
+        const Eigen::Vector3d c = poses[static_cast<size_t>(b)].tip_rig_mm +
+                                  poses[static_cast<size_t>(b)].rotation_body_to_rig * bodies.instruments[static_cast<size_t>(b)].markers[static_cast<size_t>(m)].pos_body_mm;
+        REQUIRE(project_point(cam, c, px));
+        BlobBox box;
+        box.class_id = bodies.instruments[static_cast<size_t>(b)].markers[static_cast<size_t>(m)].colour_class;
+        box.parity = 0;
+        box.cx_px = px.x() + dx_px;
+        box.cy_px = 0.5 * px.y();
+        return box;
+    };
+    MarkerHint h;
+    CHECK(source.hint(0, blob_at(0, 0, 0.0), h));
+    CHECK(h.radius_ratio == Approx(0.25 / 0.7));
+    CHECK(h.occluder_radius == 0);
+    CHECK(std::fabs(std::hypot(h.axis_view[0], h.axis_view[1]) - std::sqrt(1 - h.axis_view[2] * h.axis_view[2])) < 1e-12);
+    CHECK(source.hint(0, blob_at(1, 1, 2.0), h));           // within the gate
+    CHECK_FALSE(source.hint(0, blob_at(1, 1, 6.5), h));     // beyond it
+    CHECK_FALSE(source.hint(1, blob_at(0, 0, 0.0), h));     // no such camera
+    BlobBox other = blob_at(0, 0, 0.0);
+    other.class_id = 4;                                     // a class no instrument marker has
+    CHECK_FALSE(source.hint(0, other, h));
+    // The second instrument's class-1 marker moved next to the first's: which one the blob is, is not sure.
+    std::array<InstrumentPose, 2> crossed = poses;
+    crossed[1].tip_rig_mm = poses[0].tip_rig_mm + Eigen::Vector3d(0.2, 0, 0);  // ≈ 1.3 px apart in the image
+    source.update(no_eye, crossed);
+    CHECK_FALSE(source.hint(0, blob_at(0, 0, 0.0), h));
+    source.update(no_eye, poses);
+    CHECK(source.hint(0, blob_at(0, 0, 0.0), h));
+    // Poses not measured any more: held for kMaxAgeFrames updates, then no hints.
+    std::array<InstrumentPose, 2> lost{};
+    for (InstrumentPose& p : lost) p.flags = kPoseTooFewMarkers | kPoseHeld;
+    for (int k = 0; k < MarkerHintSource::kMaxAgeFrames; ++k) source.update(no_eye, lost);
+    CHECK(source.hint(0, blob_at(0, 0, 0.0), h));
+    source.update(no_eye, lost);
+    CHECK_FALSE(source.hint(0, blob_at(0, 0, 0.0), h));
+    CHECK_FALSE(source.ready());
+}
