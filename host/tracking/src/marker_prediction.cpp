@@ -160,7 +160,7 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
     if (camera < 0 || camera >= ncam_) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
-    double best = kGatePx, second = kGatePx;
+    double best = kGatePx;
     int best_b = -1, best_m = -1;  // best_b −1 with best_m set: an eye marker
     Eigen::Vector3d best_centre = Eigen::Vector3d::Zero();
     // A marker of the blob's class at `centre` (rig), nearer the blob than the best so far, becomes the best.
@@ -170,13 +170,10 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
         if (!project_point(cam, centre, px)) return;
         const double d = (px - seen).norm();
         if (d < best) {
-            second = best;
             best = d;
             best_b = body;
             best_m = m;
             best_centre = centre;
-        } else if (d < second) {
-            second = d;
         }
     };
     for (int b = 0; b < bodies_.instrument_count; ++b) {
@@ -197,9 +194,6 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
             consider(bm, eye_.centre_rig_mm + r * bm.pos_body_mm, -1, m);
         }
     }
-    // Two markers of the class near the blob (crossing instruments, a marker by the eye's): which one it is, is
-    // not sure, and a wrong occluder moves the centroid more than none.
-    if (second - best < kAmbiguityPx) return false;
     const bool eye_nearest = best_b < 0 && best_m >= 0;
     if (eye_nearest)
         return predict_eye_hint(cam, best_centre, bodies_.eye.markers[static_cast<std::size_t>(best_m)].radius_mm,

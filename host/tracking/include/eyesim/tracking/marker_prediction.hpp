@@ -46,9 +46,6 @@ public:
     /// A blob further than this from every predicted marker of its class gets no hint (frame px): a pose one or
     /// two fields old, and the visible part's centroid up to a radius from the centre.
     static constexpr double kGatePx = 6.0;
-    /// A blob whose second-nearest predicted marker of its class is less than this further than the nearest gets
-    /// no hint (frame px).
-    static constexpr double kAmbiguityPx = 3.0;
     /// A pose not measured for this many updates gives no hints.
     static constexpr int kMaxAgeFrames = 5;
 
