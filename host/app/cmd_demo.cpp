@@ -34,6 +34,7 @@ struct DemoOptions {
     uint64_t seed = 1;
     bool json = false;
     bool precision = false;
+    bool no_hints = false;
     std::string device;
     std::string sync = "async";
 };
@@ -153,6 +154,7 @@ int run_demo(const DemoOptions& opt) {
     req.snapshots = 3;
     req.json = opt.json;
     req.precision = opt.precision;
+    req.no_hints = opt.no_hints;
     req.sync = opt.sync;
     req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgeon '" +
                 scenario + "')";
@@ -176,6 +178,9 @@ eyesim::app::Registrar reg{
         sub.add_option("--device", opt->device, "path of eyesim-device (default: beside eyesim, then PATH)");
         sub.add_flag("--precision", opt->precision,
                      "precision mode: the device sends every marker's pixel patch, the host refines each centroid on it");
+        sub.add_flag("--no-hints", opt->no_hints,
+                     "with --precision: fit every marker as a whole sphere (by default a marker's fit leaves out what "
+                     "the newest poses say hides part of it: its shaft, the eye)");
         sub.add_option("--sync", opt->sync,
                        "tracking: async (per-body filters fed each blob as the device sends it, in its per-blob "
                        "mode) or interpolate (whole fields, the cameras interpolated to one time)")

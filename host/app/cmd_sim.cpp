@@ -33,6 +33,9 @@ eyesim::app::Registrar reg{
         sub.add_flag("--precision", req->precision,
                      "--connect/--capture: precision mode (every camera's marker patches, each centroid refined on its "
                      "patch where the fit accepts)");
+        sub.add_flag("--no-hints", req->no_hints,
+                     "with --precision: fit every marker as a whole sphere (by default a marker's fit leaves out what "
+                     "the newest poses say hides part of it: its shaft, the eye)");
         sub.add_option("--sync", req->sync,
                        "tracking: interpolate (whole fields, the cameras interpolated to one time) or async (per-body "
                        "filters fed each part as it arrives; with a device in its per-blob mode, --low-latency)")

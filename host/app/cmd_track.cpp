@@ -51,6 +51,7 @@ struct TrackOptions {
     double stall_s = eyesim::app::kDefaultStallSeconds;
     long max_frames = 0;
     bool precision = false;
+    bool no_hints = false;  ///< precision mode without occlusion hints
 };
 
 
@@ -117,7 +118,10 @@ int run_track(const TrackOptions& opt) {
     // Precision mode: every class's patches from every camera (live: PATCH_ENABLE written before stream_start; a
     // capture: the patches it holds), each marker refined on its patch.
     constexpr uint8_t kAllClasses = 0xF;
-    if (opt.precision) run->enable_precision(eyesim::frame::patch_fit_config(eyesim::app::rig_sphere_fit_config()), kAllClasses);
+    if (opt.no_hints && !opt.precision) throw eyesim::app::Error("--no-hints needs --precision", 2);
+    if (opt.precision)
+        run->enable_precision(eyesim::frame::patch_fit_config(eyesim::app::rig_sphere_fit_config()), kAllClasses,
+                              !opt.no_hints);
     std::ofstream out;
     if (!opt.out.empty()) {
         out.open(opt.out);
@@ -236,6 +240,9 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
     sub.add_flag("--precision", opt->precision,
                  "precision mode: the device sends every marker's pixel patch (PATCH_ENABLE, all cameras and classes) "
                  "and each marker's centroid becomes the sphere fit on it where the fit accepts");
+    sub.add_flag("--no-hints", opt->no_hints,
+                 "with --precision: fit every marker as a whole sphere (by default a marker's fit leaves out what the "
+                 "newest poses say hides part of it: its shaft, the eye)");
     sub.add_option("--max-frames", opt->max_frames, "stop after this many tracking frames (0: no limit)")
         ->check(eyesim::app::finite_in(0.0, 1e9));
     return [opt]() -> int { return run_track(*opt); };

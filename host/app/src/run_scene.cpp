@@ -71,6 +71,7 @@ int run_scene(const SceneRunRequest& req) {
     }
     if (req.precision && req.source.connect.empty() && req.source.capture.empty())
         throw Error("--precision refines markers on a device's patches: it needs --connect or --capture", 2);
+    if (req.no_hints && !req.precision) throw Error("--no-hints needs --precision", 2);
     sim::scenes::Scene scene;
     try {
         scene = sim::scenes::load_scene(req.scene_path);
@@ -183,7 +184,8 @@ int run_scene(const SceneRunRequest& req) {
         }
         HostRun run(std::move(cfg), sim);
         constexpr uint8_t kAllClasses = 0xF;  // precision mode: every camera's patches of every class
-        if (req.precision) run.enable_precision(frame::patch_fit_config(rig_sphere_fit_config()), kAllClasses);
+        if (req.precision)
+            run.enable_precision(frame::patch_fit_config(rig_sphere_fit_config()), kAllClasses, !req.no_hints);
         run.set_hook([&](const tr::TrackingFrame& f, const FramePoses& p) {
             acc.add(f);
             maybe_snap(p.time_s);

@@ -34,6 +34,7 @@ struct SceneRunRequest {
     double animation_fps = 10;         ///< stereo animation of the whole run, frames/s (needs report_dir; 0 = none)
     bool json = false;                 ///< one JSON object on stdout instead of the text report
     bool precision = false;            ///< precision mode (live, capture): markers refined on the device's patches
+    bool no_hints = false;             ///< precision mode without occlusion hints: every fit a whole sphere
     std::string sync = "interpolate";  ///< the tracker's camera combination: interpolate, extrapolate, nearest, async
     std::string title = "eyesim sim";  ///< report title
 };
