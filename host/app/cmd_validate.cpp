@@ -1112,6 +1112,7 @@ int run_validate(const ValidateOptions& opt) {
     if (opt.dir.empty() == opt.capture.empty())
         throw Error("validate: give exactly one of --recording DIR, --capture FILE", 2);
     if (!opt.capture.empty()) return run_validate_capture(opt);
+    if (opt.no_hints && !opt.refine) throw Error("validate: --no-hints needs --refine", 2);
     const bool progress = eyesim::app::show_progress(opt.json);
     rig::Recording rec = [&] {
         try {

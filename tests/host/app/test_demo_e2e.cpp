@@ -517,9 +517,5 @@ TEST_CASE("fpga --refine on DV video: partly hidden markers fitted with their sh
     const auto v = nlohmann::json::parse(run(exe + " validate --recording " + dir + " --refine --json", rc));
     REQUIRE(rc == 0);
     CHECK(v["hinted_fits"].get<int>() > 300);
-    // --no-hints belongs to --refine.
-    run(exe + " fpga --recording " + dir + " --no-hints --json 2>/dev/null", rc);
-    CHECK(WIFEXITED(rc));
-    CHECK(WEXITSTATUS(rc) == 2);
     std::filesystem::remove_all(dir);
 }

@@ -82,6 +82,7 @@ TEST_CASE("track: no source, two sources or a malformed device address is a usag
     usage_error("track --connect usb://12:34 --rig " + rig(), "usb://12:34: expected usb://VID:PID");
     usage_error("track --capture " + rec() + "/x.bin --rig " + rig() + " --instruments pick,scalpel",
                 "--instruments: unknown instrument \"scalpel\" (known: ");
+    usage_error("track --capture " + rec() + "/x.bin --rig " + rig() + " --no-hints", "--no-hints needs --precision");
 }
 
 TEST_CASE("a device that is not there is bad input (exit 1), not a usage error", "[host][usage]") {
@@ -99,6 +100,7 @@ TEST_CASE("sim and demo: a malformed address or an unknown scenario is a usage e
     usage_error("sim --scene " + scene() + " --scenario static --seed -1", "--seed: Value -1 not a whole number");
     // Precision mode refines on a device's patches: a scenario (or a recording) has none to send.
     usage_error("sim --scene " + scene() + " --scenario static --precision", "--precision refines markers on a device");
+    usage_error("sim --scene " + scene() + " --capture /no/such.bin --no-hints", "--no-hints needs --precision");
     const std::string demo = (scratch() / "demo").string();
     usage_error("demo --out " + demo + " --scenario nope", "--scenario: nope not in");
     usage_error("demo --out " + demo + " --seed -5", "--seed: Value -5 not a whole number");
@@ -122,6 +124,9 @@ TEST_CASE("synth and fpga: values out of range are usage errors (exit 2)", "[hos
     usage_error("fpga --recording " + rec() + " --cameras 0,x", "--cameras: 'x': not a camera index 0..2");
     usage_error("fpga --recording " + rec() + " --reg 0x14", "--reg: '0x14': expected ADDRESS=VALUE");
     usage_error("validate --recording " + rec() + " --seed -1", "--seed: Value -1 not a whole number");
+    // Occlusion hints belong to the refinement stage.
+    usage_error("fpga --recording " + rec() + " --no-hints", "fpga: --no-hints needs --refine");
+    usage_error("validate --recording " + rec() + " --no-hints", "validate: --no-hints needs --refine");
 
     // The bounds themselves are accepted.
     const Result ok = run(EYESIM_EXE, "synth --scenario static --seconds 0.02 --noise 32 --seed 18446744073709551615 "
