@@ -265,10 +265,6 @@ int run(const FpgaOptions& opt) {
                 const auto r0 = std::chrono::steady_clock::now();
                 st.refined += refiner->refine(f.uyvy, rig::kFieldHeight, *f.blobs, f.camera);
                 refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
-                if (hint_tracker) {
-                    const double ready_us = 1e-3 * static_cast<double>(eyesim::app::field_ready_ns(f));
-                    for (const proto::FieldMarkers& m : eyesim::app::field_messages(f)) hint_msgs.push_back({ready_us, m});
-                }
             }
             ++st.fields;
             st.blobs += static_cast<int64_t>(blobs.size());
@@ -284,10 +280,13 @@ int run(const FpgaOptions& opt) {
                                        b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(f.start_us, b.last_pixel_cycle),
                                        fpga::device_time_us(f.start_us, b.emit_cycle), b.latency_us());
             }
+            if (!capture_on && !hint_tracker) return;
+            // Ready once the last active pixel is in and the last blob has left the pipeline (as the device).
+            const uint64_t ready_ns = eyesim::app::field_ready_ns(f);
+            const std::vector<proto::FieldMarkers> msgs = eyesim::app::field_messages(f);
+            if (hint_tracker)
+                for (const proto::FieldMarkers& m : msgs) hint_msgs.push_back({1e-3 * static_cast<double>(ready_ns), m});
             if (capture_on) {
-                // Ready once the last active pixel is in and the last blob has left the pipeline (as the device).
-                const uint64_t ready_ns = eyesim::app::field_ready_ns(f);
-                const std::vector<proto::FieldMarkers> msgs = eyesim::app::field_messages(f);
                 for (size_t m = 0; m < msgs.size(); ++m) {
                     if (!proto::valid_message(proto::Message{msgs[m]}))
                         throw eyesim::app::Error(fmt::format("camera {} field {}: message {} does not encode", f.camera, i, m));

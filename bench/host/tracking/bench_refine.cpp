@@ -95,10 +95,9 @@ std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, c
             const tracking::BlobBox box = tracking::blob_box(b);
             const double t0 = eyesim::bench::thread_cpu_s();
             // The hint's prediction is part of the fit's cost.
-            tracking::MarkerHint hint;
-            const bool hinted = m.hints && hints && hints->hint(camera, box, hint);
+            bool hinted = false;
             const tracking::SphereFitResult r =
-                tracking::fit_sphere(field, height, box, m.cfg, work, hinted ? &hint : nullptr);
+                tracking::MarkerHintSource::fit(m.hints ? hints : nullptr, field, height, box, camera, m.cfg, work, hinted);
             o.us = 1e6 * (eyesim::bench::thread_cpu_s() - t0);
             all_us.push_back(o.us);
             o.iterations = r.iterations;

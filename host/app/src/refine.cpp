@@ -34,12 +34,10 @@ BlobRefiner::BlobRefiner(const tracking::SphereFitConfig& config)
 int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs, int camera) {
     int refined = 0;
     for (fpga::Blob& b : blobs) {
-        const tracking::BlobBox box = tracking::blob_box(b);
-        tracking::MarkerHint shaft;
-        const bool hinted = hints_ && hints_->hint(camera, box, shaft);
+        bool hinted = false;
+        const tracking::SphereFitResult r = tracking::MarkerHintSource::fit(
+            hints_, field, height, tracking::blob_box(b), camera, config_, *work_, hinted);
         hinted_fits_ += hinted;
-        const tracking::SphereFitResult r =
-            tracking::fit_sphere(field, height, box, config_, *work_, hinted ? &shaft : nullptr);
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];
             continue;

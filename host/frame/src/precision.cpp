@@ -136,11 +136,10 @@ void PatchRefiner::refine(proto::Marker& m, const transport::AssembledPatch& p) 
         ++stats_.refused[std::size_t(tracking::FitRefusal::kInput)];
         return;
     }
-    tracking::MarkerHint shaft;
-    const bool hinted = hints_ && hints_->hint(p.camera_id, box, shaft);
+    bool hinted = false;
+    const tracking::SphereFitResult r = tracking::MarkerHintSource::fit(
+        hints_, field_.data(), int(proto::kPatchFieldHeightPx), box, p.camera_id, config_, *work_, hinted);
     stats_.hinted_fits += hinted;
-    const tracking::SphereFitResult r =
-        tracking::fit_sphere(field_.data(), int(proto::kPatchFieldHeightPx), box, config_, *work_, hinted ? &shaft : nullptr);
     if (!r.ok || !(r.cx_px >= 0.0) || !(r.cy_px >= 0.0)) {  // the wire's unsigned Q16 cannot hold a negative
         ++stats_.refused[std::size_t(r.ok ? tracking::FitRefusal::kImplausible : r.refusal)];
         return;

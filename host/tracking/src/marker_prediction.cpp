@@ -149,6 +149,14 @@ void MarkerHintSource::update(const EyePose& eye, std::span<const InstrumentPose
     }
 }
 
+SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint8_t* field, int height,
+                                      const BlobBox& blob, int camera, const SphereFitConfig& config,
+                                      SphereFitWorkspace& work, bool& hinted) {
+    MarkerHint hint;
+    hinted = source && source->hint(camera, blob, hint);
+    return fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr);
+}
+
 bool MarkerHintSource::ready() const {
     if (eye_age_ <= kMaxAgeFrames) return true;
     for (int b = 0; b < bodies_.instrument_count; ++b)

@@ -1644,6 +1644,9 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         }
     }
 
+    res.refusal = FitRefusal::kHintOutline;
+    if (hint && p.outline && !cfg.hint_with_outline) return res;
+
     moment_start(blob, p, cfg, w, t);
     std::fill(w.hidden_y.begin(), w.hidden_y.end(), uint8_t{0});
     std::fill(w.hidden_c.begin(), w.hidden_c.end(), uint8_t{0});
@@ -1655,9 +1658,6 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     start_behind_occluders();  // again at this radius
     // Where the centre started: with a hint, the visible part's centroid lies up to a radius from it.
     const double x_start = hint ? t[kX0] : cx0, v_start = hint ? t[kV0] : p.vc;
-
-    res.refusal = FitRefusal::kHintOutline;
-    if (hint && p.outline && !cfg.hint_with_outline) return res;
 
     Fitter f(cfg, p, w);
     bool mask_changed = false;

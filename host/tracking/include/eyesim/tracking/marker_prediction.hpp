@@ -66,6 +66,11 @@ public:
     /// Whether any instrument pose is at hand.
     bool ready() const;
 
+    /// fit_sphere() of `blob` of camera `camera` with the hint this source gives it, or plain where it gives none;
+    /// `hinted` says which. A null source: always plain.
+    static SphereFitResult fit(const MarkerHintSource* source, const uint8_t* field, int height, const BlobBox& blob,
+                               int camera, const SphereFitConfig& config, SphereFitWorkspace& work, bool& hinted);
+
 private:
     int ncam_ = 0;
     std::array<CameraGeometry, kMaxCameras> cams_{};
