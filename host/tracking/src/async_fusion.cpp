@@ -113,10 +113,11 @@ void RigidBodyFilter::predict_to(double t_us) {
     pose_at(t_us, R_, t_);
     time_us_ = t_us;
     // δθ' = δθ + dt·δω, δt' = δt + dt·δv; white acceleration noise (its magnitude whichever way time runs).
-    Cov F = Cov::Identity();
-    F.block<3, 3>(0, 6).diagonal().setConstant(dt);
-    if (!rotation_only_) F.block<3, 3>(3, 9).diagonal().setConstant(dt);
-    P_ = F * P_ * F.transpose();
+    // P ← F·P·Fᵀ with F = I + dt·(ω → θ, v → t): rows then columns, each a block addition.
+    P_.middleRows<3>(0) += dt * P_.middleRows<3>(6);
+    if (!rotation_only_) P_.middleRows<3>(3) += dt * P_.middleRows<3>(9);
+    P_.middleCols<3>(0) += dt * P_.middleCols<3>(6);
+    if (!rotation_only_) P_.middleCols<3>(3) += dt * P_.middleCols<3>(9);
     const double a = std::abs(dt);
     const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
     for (int i = 0; i < 3; ++i) {
@@ -131,6 +132,41 @@ void RigidBodyFilter::predict_to(double t_us) {
         P_(9 + i, 9 + i) += q_lin_ * q22;
     }
     roll_pseudo_measurement();
+}
+
+bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Eigen::Matrix<double, 2, 12>& J,
+                              const Eigen::Vector2d& px, double sx, double sy, double nis_gate, double* nis,
+                              double age_us) {
+    last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
+    const double a = std::max(0.0, age_us) * 1e-6;
+    const Eigen::Vector2d r = px - z0;
+    // The acceleration over the age moves the true pose away from the constant-velocity one: its pose part
+    // (a³/3 times the spectral densities) joins the image noise.
+    Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
+    Rn(0, 0) = sx * sx;
+    Rn(1, 1) = sy * sy;
+    if (a > 0.0) {
+        Eigen::Matrix<double, 6, 6> Qp = Eigen::Matrix<double, 6, 6>::Zero();
+        Qp.topLeftCorner<3, 3>().diagonal().setConstant(q_ang_ * a * a * a / 3.0);
+        if (!rotation_only_) Qp.bottomRightCorner<3, 3>().diagonal().setConstant(q_lin_ * a * a * a / 3.0);
+        Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
+    }
+    const Eigen::Matrix2d S = J * P_ * J.transpose() + Rn;
+    const Eigen::Matrix2d Si = S.inverse();
+    const double q = r.dot(Si * r);
+    if (nis) *nis = q;
+    const double det = S.determinant();
+    if (std::isfinite(q) && det > 0.0) last_log_lik_ = -0.5 * (std::min(q, nis_gate) + std::log(det));
+    if (!(q <= nis_gate) || !std::isfinite(q)) return false;
+    // With the optimal gain the Joseph form equals P − K·S·Kᵀ = P − PH·Kᵀ (a 12×2 product instead of two 12×12
+    // ones); symmetrised after.
+    const Eigen::Matrix<double, 12, 2> PHt = P_ * J.transpose();
+    const Eigen::Matrix<double, 12, 2> K = PHt * Si;
+    apply(K * r);
+    P_.noalias() -= K * PHt.transpose();
+    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    roll_pseudo_measurement();
+    return true;
 }
 
 void RigidBodyFilter::apply(const State& dx) {
@@ -186,11 +222,10 @@ void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen:
     const Eigen::Vector2d r = -z0;  // the line should pass through p: offset 0
     const Eigen::Matrix2d Rn = Eigen::Matrix2d::Identity() * (sigma_mm * sigma_mm);
     const Eigen::Matrix2d S = J * P_.topLeftCorner<6, 6>() * J.transpose() + Rn;
-    const Eigen::Matrix<double, 12, 2> K = P_.leftCols<6>() * J.transpose() * S.inverse();
+    const Eigen::Matrix<double, 12, 2> PHt = P_.leftCols<6>() * J.transpose();
+    const Eigen::Matrix<double, 12, 2> K = PHt * S.inverse();
     apply(K * r);
-    Eigen::Matrix<double, 12, 12> IKH = Eigen::Matrix<double, 12, 12>::Identity();
-    IKH.leftCols<6>() -= K * J;
-    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
+    P_.noalias() -= K * PHt.transpose();  // = the Joseph form with the optimal gain (see correct)
     P_ = 0.5 * (P_ + P_.transpose()).eval();
     roll_pseudo_measurement();
 }
@@ -204,6 +239,123 @@ bool RigidBodyFilter::predict_pixel(const CameraGeometry& cam, const Eigen::Vect
     if (!(Xc.z() > 1e-6)) return false;
     px = detail::to_pixel(cam, Eigen::Vector2d(Xc.x() / Xc.z(), Xc.y() / Xc.z()));
     return px.allFinite();
+}
+
+namespace {
+/// Rotation vector of a unit quaternion (the inverse of detail::exp_rotation), angle in [0, π].
+Eigen::Vector3d log_rotation(Eigen::Quaterniond q) {
+    if (q.w() < 0.0) q.coeffs() = -q.coeffs();
+    const double n = q.vec().norm();
+    if (n < 1e-12) return 2.0 * q.vec();
+    return q.vec() * (2.0 * std::atan2(n, q.w()) / n);
+}
+}  // namespace
+
+void BodyFilter::configure_rigid(const Eigen::Vector3d& roll_axis_body, const double* ang_psd,
+                                 const double* lin_psd, int models, double switch_per_s) {
+    n_ = std::clamp(models, 1, kMaxModels);
+    switch_per_s_ = std::max(0.0, switch_per_s);
+    for (int j = 0; j < n_; ++j) m_[std::size_t(j)].configure_rigid(roll_axis_body, ang_psd[j], lin_psd[j]);
+    dirty_ = true;
+}
+
+void BodyFilter::configure_rotation(const Eigen::Vector3d& centre_rig_mm, const double* ang_psd, int models,
+                                    double switch_per_s) {
+    n_ = std::clamp(models, 1, kMaxModels);
+    switch_per_s_ = std::max(0.0, switch_per_s);
+    for (int j = 0; j < n_; ++j) m_[std::size_t(j)].configure_rotation(centre_rig_mm, ang_psd[j]);
+    dirty_ = true;
+}
+
+void BodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen::Vector3d& t, const Eigen::Vector3d& w,
+                      const Eigen::Vector3d& v, double s_rot, double s_pos, double s_w, double s_v) {
+    // A body is acquired while it moves as often as at rest: no model preferred.
+    for (int j = 0; j < n_; ++j) {
+        m_[std::size_t(j)].init(t_us, R, t, w, v, s_rot, s_pos, s_w, s_v);
+        mu_[std::size_t(j)] = 1.0 / n_;
+    }
+    dirty_ = true;
+}
+
+RigidBodyFilter::State BodyFilter::difference(const RigidBodyFilter& i, const RigidBodyFilter& j) {
+    RigidBodyFilter::State d;
+    d.segment<3>(0) = log_rotation(i.R_ * j.R_.conjugate());
+    d.segment<3>(3) = i.t_ - j.t_;
+    d.segment<3>(6) = i.w_ - j.w_;
+    d.segment<3>(9) = i.v_ - j.v_;
+    return d;
+}
+
+void BodyFilter::predict_to(double t_us) {
+    const double dt_s = std::abs(t_us - m_[0].time_us()) * 1e-6;
+    if (n_ > 1 && dt_s > 0.0 && switch_per_s_ > 0.0) {
+        // Mixing (IMM): model j starts the step from Σ_i μ_i|j x_i, μ_i|j = Π_ij μ_i / c_j, where a switch to each
+        // other model over the step has the chance p = (1 − exp(−rate·dt)) / (n − 1); its covariance takes the
+        // spread of the means.
+        const double p = (1.0 - std::exp(-switch_per_s_ * dt_s)) / (n_ - 1);
+        auto Pi = [&](int i, int j) { return i == j ? 1.0 - (n_ - 1) * p : p; };
+        std::array<RigidBodyFilter, kMaxModels> mixed = m_;
+        std::array<double, kMaxModels> c{};
+        double sum_c = 0.0;
+        for (int j = 0; j < n_; ++j) {
+            for (int i = 0; i < n_; ++i) c[std::size_t(j)] += Pi(i, j) * mu_[std::size_t(i)];
+            sum_c += c[std::size_t(j)];
+            std::array<RigidBodyFilter::State, kMaxModels> d;
+            std::array<double, kMaxModels> w{};
+            RigidBodyFilter::State mean = RigidBodyFilter::State::Zero();
+            for (int i = 0; i < n_; ++i) {
+                w[std::size_t(i)] = c[std::size_t(j)] > 0.0 ? Pi(i, j) * mu_[std::size_t(i)] / c[std::size_t(j)]
+                                                            : double(i == j);
+                d[std::size_t(i)] = difference(m_[std::size_t(i)], m_[std::size_t(j)]);
+                mean += w[std::size_t(i)] * d[std::size_t(i)];
+            }
+            RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
+            for (int i = 0; i < n_; ++i) {
+                const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
+                P += w[std::size_t(i)] * (m_[std::size_t(i)].P_ + e * e.transpose());
+            }
+            RigidBodyFilter& f = mixed[std::size_t(j)];
+            f.apply(mean);
+            f.P_ = 0.5 * (P + P.transpose());
+        }
+        m_ = mixed;
+        if (sum_c > 0.0)
+            for (int j = 0; j < n_; ++j) mu_[std::size_t(j)] = c[std::size_t(j)] / sum_c;
+    }
+    for (int j = 0; j < n_; ++j) m_[std::size_t(j)].predict_to(t_us);
+    dirty_ = true;
+}
+
+void BodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen::Vector3d& axis_body,
+                                     const Eigen::Vector3d& p, double sigma_mm) {
+    for (int j = 0; j < n_; ++j) m_[std::size_t(j)].update_line_through(b, axis_body, p, sigma_mm);
+    dirty_ = true;
+}
+
+void BodyFilter::combine() const {
+    dirty_ = false;
+    if (n_ == 1) return;
+    // The mixture's mean about the likeliest model's state, and its covariance with the spread of the means.
+    int r = 0;
+    for (int j = 1; j < n_; ++j)
+        if (mu_[std::size_t(j)] > mu_[std::size_t(r)]) r = j;
+    c_ = m_[std::size_t(r)];
+    std::array<RigidBodyFilter::State, kMaxModels> d;
+    RigidBodyFilter::State mean = RigidBodyFilter::State::Zero();
+    double total = 0.0;
+    for (int i = 0; i < n_; ++i) {
+        d[std::size_t(i)] = difference(m_[std::size_t(i)], m_[std::size_t(r)]);
+        mean += mu_[std::size_t(i)] * d[std::size_t(i)];
+        total += mu_[std::size_t(i)];
+    }
+    mean /= total;
+    RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
+    for (int i = 0; i < n_; ++i) {
+        const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
+        P += (mu_[std::size_t(i)] / total) * (m_[std::size_t(i)].P_ + e * e.transpose());
+    }
+    c_.apply(mean);
+    c_.P_ = 0.5 * (P + P.transpose());
 }
 
 }  // namespace eyesim::tracking

@@ -68,12 +68,23 @@ Tracker::Tracker(TrackerConfig config)
         throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
     // correspondence_ holds a span over cameras_, which is never resized after construction.
     const AsyncOptions& ao = config_.async;
-    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, ao.eye_ang_accel_psd_rad2_s3);
+    // Motion models steadiest first: (steady, agile) or (steady, geometric mean, agile); one: the agile alone.
+    const int nm = std::clamp(ao.motion_models, 1, BodyFilter::kMaxModels);
+    auto ladder = [nm](double steady, double agile, double* out) {
+        if (nm == 1) out[0] = agile;
+        else if (nm == 2) out[0] = steady, out[1] = agile;
+        else out[0] = steady, out[1] = std::sqrt(steady * agile), out[2] = agile;
+    };
+    double eye_psd[BodyFilter::kMaxModels], ang_psd[BodyFilter::kMaxModels], lin_psd[BodyFilter::kMaxModels];
+    ladder(ao.eye_steady_ang_accel_psd_rad2_s3, ao.eye_ang_accel_psd_rad2_s3, eye_psd);
+    ladder(ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang_psd);
+    ladder(ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin_psd);
+    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, eye_psd, nm, ao.model_switch_per_s);
     for (int b = 0; b < config_.bodies.instrument_count; ++b) {
         const InstrumentModel& m = config_.bodies.instruments[std::size_t(b)];
         filters_[std::size_t(1 + b)].configure_rigid(m.markers_on_axis() ? Eigen::Vector3d(m.axis_body.normalized())
                                                                          : Eigen::Vector3d::Zero(),
-                                                     ao.ang_accel_psd_rad2_s3, ao.accel_psd_mm2_s3);
+                                                     ang_psd, lin_psd, ao.motion_models, ao.model_switch_per_s);
     }
 }
 
@@ -83,7 +94,7 @@ void Tracker::restart() {
     sync_ = FrameSync(int(cameras_.size()), config_.sync);
     last_eye_ = EyePose{};
     last_instruments_.fill(InstrumentPose{});
-    for (RigidBodyFilter& f : filters_) f.reset();
+    for (BodyFilter& f : filters_) f.reset();
     queue_count_ = 0;
     acquire_measured_.fill(false);
     open_queued_.fill(0);
@@ -411,7 +422,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
     for (int b = 0; b < nb; ++b) {
         cand[std::size_t(b)].fill(-1);
         used_last_field_[std::size_t(b)] = 0;
-        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        BodyFilter& flt = filters_[std::size_t(b)];
         // A filter that went without images for this long is not trusted to find them again: re-acquire.
         if (flt.tracking() && T - last_good_us_[std::size_t(b)] > ao.lost_after_us) flt.reset();
         if (!flt.tracking()) continue;
@@ -457,7 +468,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         config_.pose.trocar_sigma_mm * std::sqrt(double(cameras_.size()));  // applied once per camera field
     int accepted = 0;
     for (int b = 0; b < nb; ++b) {
-        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        BodyFilter& flt = filters_[std::size_t(b)];
         int& field_used = field_used_[std::size_t(b)][std::size_t(c)];
         if (first == 0) field_used = 0;  // a new field of this camera
         if (!flt.tracking()) continue;
@@ -558,7 +569,7 @@ void Tracker::acquire(const CameraField& f) {
     for (int b = 1; b < nb; ++b) {
         const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
         InstrumentPose& p = last_instruments_[std::size_t(b - 1)];
-        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        const BodyFilter& flt = filters_[std::size_t(b)];
         if (flt.tracking()) {
             instrument_from_filter(m, flt.rotation(), flt.translation(), m.markers_on_axis(), p);
             instrument_in_eye(m, last_eye_, p);
@@ -573,7 +584,7 @@ void Tracker::acquire(const CameraField& f) {
                  std::span<const bool>(present.data(), cameras_.size()), acquire_frame_);
     acquired_this_field_ = true;
     for (int b = 0; b < nb; ++b) {
-        RigidBodyFilter& flt = filters_[std::size_t(b)];
+        BodyFilter& flt = filters_[std::size_t(b)];
         if (flt.tracking()) continue;
         Eigen::Quaterniond R;
         Eigen::Vector3d t;
@@ -665,7 +676,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     for (int b = 1; b < nb; ++b) {
         const InstrumentModel& m = bodies.instruments[std::size_t(b - 1)];
         InstrumentPose& p = out.instruments[std::size_t(b - 1)];
-        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        const BodyFilter& flt = filters_[std::size_t(b)];
         if (flt.tracking()) {
             instrument_from_filter(m, R_at[std::size_t(b)], t_at[std::size_t(b)], m.markers_on_axis(), p);
             p.markers_used = used_last_field_[std::size_t(b)];
@@ -681,7 +692,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     // Markers: those of a tracked body seen by two cameras lately, where the filter puts them; a body acquired
     // from this frame's triangulation brings its triangulated markers.
     for (int b = 0; b < nb; ++b) {
-        const RigidBodyFilter& flt = filters_[std::size_t(b)];
+        const BodyFilter& flt = filters_[std::size_t(b)];
         const int mc = b == 0 ? bodies.eye.marker_count : bodies.instruments[std::size_t(b - 1)].marker_count;
         const BodyMarker* ms = b == 0 ? bodies.eye.markers.data() : bodies.instruments[std::size_t(b - 1)].markers.data();
         if (flt.tracking() && !coasting(b)) {  // a held body's markers are where its prediction puts them: left out
@@ -727,7 +738,7 @@ bool Tracker::pose_at(double t_device_us, EyePose& eye, std::span<InstrumentPose
         any = true;
     }
     for (int b = 0; b < bodies.instrument_count && b < int(instruments.size()); ++b) {
-        const RigidBodyFilter& flt = filters_[std::size_t(1 + b)];
+        const BodyFilter& flt = filters_[std::size_t(1 + b)];
         if (!flt.tracking()) continue;
         const InstrumentModel& m = bodies.instruments[std::size_t(b)];
         flt.display_pose_at(t_device_us, R, t);

@@ -17,8 +17,10 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <array>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace eyesim::tracking {
 
@@ -26,11 +28,22 @@ namespace eyesim::tracking {
 struct AsyncOptions {
     double sigma_x_px = 0.08;         ///< 1σ centroid noise along x (frame pixels)
     double sigma_y_px = 0.12;         ///< 1σ along y (frame pixels: a field's rows are two frame rows apart)
-    /// White linear-acceleration spectral density q (mm²/s³) of the instruments: the trade between smoothing
-    /// (small q: sweep) and following fast turns (large q: fast); chosen on one 2 s recording of each (seed 1).
+    /// White linear-acceleration spectral density q (mm²/s³) of the instruments' agile motion model (the one
+    /// that follows fast turns; with motion_models 1 the only one: the trade between smoothing and following).
     double accel_psd_mm2_s3 = 4.0e3;
-    double ang_accel_psd_rad2_s3 = 16.0;  ///< white angular-acceleration spectral density (rad²/s³)
-    double eye_ang_accel_psd_rad2_s3 = 1.0;  ///< the same for the eye (a heavier, slower body)
+    double ang_accel_psd_rad2_s3 = 16.0;  ///< white angular-acceleration spectral density (rad²/s³), agile
+    double eye_ang_accel_psd_rad2_s3 = 1.0;  ///< the same for the eye (a heavier, slower body), agile
+    /// Motion models each body's filter mixes (IMM, BodyFilter): 1 the agile model alone; 2 the steady and the
+    /// agile; 3 also one between them (densities the geometric mean of the two).
+    int motion_models = 3;
+    /// The steady model's densities: a body held or moved slowly (most of a procedure), where the agile model's
+    /// noise would pass the centroid noise straight through to the pose.
+    double steady_accel_psd_mm2_s3 = 1.0e2;
+    double steady_ang_accel_psd_rad2_s3 = 0.4;
+    double eye_steady_ang_accel_psd_rad2_s3 = 1.0e-3;
+    /// Rate at which the body is expected to switch between steady and agile motion (1/s, each way): the
+    /// models' prior mixing (with the images' likelihoods it decides which model the pose follows).
+    double model_switch_per_s = 2.0;
     double gate_px = 6.0;             ///< an image farther than this from a predicted marker is not its image
     double ambiguity_ratio = 1.5;     ///< the second-nearest same-class image must be this much farther, else skip
     double nis_gate = 25.0;           ///< normalised innovation squared (2 dof) above this: outlier, not used
@@ -124,10 +137,28 @@ public:
     /// √trace of the position covariance (mm).
     double position_sigma_mm() const { return std::sqrt(std::max(0.0, P_.block<3, 3>(3, 3).trace())); }
 
+    /// update_point in its two halves (BodyFilter shares one linearisation among its models): the predicted pixel
+    /// of `b` at the error state `d`, and the Jacobian of that pixel by the error state at d = 0.
+    template <typename Shift>
+    bool project(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Shift& shift, double age_us,
+                 const State& d, Eigen::Vector2d& px) const;
+    template <typename Shift>
+    bool linearise(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Shift& shift, double age_us,
+                   Eigen::Vector2d& z0, Eigen::Matrix<double, 2, 12>& J) const;
+    /// The Kalman update from a predicted pixel z0 and Jacobian J (update_point's second half).
+    bool correct(const Eigen::Vector2d& z0, const Eigen::Matrix<double, 2, 12>& J, const Eigen::Vector2d& px,
+                 double sigma_x_px, double sigma_y_px, double nis_gate, double* nis, double age_us);
+
+    /// Log-likelihood of the last update_point's innovation, −½(min(NIS, gate) + ln det S), or NaN where no
+    /// innovation was formed (behind the camera, not finite): what a motion model's probability is updated by.
+    double last_log_likelihood() const { return last_log_lik_; }
+
 private:
+    friend class BodyFilter;
     void apply(const State& dx);
     void roll_pseudo_measurement();
 
+    double last_log_lik_ = 0.0;
     bool tracking_ = false;
     bool rotation_only_ = false;
     Eigen::Vector3d roll_axis_body_ = Eigen::Vector3d::Zero();
@@ -136,6 +167,76 @@ private:
     Eigen::Quaterniond R_ = Eigen::Quaterniond::Identity();
     Eigen::Vector3d t_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
     Cov P_ = Cov::Identity();
+};
+
+/// One body's estimator in the live chain: two RigidBodyFilters of the same body, a steady motion model (low
+/// acceleration noise) and an agile one, mixed as an interacting multiple model (IMM, Blom & Bar-Shalom 1988).
+/// Why: one acceleration density is a trade — low, it smooths a held or slowly moved body (the eye at rest, an
+/// instrument feeling the retina) but lags a fast turn; high, it follows the turn but passes the centroid noise
+/// into the pose. Each image's innovation likelihood under each model moves the model probabilities; the
+/// reported state is their mixture. Before each prediction the models' states are mixed by the switching prior,
+/// so the steady model never drifts far from a body that moved. With one model it is that model's filter.
+class BodyFilter {
+public:
+    static constexpr int kMaxModels = 3;
+    /// `models` motion models (1..kMaxModels), model j with densities ang_psd[j] / lin_psd[j], steadiest first.
+    void configure_rigid(const Eigen::Vector3d& roll_axis_body, const double* ang_psd_rad2_s3,
+                         const double* lin_psd_mm2_s3, int models, double switch_per_s);
+    void configure_rotation(const Eigen::Vector3d& centre_rig_mm, const double* ang_psd_rad2_s3, int models,
+                            double switch_per_s);
+    void init(double t_us, const Eigen::Quaterniond& R_body_to_rig, const Eigen::Vector3d& t_mm,
+              const Eigen::Vector3d& omega_rad_s, const Eigen::Vector3d& v_mm_s, double sigma_rot_rad,
+              double sigma_pos_mm, double sigma_omega_rad_s, double sigma_v_mm_s);
+    void reset() {
+        for (RigidBodyFilter& m : m_) m.reset();
+        dirty_ = true;
+    }
+    bool tracking() const { return m_[0].tracking(); }
+    /// Mixes the models by the switching prior over the step, then predicts each (RigidBodyFilter::predict_to).
+    void predict_to(double t_us);
+    template <typename Shift>
+    bool update_point(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Eigen::Vector2d& px,
+                      double sigma_x_px, double sigma_y_px, double nis_gate, const Shift& shift, double* nis = nullptr,
+                      double age_us = 0.0);
+    void update_line_through(const Eigen::Vector3d& b_body_mm, const Eigen::Vector3d& axis_body,
+                             const Eigen::Vector3d& p_rig_mm, double sigma_mm);
+
+    // The mixture's estimate (RigidBodyFilter's accessors), formed when first read after a change.
+    void pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const { mix().pose_at(t_us, R, t); }
+    void display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
+        mix().display_pose_at(t_us, R, t);
+    }
+    Eigen::Vector3d to_rig(const Eigen::Vector3d& b_body_mm) const { return mix().to_rig(b_body_mm); }
+    bool predict_pixel(const CameraGeometry& cam, const Eigen::Vector3d& b, Eigen::Vector2d& px,
+                       double age_us = 0.0) const {
+        return mix().predict_pixel(cam, b, px, age_us);
+    }
+    double time_us() const { return m_[0].time_us(); }
+    const Eigen::Quaterniond& rotation() const { return mix().rotation(); }
+    const Eigen::Vector3d& translation() const { return mix().translation(); }
+    const Eigen::Vector3d& omega() const { return mix().omega(); }
+    const Eigen::Vector3d& velocity() const { return mix().velocity(); }
+    const RigidBodyFilter::Cov& covariance() const { return mix().covariance(); }
+    double position_sigma_mm() const { return mix().position_sigma_mm(); }
+    /// Probability of motion model j (0: the steadiest).
+    double model_probability(int j) const { return j >= 0 && j < n_ ? mu_[std::size_t(j)] : 0.0; }
+    int models() const { return n_; }
+
+private:
+    /// Error state of model i relative to model j's (δθ with R_i = exp(δθ)·R_j, then δt, δω, δv).
+    static RigidBodyFilter::State difference(const RigidBodyFilter& i, const RigidBodyFilter& j);
+    const RigidBodyFilter& mix() const {
+        if (dirty_) combine();
+        return n_ == 1 ? m_[0] : c_;
+    }
+    void combine() const;
+
+    int n_ = 1;
+    double switch_per_s_ = 0.0;
+    std::array<RigidBodyFilter, kMaxModels> m_{};
+    std::array<double, kMaxModels> mu_{1.0, 0.0, 0.0};
+    mutable RigidBodyFilter c_{};  // the mixture (n_ > 1), formed from the models when dirty_
+    mutable bool dirty_ = true;
 };
 
 /// Centroid shift (normalised image units, along the projected half-shaft) of a uniform disk of radius `rho`
@@ -159,64 +260,99 @@ Eigen::Quaterniond exp_rotation(const Eigen::Vector3d& theta);
 }  // namespace detail
 
 template <typename Shift>
-bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
-                                   double sx, double sy, double nis_gate, const Shift& shift, double* nis,
-                                   double age_us) {
+bool RigidBodyFilter::project(const CameraGeometry& cam, const Eigen::Vector3d& b, const Shift& shift, double age_us,
+                              const State& d, Eigen::Vector2d& out) const {
     // h(δx): projected pixel (plus the occlusion shift) of the perturbed pose, carried back by the age (constant
-    // velocity) for an aged image, so that its Jacobian (2×12, central differences) reaches the velocities:
-    // δθ − age·δω, δt − age·δv to first order. A current image does not depend on them (zero columns).
+    // velocity) for an aged image, so that its Jacobian reaches the velocities: δθ − age·δω, δt − age·δv to first
+    // order. A current image does not depend on them (zero columns).
     const double a = std::max(0.0, age_us) * 1e-6;
-    auto h = [&](const State& d, Eigen::Vector2d& out) {
-        const Eigen::Vector3d w = w_ + d.segment<3>(6);
-        const Eigen::Quaterniond R = detail::exp_rotation(-a * w) * (detail::exp_rotation(d.head<3>()) * R_);
-        Eigen::Vector3d t = t_;
-        if (!rotation_only_) t += d.segment<3>(3) - a * (v_ + d.segment<3>(9));
-        const Eigen::Vector3d X = R * b + t;
-        const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
-        if (!(Xc.z() > 1e-6)) return false;
-        Eigen::Vector2d xn(Xc.x() / Xc.z(), Xc.y() / Xc.z());
-        xn += shift(R, t, X);
-        out = detail::to_pixel(cam, xn);
-        return out.allFinite();
-    };
-    Eigen::Vector2d z0;
+    const Eigen::Vector3d w = w_ + d.segment<3>(6);
+    const Eigen::Quaterniond R = detail::exp_rotation(-a * w) * (detail::exp_rotation(d.head<3>()) * R_);
+    Eigen::Vector3d t = t_;
+    if (!rotation_only_) t += d.segment<3>(3) - a * (v_ + d.segment<3>(9));
+    const Eigen::Vector3d X = R * b + t;
+    const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
+    if (!(Xc.z() > 1e-6)) return false;
+    Eigen::Vector2d xn(Xc.x() / Xc.z(), Xc.y() / Xc.z());
+    xn += shift(R, t, X);
+    out = detail::to_pixel(cam, xn);
+    return out.allFinite();
+}
+
+template <typename Shift>
+bool RigidBodyFilter::linearise(const CameraGeometry& cam, const Eigen::Vector3d& b, const Shift& shift,
+                                double age_us, Eigen::Vector2d& z0, Eigen::Matrix<double, 2, 12>& J) const {
     State d = State::Zero();
-    if (!h(d, z0)) return false;
-    Eigen::Matrix<double, 2, 12> J = Eigen::Matrix<double, 2, 12>::Zero();
-    for (int i = 0; i < 12; ++i) {
+    if (!project(cam, b, shift, age_us, d, z0)) return false;
+    J.setZero();
+    for (int i = 0; i < 12; ++i) {  // central differences
         if (rotation_only_ && ((i >= 3 && i < 6) || i >= 9)) continue;
-        if (a == 0.0 && i >= 6) break;
+        if (!(age_us > 0.0) && i >= 6) break;
         const double eps = (i < 3 || (i >= 6 && i < 9)) ? 1e-6 : 1e-4;
         Eigen::Vector2d zp, zm;
         d.setZero();
         d[i] = eps;
-        if (!h(d, zp)) return false;
+        if (!project(cam, b, shift, age_us, d, zp)) return false;
         d[i] = -eps;
-        if (!h(d, zm)) return false;
+        if (!project(cam, b, shift, age_us, d, zm)) return false;
         J.col(i) = (zp - zm) / (2.0 * eps);
     }
-    const Eigen::Vector2d r = px - z0;
-    // The acceleration over the age moves the true pose away from the constant-velocity one: its pose part
-    // (a³/3 times the spectral densities) joins the image noise.
-    Eigen::Matrix<double, 6, 6> Qp = Eigen::Matrix<double, 6, 6>::Zero();
-    Qp.topLeftCorner<3, 3>().diagonal().setConstant(q_ang_ * a * a * a / 3.0);
-    if (!rotation_only_) Qp.bottomRightCorner<3, 3>().diagonal().setConstant(q_lin_ * a * a * a / 3.0);
-    Eigen::Matrix2d Rn = Eigen::Matrix2d::Zero();
-    Rn(0, 0) = sx * sx;
-    Rn(1, 1) = sy * sy;
-    if (a > 0.0) Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
-    const Eigen::Matrix2d S = J * P_ * J.transpose() + Rn;
-    const Eigen::Matrix2d Si = S.inverse();
-    const double q = r.dot(Si * r);
-    if (nis) *nis = q;
-    if (!(q <= nis_gate) || !std::isfinite(q)) return false;
-    const Eigen::Matrix<double, 12, 2> K = P_ * J.transpose() * Si;
-    apply(K * r);
-    Cov IKH = Cov::Identity() - K * J;
-    P_ = IKH * P_ * IKH.transpose() + K * Rn * K.transpose();
-    P_ = 0.5 * (P_ + P_.transpose()).eval();
-    roll_pseudo_measurement();
     return true;
+}
+
+template <typename Shift>
+bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
+                                   double sx, double sy, double nis_gate, const Shift& shift, double* nis,
+                                   double age_us) {
+    last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
+    Eigen::Vector2d z0;
+    Eigen::Matrix<double, 2, 12> J;
+    if (!linearise(cam, b, shift, age_us, z0, J)) return false;
+    return correct(z0, J, px, sx, sy, nis_gate, nis, age_us);
+}
+
+template <typename Shift>
+bool BodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& b, const Eigen::Vector2d& px,
+                              double sx, double sy, double nis_gate, const Shift& shift_fn, double* nis,
+                              double age_us) {
+    if (n_ == 1) {
+        const bool ok = m_[0].update_point(cam, b, px, sx, sy, nis_gate, shift_fn, nis, age_us);
+        dirty_ = true;
+        return ok;
+    }
+    // One linearisation, at the likeliest model's state, serves every model (their states differ by far less
+    // than the measurement function bends over); each model predicts its own pixel and takes the image or gates
+    // it out on its own innovation.
+    int best = 0;
+    for (int j = 1; j < n_; ++j)
+        if (mu_[std::size_t(j)] > mu_[std::size_t(best)]) best = j;
+    Eigen::Matrix<double, 2, 12> J;
+    std::array<Eigen::Vector2d, kMaxModels> z;
+    for (RigidBodyFilter& m : m_) m.last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
+    if (!m_[std::size_t(best)].linearise(cam, b, shift_fn, age_us, z[std::size_t(best)], J)) return false;
+    std::array<double, kMaxModels> q{}, l{};
+    bool any = false, all_finite = true;
+    double lmax = -std::numeric_limits<double>::infinity();
+    for (int j = 0; j < n_; ++j) {
+        RigidBodyFilter& m = m_[std::size_t(j)];
+        if (j != best && !m.project(cam, b, shift_fn, age_us, RigidBodyFilter::State::Zero(), z[std::size_t(j)]))
+            return false;
+        any = m.correct(z[std::size_t(j)], J, px, sx, sy, nis_gate, &q[std::size_t(j)], age_us) || any;
+        l[std::size_t(j)] = m.last_log_likelihood();
+        all_finite = all_finite && std::isfinite(l[std::size_t(j)]);
+        if (all_finite) lmax = std::max(lmax, l[std::size_t(j)]);
+    }
+    if (all_finite) {
+        // μ_j ∝ Λ_j·μ_j, in logs for the tails (a gated image's likelihood is held at the gate's).
+        std::array<double, kMaxModels> w{};
+        double sum = 0.0;
+        for (int j = 0; j < n_; ++j) sum += w[std::size_t(j)] = mu_[std::size_t(j)] * std::exp(l[std::size_t(j)] - lmax);
+        if (sum > 0.0 && std::isfinite(sum))
+            for (int j = 0; j < n_; ++j) mu_[std::size_t(j)] = std::max(w[std::size_t(j)] / sum, 1e-9);
+    }
+    if (nis) *nis = q[std::size_t(best)];
+    dirty_ = dirty_ || any;
+    return any;
 }
 
 }  // namespace eyesim::tracking

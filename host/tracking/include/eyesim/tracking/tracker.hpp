@@ -182,7 +182,7 @@ private:
     void enqueue(const CameraField& f, int first, bool last);
     std::array<QueuedField, kQueue> queue_{};
     int queue_head_ = 0, queue_count_ = 0;
-    std::array<RigidBodyFilter, kBodies> filters_{};
+    std::array<BodyFilter, kBodies> filters_{};
     std::array<double, kBodies> last_good_us_{};
     std::array<int, kBodies> used_last_field_{};
     // When each body marker was last used in each camera (device µs), for the markers a frame reports.
