@@ -194,10 +194,13 @@ public:
     bool tracking() const { return m_[0].tracking(); }
     /// Mixes the models by the switching prior over the step, then predicts each (RigidBodyFilter::predict_to).
     void predict_to(double t_us);
+    /// RigidBodyFilter::update_point on every model (one shared linearisation), then the model probabilities by
+    /// each model's innovation likelihood. True when any model took the image; `nis` is the likeliest model's.
     template <typename Shift>
     bool update_point(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Eigen::Vector2d& px,
                       double sigma_x_px, double sigma_y_px, double nis_gate, const Shift& shift, double* nis = nullptr,
                       double age_us = 0.0);
+    /// RigidBodyFilter::update_line_through on every model.
     void update_line_through(const Eigen::Vector3d& b_body_mm, const Eigen::Vector3d& axis_body,
                              const Eigen::Vector3d& p_rig_mm, double sigma_mm);
 
