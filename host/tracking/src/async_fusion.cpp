@@ -151,7 +151,10 @@ bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Eigen::Matrix<dou
         if (!rotation_only_) Qp.bottomRightCorner<3, 3>().diagonal().setConstant(q_lin_ * a * a * a / 3.0);
         Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
     }
-    const Eigen::Matrix2d S = J * P_ * J.transpose() + Rn;
+    // Products of these fixed sizes (12 × 12 by 12 × 2) are below what a blocked GEMM pays off for: lazyProduct
+    // keeps them coefficient-wise.
+    const Eigen::Matrix<double, 12, 2> PHt = P_.lazyProduct(J.transpose());
+    const Eigen::Matrix2d S = J.lazyProduct(PHt) + Rn;
     const Eigen::Matrix2d Si = S.inverse();
     const double q = r.dot(Si * r);
     if (nis) *nis = q;
@@ -160,10 +163,9 @@ bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Eigen::Matrix<dou
     if (!(q <= nis_gate) || !std::isfinite(q)) return false;
     // With the optimal gain the Joseph form equals P − K·S·Kᵀ = P − PH·Kᵀ (a 12×2 product instead of two 12×12
     // ones); symmetrised after.
-    const Eigen::Matrix<double, 12, 2> PHt = P_ * J.transpose();
     const Eigen::Matrix<double, 12, 2> K = PHt * Si;
     apply(K * r);
-    P_.noalias() -= K * PHt.transpose();
+    P_ -= K.lazyProduct(PHt.transpose());
     P_ = 0.5 * (P_ + P_.transpose()).eval();
     roll_pseudo_measurement();
     return true;
