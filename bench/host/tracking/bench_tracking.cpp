@@ -280,10 +280,7 @@ Result run_async(const test::SyntheticScene& scene, int fields, double sigma_px,
                     const auto truth = scene.at(f.timing.sample_host_us);
                     for (int m = 0; m < f.markers.count; ++m) {
                         const auto& mk = f.markers.markers[std::size_t(m)];
-                        double best = 1e9;
-                        for (std::size_t k = 0; k < truth.markers_rig_mm.size(); ++k)
-                            if (truth.marker_class[k] == mk.colour_class)
-                                best = std::min(best, (truth.markers_rig_mm[k] - mk.point.X_rig_mm).norm());
+                        const double best = test::nearest_marker_error_mm(truth, mk.colour_class, mk.point.X_rig_mm);
                         ss += best * best;
                         ++n;
                     }

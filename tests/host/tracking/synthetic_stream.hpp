@@ -13,6 +13,7 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <random>
 #include <vector>
 
@@ -26,6 +27,14 @@ struct SceneTruth {
     std::vector<Eigen::Vector3d> markers_rig_mm;                    ///< eye markers then instrument markers
     std::vector<int> marker_class;                                  ///< per marker
 };
+
+/// Distance (mm) from `X_rig_mm` to the nearest truth marker of `colour_class`: a reported marker's error.
+inline double nearest_marker_error_mm(const SceneTruth& truth, int colour_class, const Eigen::Vector3d& X_rig_mm) {
+    double best = 1e9;
+    for (std::size_t k = 0; k < truth.markers_rig_mm.size(); ++k)
+        if (truth.marker_class[k] == colour_class) best = std::min(best, (truth.markers_rig_mm[k] - X_rig_mm).norm());
+    return best;
+}
 
 /// The scene: forceps through trocar 0 and the light pipe through trocar 1.
 class SyntheticScene {
