@@ -243,16 +243,6 @@ bool RigidBodyFilter::predict_pixel(const CameraGeometry& cam, const Eigen::Vect
     return px.allFinite();
 }
 
-namespace {
-/// Rotation vector of a unit quaternion (the inverse of detail::exp_rotation), angle in [0, π].
-Eigen::Vector3d log_rotation(Eigen::Quaterniond q) {
-    if (q.w() < 0.0) q.coeffs() = -q.coeffs();
-    const double n = q.vec().norm();
-    if (n < 1e-12) return 2.0 * q.vec();
-    return q.vec() * (2.0 * std::atan2(n, q.w()) / n);
-}
-}  // namespace
-
 void BodyFilter::configure_rigid(const Eigen::Vector3d& roll_axis_body, const double* ang_psd,
                                  const double* lin_psd, int models, double switch_per_s) {
     n_ = std::clamp(models, 1, kMaxModels);
@@ -281,7 +271,8 @@ void BodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen::Vec
 
 RigidBodyFilter::State BodyFilter::difference(const RigidBodyFilter& i, const RigidBodyFilter& j) {
     RigidBodyFilter::State d;
-    d.segment<3>(0) = log_rotation(i.R_ * j.R_.conjugate());
+    const Eigen::AngleAxisd dr(i.R_ * j.R_.conjugate());  // the rotation vector, angle in [0, π]
+    d.segment<3>(0) = dr.angle() * dr.axis();
     d.segment<3>(3) = i.t_ - j.t_;
     d.segment<3>(6) = i.w_ - j.w_;
     d.segment<3>(9) = i.v_ - j.v_;
@@ -296,31 +287,19 @@ void BodyFilter::predict_to(double t_us) {
         // spread of the means.
         const double p = (1.0 - std::exp(-switch_per_s_ * dt_s)) / (n_ - 1);
         auto Pi = [&](int i, int j) { return i == j ? 1.0 - (n_ - 1) * p : p; };
-        std::array<RigidBodyFilter, kMaxModels> mixed = m_;
+        std::array<RigidBodyFilter, kMaxModels> mixed;
         std::array<double, kMaxModels> c{};
         double sum_c = 0.0;
         for (int j = 0; j < n_; ++j) {
             for (int i = 0; i < n_; ++i) c[std::size_t(j)] += Pi(i, j) * mu_[std::size_t(i)];
             sum_c += c[std::size_t(j)];
-            std::array<RigidBodyFilter::State, kMaxModels> d;
             std::array<double, kMaxModels> w{};
-            RigidBodyFilter::State mean = RigidBodyFilter::State::Zero();
-            for (int i = 0; i < n_; ++i) {
+            for (int i = 0; i < n_; ++i)
                 w[std::size_t(i)] = c[std::size_t(j)] > 0.0 ? Pi(i, j) * mu_[std::size_t(i)] / c[std::size_t(j)]
                                                             : double(i == j);
-                d[std::size_t(i)] = difference(m_[std::size_t(i)], m_[std::size_t(j)]);
-                mean += w[std::size_t(i)] * d[std::size_t(i)];
-            }
-            RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
-            for (int i = 0; i < n_; ++i) {
-                const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
-                P += w[std::size_t(i)] * (m_[std::size_t(i)].P_ + e * e.transpose());
-            }
-            RigidBodyFilter& f = mixed[std::size_t(j)];
-            f.apply(mean);
-            f.P_ = 0.5 * (P + P.transpose());
+            merge(w, j, mixed[std::size_t(j)]);
         }
-        m_ = mixed;
+        for (int j = 0; j < n_; ++j) m_[std::size_t(j)] = mixed[std::size_t(j)];
         if (sum_c > 0.0)
             for (int j = 0; j < n_; ++j) mu_[std::size_t(j)] = c[std::size_t(j)] / sum_c;
     }
@@ -334,30 +313,34 @@ void BodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen::Vect
     dirty_ = true;
 }
 
-void BodyFilter::combine() const {
-    dirty_ = false;
-    if (n_ == 1) return;
-    // The mixture's mean about the likeliest model's state, and its covariance with the spread of the means.
-    int r = 0;
-    for (int j = 1; j < n_; ++j)
-        if (mu_[std::size_t(j)] > mu_[std::size_t(r)]) r = j;
-    c_ = m_[std::size_t(r)];
+void BodyFilter::merge(const std::array<double, kMaxModels>& w, int ref, RigidBodyFilter& out) const {
     std::array<RigidBodyFilter::State, kMaxModels> d;
     RigidBodyFilter::State mean = RigidBodyFilter::State::Zero();
     double total = 0.0;
     for (int i = 0; i < n_; ++i) {
-        d[std::size_t(i)] = difference(m_[std::size_t(i)], m_[std::size_t(r)]);
-        mean += mu_[std::size_t(i)] * d[std::size_t(i)];
-        total += mu_[std::size_t(i)];
+        d[std::size_t(i)] = difference(m_[std::size_t(i)], m_[std::size_t(ref)]);
+        mean += w[std::size_t(i)] * d[std::size_t(i)];
+        total += w[std::size_t(i)];
     }
     mean /= total;
     RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
     for (int i = 0; i < n_; ++i) {
         const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
-        P += (mu_[std::size_t(i)] / total) * (m_[std::size_t(i)].P_ + e * e.transpose());
+        P += (w[std::size_t(i)] / total) * (m_[std::size_t(i)].P_ + e * e.transpose());
     }
-    c_.apply(mean);
-    c_.P_ = 0.5 * (P + P.transpose());
+    out = m_[std::size_t(ref)];
+    out.apply(mean);
+    out.P_ = 0.5 * (P + P.transpose());
+}
+
+void BodyFilter::combine() const {
+    dirty_ = false;
+    if (n_ == 1) return;
+    // The mixture, about the likeliest model's state.
+    int r = 0;
+    for (int j = 1; j < n_; ++j)
+        if (mu_[std::size_t(j)] > mu_[std::size_t(r)]) r = j;
+    merge(mu_, r, c_);
 }
 
 }  // namespace eyesim::tracking

@@ -84,7 +84,7 @@ Tracker::Tracker(TrackerConfig config)
         const InstrumentModel& m = config_.bodies.instruments[std::size_t(b)];
         filters_[std::size_t(1 + b)].configure_rigid(m.markers_on_axis() ? Eigen::Vector3d(m.axis_body.normalized())
                                                                          : Eigen::Vector3d::Zero(),
-                                                     ang_psd, lin_psd, ao.motion_models, ao.model_switch_per_s);
+                                                     ang_psd, lin_psd, nm, ao.model_switch_per_s);
     }
 }
 

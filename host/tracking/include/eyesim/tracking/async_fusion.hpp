@@ -169,8 +169,9 @@ private:
     Cov P_ = Cov::Identity();
 };
 
-/// One body's estimator in the live chain: two RigidBodyFilters of the same body, a steady motion model (low
-/// acceleration noise) and an agile one, mixed as an interacting multiple model (IMM, Blom & Bar-Shalom 1988).
+/// One body's estimator in the live chain: up to three RigidBodyFilters of the same body, from a steady motion
+/// model (low acceleration noise) to an agile one, mixed as an interacting multiple model (IMM, Blom &
+/// Bar-Shalom 1988).
 /// Why: one acceleration density is a trade — low, it smooths a held or slowly moved body (the eye at rest, an
 /// instrument feeling the retina) but lags a fast turn; high, it follows the turn but passes the centroid noise
 /// into the pose. Each image's innovation likelihood under each model moves the model probabilities; the
@@ -228,6 +229,9 @@ public:
 private:
     /// Error state of model i relative to model j's (δθ with R_i = exp(δθ)·R_j, then δt, δω, δv).
     static RigidBodyFilter::State difference(const RigidBodyFilter& i, const RigidBodyFilter& j);
+    /// `out` = the models' states averaged with weights `w` about model `ref`'s, their covariance widened by the
+    /// spread of the means: the IMM's mixing before a prediction and its reported mixture alike.
+    void merge(const std::array<double, kMaxModels>& w, int ref, RigidBodyFilter& out) const;
     const RigidBodyFilter& mix() const {
         if (dirty_) combine();
         return n_ == 1 ? m_[0] : c_;
@@ -331,15 +335,16 @@ bool BodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& 
         if (mu_[std::size_t(j)] > mu_[std::size_t(best)]) best = j;
     Eigen::Matrix<double, 2, 12> J;
     std::array<Eigen::Vector2d, kMaxModels> z;
-    for (RigidBodyFilter& m : m_) m.last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
     if (!m_[std::size_t(best)].linearise(cam, b, shift_fn, age_us, z[std::size_t(best)], J)) return false;
+    for (int j = 0; j < n_; ++j)  // every model's pixel before any model changes: all take the image or none
+        if (j != best &&
+            !m_[std::size_t(j)].project(cam, b, shift_fn, age_us, RigidBodyFilter::State::Zero(), z[std::size_t(j)]))
+            return false;
     std::array<double, kMaxModels> q{}, l{};
     bool any = false, all_finite = true;
     double lmax = -std::numeric_limits<double>::infinity();
     for (int j = 0; j < n_; ++j) {
         RigidBodyFilter& m = m_[std::size_t(j)];
-        if (j != best && !m.project(cam, b, shift_fn, age_us, RigidBodyFilter::State::Zero(), z[std::size_t(j)]))
-            return false;
         any = m.correct(z[std::size_t(j)], J, px, sx, sy, nis_gate, &q[std::size_t(j)], age_us) || any;
         l[std::size_t(j)] = m.last_log_likelihood();
         all_finite = all_finite && std::isfinite(l[std::size_t(j)]);
