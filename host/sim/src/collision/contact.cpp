@@ -131,6 +131,8 @@ void ExactContact::set_membrane(const TriangleMesh& membrane) {
     vert_stamp_.assign(nv, 0);
     vscan_stamp_.assign(nv, 0);
     vert_inside_.assign(nv, 0);
+    vin_stamp_.assign(nv, 0);
+    vin_.assign(nv, 0);
     vdepth_.assign(nv, 0.0f);
     vdepth_stamp_.assign(nv, 0);
     node_sum_.assign(nv, Vec3f::Zero());
@@ -154,7 +156,7 @@ void ExactContact::reset_result() {
     nodes_.clear();
     grabbed_.clear();
     push_.clear();
-    bump(query_, tri_stamp_, vert_stamp_, vscan_stamp_, vdepth_stamp_, node_stamp_);
+    bump(query_, tri_stamp_, vert_stamp_, vscan_stamp_, vdepth_stamp_, node_stamp_, vin_stamp_);
 }
 
 ExactContact::InstrumentChange ExactContact::instrument_change(const MeshRef& ins,
@@ -382,9 +384,9 @@ bool ExactContact::intersects_any(uint32_t mt) {
     const float hix = max3(ax, bx, cx) + kEps_mm, hiy = max3(ay, by, cy) + kEps_mm,
                 hiz = max3(az, bz, cz) + kEps_mm;
     const uint32_t q = bump(inst_query_, inst_stamp_);
-    // The membrane triangle's plane (unnormalised) for the second filter, computed when a pair first gets there.
+    // The membrane triangle's normal (unnormalised) and edge planes, computed when a pair first gets there.
     bool plane = false;
-    float nmx = 0, nmy = 0, nmz = 0, dm = 0, epsm = 0;
+    float nmx = 0, nmy = 0, nmz = 0;
 #if defined(__SSE2__)
     __m128 emx = _mm_setzero_ps(), emy = _mm_setzero_ps(), emz = _mm_setzero_ps(), emlim = _mm_setzero_ps();
 #endif
@@ -396,8 +398,6 @@ bool ExactContact::intersects_any(uint32_t mt) {
             nmx = e1y * e2z - e1z * e2y;
             nmy = e1z * e2x - e1x * e2z;
             nmz = e1x * e2y - e1y * e2x;
-            dm = nmx * ax + nmy * ay + nmz * az;
-            epsm = kEps_mm * std::sqrt(nmx * nmx + nmy * nmy + nmz * nmz);
 #if defined(__SSE2__)
             // The edge planes (through an edge, ⊥ the triangle), inward normals m_k = n × e_k, one lane each
             // (the fourth lane is zero and never rejects).
@@ -422,17 +422,14 @@ bool ExactContact::intersects_any(uint32_t mt) {
                 emlim = _mm_set1_ps(-kInf);
 #endif
         }
-        // Plane filters (float, conservative margin): all of one triangle strictly on one side of the other's
-        // plane → disjoint.
+        // Plane filter (float, conservative margin): the membrane triangle strictly on one side of the instrument
+        // triangle's plane → disjoint. (The converse, the instrument triangle against the membrane's plane, ended
+        // 2 % of the pairs that reach here, dense scene: not worth its instructions.)
         const float nx = T.n.x(), ny = T.n.y(), nz = T.n.z();
         const float da = nx * ax + ny * ay + nz * az - T.d, db = nx * bx + ny * by + nz * bz - T.d,
                     dc = nx * cx + ny * cy + nz * cz - T.d;
         if (((da > kEps_mm) & (db > kEps_mm) & (dc > kEps_mm)) | ((da < -kEps_mm) & (db < -kEps_mm) & (dc < -kEps_mm)))
             return false;
-        const float ea = nmx * T.a.x() + nmy * T.a.y() + nmz * T.a.z() - dm,
-                    eb = nmx * T.b.x() + nmy * T.b.y() + nmz * T.b.z() - dm,
-                    ec = nmx * T.c.x() + nmy * T.c.y() + nmz * T.c.z() - dm;
-        if (((ea > epsm) & (eb > epsm) & (ec > epsm)) | ((ea < -epsm) & (eb < -epsm) & (ec < -epsm))) return false;
 #if defined(__SSE2__)
         // Edge-plane filter: the instrument triangle wholly outside one of the membrane triangle's edge planes (by
         // the margin) misses it. Most pairs that reach here straddle both planes but cross the membrane's plane
@@ -983,9 +980,27 @@ const ContactResult& ExactContact::query(std::span<const Vec3f> verts, const Mes
         }
         for (int k = 0; k < 3; ++k) rb[k] = ar[k][0] * he[0] + (ar[k][1] * he[1] + ar[k][2] * he[2]);
     }
+    // Quick accept: a corner inside the box by `inner` along each box axis puts the triangle's bounds and the box
+    // `inner` deep into each other on every separating axis, far beyond the test's float rounding (≈ 1e-6 of the
+    // coordinates' size), so the full test below would say the same. Asked once per vertex and query.
+    const float inner =
+        1e-5f * (1.0f + std::max({std::fabs(bc[0]), std::fabs(bc[1]), std::fabs(bc[2])}) + he[0] + he[1] + he[2]);
+    auto deep_inside = [&](uint32_t v) {
+        if (vin_stamp_[v] != query_) {
+            vin_stamp_[v] = query_;
+            const Vec3f& p = verts[v];
+            const float d0 = p.x() - bc[0], d1 = p.y() - bc[1], d2 = p.z() - bc[2];
+            bool deep = true;
+            for (int k = 0; k < 3; ++k)
+                deep &= std::fabs(rc[0][k] * d0 + rc[1][k] * d1 + rc[2][k] * d2) <= he[k] - inner;
+            vin_[v] = deep;
+        }
+        return vin_[v] != 0;
+    };
     auto within = [&](uint32_t t) {
         if (!vbox) return true;
         const auto& tri = triangles_[t];
+        if (deep_inside(tri[0])) return true;
         const Vec3f &a = verts[tri[0]], &b = verts[tri[1]], &c = verts[tri[2]];
         float h[3], d[3];
         for (int k = 0; k < 3; ++k) {

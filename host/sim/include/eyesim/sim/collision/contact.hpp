@@ -15,7 +15,7 @@
 /// the few remaining membrane triangles are tested against the grid's instrument triangles (each cell keeps a
 /// copy of its triangles' bounds, so the walk reads them in order; coherence hints first: the
 /// instrument triangle that hit the same membrane triangle last query or the previous membrane triangle; float
-/// plane filters with a conservative margin; Möller's interval test in double, falling back to the predicates
+/// plane and edge-plane filters with a conservative margin; Möller's interval test in double, falling back to the predicates
 /// of `triangles_intersect` near degeneracy). Containment is grown
 /// from the intersecting triangles over the membrane's adjacency (ray parity, one test per inside/outside
 /// region of non-intersecting triangles). Deformation: the instrument's triangles over the contact are binned
@@ -192,6 +192,8 @@ private:
     std::vector<uint8_t> code_;
     std::vector<uint32_t> inst_stamp_, tri_stamp_, vert_stamp_, vscan_stamp_;
     std::vector<uint8_t> tri_state_, vert_inside_;
+    std::vector<uint32_t> vin_stamp_;  // per vertex: query in which vin_ was set
+    std::vector<uint8_t> vin_;         // per vertex: deep inside options.within (its quick accept)
     uint32_t inst_query_ = 0, query_ = 0;
     std::vector<uint32_t> hint_;  // per membrane triangle: the instrument triangle that last intersected it
     uint32_t last_hit_ = 0xFFFFFFFFu;
