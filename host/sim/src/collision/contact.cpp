@@ -27,8 +27,7 @@ constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr int kMaxCells = 192;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
-constexpr double kLookupsPerColliding = 1.7;  // depth lookups per colliding triangle (measured, dense scene)
-constexpr double kBinsPerRootWork = 0.3;      // deformation bins per √(lookups × front triangles)
+constexpr double kBinsPerRootWork = 0.5;  // deformation bins per √(sample points × front triangles)
 constexpr uint32_t kNoHint = 0xFFFFFFFFu;
 
 inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
@@ -103,7 +102,6 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
     kept_.reserve(ni);
     front_.reserve(ni);
-    for (auto& f : bf_) f.reserve(ni * 4);
     bin_begin_.reserve(kMaxBins * kMaxBins + 1);
     bin_fill_.reserve(kMaxBins * kMaxBins);
 }
@@ -133,7 +131,7 @@ void ExactContact::set_membrane(const TriangleMesh& membrane) {
     vert_inside_.assign(nv, 0);
     vin_stamp_.assign(nv, 0);
     vin_.assign(nv, 0);
-    vdepth_.assign(nv, 0.0f);
+    vpoint_.assign(nv, 0);
     vdepth_stamp_.assign(nv, 0);
     node_sum_.assign(nv, Vec3f::Zero());
     node_max_.assign(nv, 0.0f);
@@ -574,55 +572,6 @@ bool ExactContact::inside_any_part(const Vec3f& p) {
     return false;
 }
 
-float ExactContact::front_depth(float u, float w) const {
-    // Smallest depth along π of the instrument surface on the line through (u, w); +inf when none.
-    const int bu = int((u - bu0_) * binv_u_), bw = int((w - bw0_) * binv_w_);
-    if (bu < 0 || bw < 0 || bu >= bins_ || bw >= bins_) return kInf;
-    const size_t b = size_t(bw) * size_t(bins_) + size_t(bu);
-    constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
-    const float* __restrict U0 = bf_[0].data();
-    const float* __restrict W0 = bf_[1].data();
-    const float* __restrict A11 = bf_[2].data();
-    const float* __restrict A12 = bf_[3].data();
-    const float* __restrict A21 = bf_[4].data();
-    const float* __restrict A22 = bf_[5].data();
-    const float* __restrict S0 = bf_[6].data();
-    const float* __restrict DS1 = bf_[7].data();
-    const float* __restrict DS2 = bf_[8].data();
-    uint32_t k = bin_begin_[b];
-    const uint32_t end = bin_begin_[b + 1];
-    float best = kInf;
-#if defined(__SSE2__)
-    // Four items per step, the same single-precision operations as the scalar loop below (so the same values).
-    if (end - k >= 4) {
-        const __m128 vu = _mm_set1_ps(u), vw = _mm_set1_ps(w), tol = _mm_set1_ps(kTol), one = _mm_set1_ps(1.0f);
-        const __m128 inf = _mm_set1_ps(kInf);
-        __m128 vbest = inf;
-        for (; k + 4 <= end; k += 4) {
-            const __m128 du = _mm_sub_ps(vu, _mm_loadu_ps(U0 + k)), dw = _mm_sub_ps(vw, _mm_loadu_ps(W0 + k));
-            const __m128 l1 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A11 + k), du), _mm_mul_ps(_mm_loadu_ps(A12 + k), dw));
-            const __m128 l2 = _mm_add_ps(_mm_mul_ps(_mm_loadu_ps(A21 + k), du), _mm_mul_ps(_mm_loadu_ps(A22 + k), dw));
-            const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
-            const __m128 in =
-                _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
-            const __m128 s = _mm_add_ps(_mm_add_ps(_mm_loadu_ps(S0 + k), _mm_mul_ps(l1, _mm_loadu_ps(DS1 + k))),
-                                        _mm_mul_ps(l2, _mm_loadu_ps(DS2 + k)));
-            vbest = _mm_min_ps(vbest, _mm_or_ps(_mm_and_ps(in, s), _mm_andnot_ps(in, inf)));
-        }
-        alignas(16) float lanes[4];
-        _mm_store_ps(lanes, vbest);
-        best = std::min(std::min(lanes[0], lanes[1]), std::min(lanes[2], lanes[3]));
-    }
-#endif
-    for (; k < end; ++k) {
-        const float du = u - U0[k], dw = w - W0[k];
-        const float l1 = A11[k] * du + A12[k] * dw, l2 = A21[k] * du + A22[k] * dw;
-        if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
-        best = std::min(best, S0[k] + l1 * DS1[k] + l2 * DS2[k]);
-    }
-    return best;
-}
-
 void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const Eigen::Isometry3f& to_eye,
                                        const Vec3f& pi_eye) {
     // π and a basis of the plane ⊥ π, in the instrument frame.
@@ -632,20 +581,32 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     pw_ = ps_.cross(pu_);
     const float ux = pu_.x(), uy = pu_.y(), uz = pu_.z(), wx = pw_.x(), wy = pw_.y(), wz = pw_.z();
     const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
-    // Region ⊥ π covered by the colliding triangles, and their deepest point along π.
+    // Sample points: the colliding triangles' corners (once per vertex) and centroids, on u, w and π. The region
+    // ⊥ π they cover and their deepest point along π (the corners' bounds hold the centroids).
+    for (auto* a : {&pt_u_, &pt_w_, &pt_s_}) a->clear();
+    auto add_point = [&](const Vec3f& p) {
+        pt_u_.push_back(ux * p.x() + uy * p.y() + uz * p.z());
+        pt_w_.push_back(wx * p.x() + wy * p.y() + wz * p.z());
+        pt_s_.push_back(sx * p.x() + sy * p.y() + sz * p.z());
+        return uint32_t(pt_u_.size() - 1);
+    };
     float u_lo = kInf, u_hi = -kInf, w_lo = kInf, w_hi = -kInf, s_hi = -kInf;
     for (uint32_t t : out_)
         for (uint32_t v : triangles_[t]) {
-            const float px = lx_[v], py = ly_[v], pz = lz_[v];
-            const float u = ux * px + uy * py + uz * pz;
-            const float w = wx * px + wy * py + wz * pz;
-            const float s = sx * px + sy * py + sz * pz;
-            u_lo = std::min(u_lo, u);
-            u_hi = std::max(u_hi, u);
-            w_lo = std::min(w_lo, w);
-            w_hi = std::max(w_hi, w);
-            s_hi = std::max(s_hi, s);
+            if (vdepth_stamp_[v] == query_) continue;
+            vdepth_stamp_[v] = query_;
+            const uint32_t k = vpoint_[v] = add_point(local(v));
+            u_lo = std::min(u_lo, pt_u_[k]);
+            u_hi = std::max(u_hi, pt_u_[k]);
+            w_lo = std::min(w_lo, pt_w_[k]);
+            w_hi = std::max(w_hi, pt_w_[k]);
+            s_hi = std::max(s_hi, pt_s_[k]);
         }
+    const uint32_t centroids = uint32_t(pt_u_.size());  // the centroid of out_[i] is point centroids + i
+    for (uint32_t t : out_) {
+        const auto& tr = triangles_[t];
+        add_point((local(tr[0]) + local(tr[1]) + local(tr[2])) / 3.0f);
+    }
     // Cull by bounding spheres: only triangles facing the camera (−π; the first surface a line along π meets on
     // a closed part with outward normals faces it) over the region and reaching in front of the deepest sample.
     const uint32_t nit = uint32_t(tris_.size());
@@ -758,9 +719,9 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
             _mm_store_ps(f[12], whi);
             for (; keep; keep &= keep - 1) {
                 const int l = __builtin_ctz(unsigned(keep));
-                // f[0..12] are FrontTri's float fields in declaration order; the bins are set when binned.
+                // f[0..12] are FrontTri's fields in declaration order.
                 front_.push_back({f[0][l], f[1][l], f[2][l], f[3][l], f[4][l], f[5][l], f[6][l], f[7][l], f[8][l],
-                                  f[9][l], f[10][l], f[11][l], f[12][l], 0, 0, 0, 0});
+                                  f[9][l], f[10][l], f[11][l], f[12][l]});
             }
         }
     }
@@ -797,74 +758,102 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         front_.push_back(f);
     }
     result_.front_triangles = front_.size();
-    // Bins: binning costs about as much per bin as per front triangle, a lookup (≈ 1.7 per colliding triangle:
-    // shared corners and the centroid) about as much per item of its bin, so the bin count that minimises the sum
-    // grows as √(lookups × front triangles): coarse bins for a few lookups (fewer copies), finer ones for a dense
-    // contact (shorter lists). The constant is the fewest instructions on the benchmark scenes.
-    const double lookups = kLookupsPerColliding * double(out_.size());
-    bins_ = std::clamp(int(std::sqrt(kBinsPerRootWork * std::sqrt(lookups * double(front_.size())))), 1, kMaxBins);
+    // ZI at each sample point: the smallest depth along π of the front triangles over it. The points are binned
+    // over (u, w) and each front triangle visits the bins its bounds cover, four points at a time. Cost: per
+    // (triangle, bin) pair plus per point slot visited, so the bin count that balances them grows as
+    // √(points × front triangles): coarse for a few points, finer for a dense contact. The constant is the fewest
+    // instructions on the benchmark scenes.
+    const size_t np = pt_u_.size();
+    const int bins =
+        std::clamp(int(std::sqrt(kBinsPerRootWork * std::sqrt(double(np) * double(front_.size())))), 1, kMaxBins);
     const float eu = std::max(u_hi - u_lo, 1e-6f), ew = std::max(w_hi - w_lo, 1e-6f);
-    bu0_ = u_lo;
-    bw0_ = w_lo;
-    binv_u_ = float(bins_) / eu * (1.0f - 1e-6f);
-    binv_w_ = float(bins_) / ew * (1.0f - 1e-6f);
-    const size_t nb = size_t(bins_) * size_t(bins_);
+    const float binv_u = float(bins) / eu * (1.0f - 1e-6f), binv_w = float(bins) / ew * (1.0f - 1e-6f);
+    const size_t nb = size_t(bins) * size_t(bins);
+    constexpr uint32_t kNoBin = 0xFFFFFFFFu;
     bin_begin_.assign(nb + 1, 0);
-    for (FrontTri& f : front_) {
-        f.x0 = std::clamp(int((f.ulo - bu0_) * binv_u_), 0, bins_ - 1);
-        f.x1 = std::clamp(int((f.uhi - bu0_) * binv_u_), 0, bins_ - 1);
-        f.y0 = std::clamp(int((f.wlo - bw0_) * binv_w_), 0, bins_ - 1);
-        f.y1 = std::clamp(int((f.whi - bw0_) * binv_w_), 0, bins_ - 1);
-        for (int y = f.y0; y <= f.y1; ++y)
-            for (int x = f.x0; x <= f.x1; ++x) ++bin_begin_[size_t(y) * size_t(bins_) + size_t(x) + 1];
-    }
-    // Each bin padded to a multiple of four items (the padding never matches: its u0 is NaN), so a lookup runs
-    // whole SIMD steps only.
-    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
-    for (auto& a : bf_) a.resize(bin_begin_[nb]);
-    bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
-    for (const FrontTri& f : front_)
-        for (int y = f.y0; y <= f.y1; ++y)
-            for (int x = f.x0; x <= f.x1; ++x) {
-                const uint32_t k = bin_fill_[size_t(y) * size_t(bins_) + size_t(x)]++;
-                bf_[0][k] = f.u0;
-                bf_[1][k] = f.w0;
-                bf_[2][k] = f.a11;
-                bf_[3][k] = f.a12;
-                bf_[4][k] = f.a21;
-                bf_[5][k] = f.a22;
-                bf_[6][k] = f.s0;
-                bf_[7][k] = f.ds1;
-                bf_[8][k] = f.ds2;
-            }
-    for (size_t b = 0; b < nb; ++b)
-        for (uint32_t k = bin_fill_[b]; k < bin_begin_[b + 1]; ++k) {
-            bf_[0][k] = std::numeric_limits<float>::quiet_NaN();
-            for (int i = 1; i < 9; ++i) bf_[i][k] = 0.0f;
+    pt_bin_.resize(np);
+    for (size_t k = 0; k < np; ++k) {
+        const int bu = int((pt_u_[k] - u_lo) * binv_u), bw = int((pt_w_[k] - w_lo) * binv_w);
+        if (bu < 0 || bw < 0 || bu >= bins || bw >= bins) {
+            pt_bin_[k] = kNoBin;  // no instrument surface looked up (the region holds every corner and centroid)
+            continue;
         }
-    // ZI − ZM at a membrane point: the front-most instrument surface on its line minus its own depth, ≤ 0.
-    auto delta_at = [&](const Vec3f& p) {
-        const float u = ux * p.x() + uy * p.y() + uz * p.z(), w = wx * p.x() + wy * p.y() + wz * p.z();
-        const float s = sx * p.x() + sy * p.y() + sz * p.z();
-        return std::min(0.0f, front_depth(u, w) - s);
-    };
-    for (uint32_t t : out_) {
-        const auto& tr = triangles_[t];
+        pt_bin_[k] = uint32_t(bw) * uint32_t(bins) + uint32_t(bu);
+        ++bin_begin_[pt_bin_[k] + 1];
+    }
+    // Each bin padded to a multiple of four slots (padding: u NaN, never inside a triangle).
+    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
+    const uint32_t slots = bin_begin_[nb];
+    sl_u_.assign(slots, std::numeric_limits<float>::quiet_NaN());
+    sl_w_.assign(slots, 0.0f);
+    sl_best_.assign(slots, kInf);
+    sl_point_.resize(np);
+    bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
+    for (size_t k = 0; k < np; ++k) {
+        if (pt_bin_[k] == kNoBin) continue;
+        const uint32_t slot = bin_fill_[pt_bin_[k]]++;
+        sl_u_[slot] = pt_u_[k];
+        sl_w_[slot] = pt_w_[k];
+        sl_point_[k] = slot;
+    }
+    constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
+    float* __restrict best = sl_best_.data();
+    const float* __restrict su = sl_u_.data();
+    const float* __restrict sw = sl_w_.data();
+    for (const FrontTri& f : front_) {
+        const int x0 = std::clamp(int((f.ulo - u_lo) * binv_u), 0, bins - 1);
+        const int x1 = std::clamp(int((f.uhi - u_lo) * binv_u), 0, bins - 1);
+        const int y0 = std::clamp(int((f.wlo - w_lo) * binv_w), 0, bins - 1);
+        const int y1 = std::clamp(int((f.whi - w_lo) * binv_w), 0, bins - 1);
+#if defined(__SSE2__)
+        const __m128 u0 = _mm_set1_ps(f.u0), w0 = _mm_set1_ps(f.w0), a11 = _mm_set1_ps(f.a11),
+                     a12 = _mm_set1_ps(f.a12), a21 = _mm_set1_ps(f.a21), a22 = _mm_set1_ps(f.a22),
+                     s0 = _mm_set1_ps(f.s0), ds1 = _mm_set1_ps(f.ds1), ds2 = _mm_set1_ps(f.ds2);
+        const __m128 tol = _mm_set1_ps(kTol), one = _mm_set1_ps(1.0f), inf = _mm_set1_ps(kInf);
+#endif
+        for (int y = y0; y <= y1; ++y) {
+            // The bins x0..x1 of a row are adjacent slots: one run.
+            const size_t row = size_t(y) * size_t(bins);
+            const uint32_t end = bin_begin_[row + size_t(x1) + 1];
+            uint32_t k = bin_begin_[row + size_t(x0)];
+#if defined(__SSE2__)
+            // The same single-precision operations as the scalar loop below (so the same values).
+            for (; k < end; k += 4) {
+                const __m128 du = _mm_sub_ps(_mm_loadu_ps(su + k), u0), dw = _mm_sub_ps(_mm_loadu_ps(sw + k), w0);
+                const __m128 l1 = _mm_add_ps(_mm_mul_ps(a11, du), _mm_mul_ps(a12, dw));
+                const __m128 l2 = _mm_add_ps(_mm_mul_ps(a21, du), _mm_mul_ps(a22, dw));
+                const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
+                const __m128 in =
+                    _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
+                const __m128 sv = _mm_add_ps(_mm_add_ps(s0, _mm_mul_ps(l1, ds1)), _mm_mul_ps(l2, ds2));
+                _mm_storeu_ps(best + k, _mm_min_ps(_mm_loadu_ps(best + k),
+                                                   _mm_or_ps(_mm_and_ps(in, sv), _mm_andnot_ps(in, inf))));
+            }
+#endif
+            for (; k < end; ++k) {
+                const float du = su[k] - f.u0, dw = sw[k] - f.w0;
+                const float l1 = f.a11 * du + f.a12 * dw, l2 = f.a21 * du + f.a22 * dw;
+                if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
+                best[k] = std::min(best[k], f.s0 + l1 * f.ds1 + l2 * f.ds2);
+            }
+        }
+    }
+    // ZI − ZM at a sample point (≤ 0): the front-most instrument surface on its line minus its own depth.
+    auto delta = [&](uint32_t k) { return pt_bin_[k] == kNoBin ? 0.0f : std::min(0.0f, best[sl_point_[k]] - pt_s_[k]); };
+    for (size_t i = 0; i < out_.size(); ++i) {
+        const auto& tr = triangles_[out_[i]];
         TriangleContact c;
-        c.triangle = t;
+        c.triangle = out_[i];
         c.depth_delta_mm = 0.0f;
         c.point_eye_mm = (verts_eye[tr[0]] + verts_eye[tr[1]] + verts_eye[tr[2]]) / 3.0f;
         for (uint32_t v : tr) {
-            if (vdepth_stamp_[v] != query_) {
-                vdepth_stamp_[v] = query_;
-                vdepth_[v] = delta_at(local(v));
-            }
-            if (vdepth_[v] < c.depth_delta_mm) {
-                c.depth_delta_mm = vdepth_[v];
+            const float d = delta(vpoint_[v]);
+            if (d < c.depth_delta_mm) {
+                c.depth_delta_mm = d;
                 c.point_eye_mm = verts_eye[v];
             }
         }
-        const float centre = delta_at((local(tr[0]) + local(tr[1]) + local(tr[2])) / 3.0f);
+        const float centre = delta(centroids + uint32_t(i));
         if (centre < c.depth_delta_mm) {
             c.depth_delta_mm = centre;
             c.point_eye_mm = (verts_eye[tr[0]] + verts_eye[tr[1]] + verts_eye[tr[2]]) / 3.0f;

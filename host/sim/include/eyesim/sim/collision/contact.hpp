@@ -18,9 +18,10 @@
 /// plane and edge-plane filters with a conservative margin; Möller's interval test in double, falling back to the predicates
 /// of `triangles_intersect` near degeneracy). Containment is grown
 /// from the intersecting triangles over the membrane's adjacency (ray parity, one test per inside/outside
-/// region of non-intersecting triangles). Deformation: the instrument's triangles over the contact are binned
-/// in the plane ⊥ π (each bin's triangles copied contiguously); each sample point looks up the front-most
-/// instrument surface on its line along π, scanning its bin four triangles at a time.
+/// region of non-intersecting triangles). Deformation: the sample points (colliding triangles' corners and
+/// centroids) are binned in the plane ⊥ π (each bin's points copied contiguously); each front-facing instrument
+/// triangle over the contact visits the bins its bounds cover and lowers the front-most depth along π of the
+/// points inside it, four points at a time.
 
 #include "eyesim/sim/collision/instrument.hpp"
 #include "eyesim/sim/collision/raster_backend.hpp"
@@ -167,7 +168,6 @@ private:
     bool inside_any_part(const Vec3f& p_local);
     void compute_deformation(std::span<const Vec3f> membrane_vertices_eye_mm, const Eigen::Isometry3f& to_eye,
                              const Vec3f& pi_eye);
-    float front_depth(float u, float w) const;
     void reset_result();
 
     // Membrane topology.
@@ -206,17 +206,15 @@ private:
         float u0, w0, a11, a12, a21, a22;  // (u, w) → barycentric (l1, l2)
         float s0, ds1, ds2;                // depth along π at the corners
         float ulo, uhi, wlo, whi;          // bounds ⊥ π
-        int x0, x1, y0, y1;                // bins covered
     };
     std::vector<FrontTri> front_;
-    std::vector<uint32_t> bin_begin_, bin_fill_;
-    // The front triangles copied into bin order, one array per FrontTri field (a bin's items are contiguous, so
-    // a lookup streams through them four at a time).
-    std::vector<float> bf_[9];
-    float bu0_ = 0, bw0_ = 0, binv_u_ = 1, binv_w_ = 1;
-    int bins_ = 1;
+    // Sample points (colliding triangles' corners, then their centroids) on u, w, π; their bins over (u, w); the
+    // points copied into bin order (slots, each bin padded to four), and the smallest front depth per slot.
+    std::vector<float> pt_u_, pt_w_, pt_s_;
+    std::vector<uint32_t> pt_bin_, vpoint_;  // vpoint_: per membrane vertex, its sample point (this query)
+    std::vector<uint32_t> bin_begin_, bin_fill_, sl_point_;  // sl_point_: per point, its slot
+    std::vector<float> sl_u_, sl_w_, sl_best_;
     Vec3f pu_{1, 0, 0}, pw_{0, 1, 0}, ps_{0, 0, 1};  // u, w, π in the instrument frame
-    std::vector<float> vdepth_;
     std::vector<uint32_t> vdepth_stamp_;
     std::vector<TriangleContact> contacts_;
     std::vector<uint32_t> nodes_, grabbed_;
