@@ -27,7 +27,7 @@ constexpr float kEps_mm = 2e-5f;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 constexpr int kMaxCells = 192;  // per axis of the instrument grid
 constexpr int kMaxBins = 32;   // per axis of the deformation bins
-constexpr double kBinsPerRootWork = 0.5;  // deformation bins per √(sample points × front triangles)
+constexpr double kBinsPerRootWork = 0.5;  // deformation bins per √(sample points × candidate front triangles)
 constexpr uint32_t kNoHint = 0xFFFFFFFFu;
 
 inline float min3(float a, float b, float c) { return std::min(std::min(a, b), c); }
@@ -101,7 +101,6 @@ ExactContact::ExactContact(const TriangleMesh& membrane, size_t max_instrument_t
     inst_stamp_.reserve(ni);
     for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->reserve(ni);
     kept_.reserve(ni);
-    front_.reserve(ni);
     bin_begin_.reserve(kMaxBins * kMaxBins + 1);
     bin_fill_.reserve(kMaxBins * kMaxBins);
 }
@@ -583,12 +582,17 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
     const float sx = ps_.x(), sy = ps_.y(), sz = ps_.z();
     // Sample points: the colliding triangles' corners (once per vertex) and centroids, on u, w and π. The region
     // ⊥ π they cover and their deepest point along π (the corners' bounds hold the centroids).
-    for (auto* a : {&pt_u_, &pt_w_, &pt_s_}) a->clear();
+    const size_t nout = out_.size();
+    for (auto* a : {&pt_u_, &pt_w_, &pt_s_}) a->resize(4 * nout);  // at most three corners and a centroid each
+    float* __restrict pu = pt_u_.data();
+    float* __restrict pw = pt_w_.data();
+    float* __restrict pz = pt_s_.data();
+    uint32_t np = 0;
     auto add_point = [&](const Vec3f& p) {
-        pt_u_.push_back(ux * p.x() + uy * p.y() + uz * p.z());
-        pt_w_.push_back(wx * p.x() + wy * p.y() + wz * p.z());
-        pt_s_.push_back(sx * p.x() + sy * p.y() + sz * p.z());
-        return uint32_t(pt_u_.size() - 1);
+        pu[np] = ux * p.x() + uy * p.y() + uz * p.z();
+        pw[np] = wx * p.x() + wy * p.y() + wz * p.z();
+        pz[np] = sx * p.x() + sy * p.y() + sz * p.z();
+        return np++;
     };
     float u_lo = kInf, u_hi = -kInf, w_lo = kInf, w_hi = -kInf, s_hi = -kInf;
     for (uint32_t t : out_)
@@ -596,13 +600,13 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
             if (vdepth_stamp_[v] == query_) continue;
             vdepth_stamp_[v] = query_;
             const uint32_t k = vpoint_[v] = add_point(local(v));
-            u_lo = std::min(u_lo, pt_u_[k]);
-            u_hi = std::max(u_hi, pt_u_[k]);
-            w_lo = std::min(w_lo, pt_w_[k]);
-            w_hi = std::max(w_hi, pt_w_[k]);
-            s_hi = std::max(s_hi, pt_s_[k]);
+            u_lo = std::min(u_lo, pu[k]);
+            u_hi = std::max(u_hi, pu[k]);
+            w_lo = std::min(w_lo, pw[k]);
+            w_hi = std::max(w_hi, pw[k]);
+            s_hi = std::max(s_hi, pz[k]);
         }
-    const uint32_t centroids = uint32_t(pt_u_.size());  // the centroid of out_[i] is point centroids + i
+    const uint32_t centroids = np;  // the centroid of out_[i] is point centroids + i
     for (uint32_t t : out_) {
         const auto& tr = triangles_[t];
         add_point((local(tr[0]) + local(tr[1]) + local(tr[2])) / 3.0f);
@@ -655,23 +659,114 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
                 kept_.push_back(t);
         }
     }
-    front_.clear();
-    size_t first = 0;  // kept triangles before this one went through the SIMD path
+    // ZI at each sample point: the smallest depth along π of the front triangles over it. The points are binned
+    // over (u, w) and each front triangle visits the bins its bounds cover, four points at a time. Cost: per
+    // (triangle, bin) pair plus per point slot visited, so the bin count that balances them grows as
+    // √(points × candidate front triangles): coarse for a few points, finer for a dense contact. The constant is
+    // the fewest instructions on the benchmark scenes.
+    const int bins =
+        std::clamp(int(std::sqrt(kBinsPerRootWork * std::sqrt(double(np) * double(kept_.size())))), 1, kMaxBins);
+    const float eu = std::max(u_hi - u_lo, 1e-6f), ew = std::max(w_hi - w_lo, 1e-6f);
+    const float binv_u = float(bins) / eu * (1.0f - 1e-6f), binv_w = float(bins) / ew * (1.0f - 1e-6f);
+    const float top = float(bins - 1);
+    const size_t nb = size_t(bins) * size_t(bins);
+    constexpr uint32_t kNoBin = 0xFFFFFFFFu;
+    bin_begin_.assign(nb + 1, 0);
+    pt_bin_.resize(np);
+    for (uint32_t k = 0; k < np; ++k) {
+        const int bu = int((pu[k] - u_lo) * binv_u), bw = int((pw[k] - w_lo) * binv_w);
+        if (bu < 0 || bw < 0 || bu >= bins || bw >= bins) {
+            pt_bin_[k] = kNoBin;  // no instrument surface looked up (the region holds every corner and centroid)
+            continue;
+        }
+        pt_bin_[k] = uint32_t(bw) * uint32_t(bins) + uint32_t(bu);
+        ++bin_begin_[pt_bin_[k] + 1];
+    }
+    // Each bin padded to a multiple of four slots (padding: u NaN, never inside a triangle).
+    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
+    const uint32_t slots = bin_begin_[nb];
+    sl_u_.assign(slots, std::numeric_limits<float>::quiet_NaN());
+    sl_w_.assign(slots, 0.0f);
+    sl_best_.assign(slots, kInf);
+    sl_point_.resize(np);
+    bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
+    for (uint32_t k = 0; k < np; ++k) {
+        if (pt_bin_[k] == kNoBin) continue;
+        const uint32_t slot = bin_fill_[pt_bin_[k]]++;
+        sl_u_[slot] = pu[k];
+        sl_w_[slot] = pw[k];
+        sl_point_[k] = slot;
+    }
+    constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
+    float* __restrict best = sl_best_.data();
+    const float* __restrict su = sl_u_.data();
+    const float* __restrict sw = sl_w_.data();
+    // One front triangle: corner a at (u0, w0) with depth s0, (u, w) → barycentric (l1, l2) by [a11 a12; a21 a22],
+    // depth s0 + l1 ds1 + l2 ds2, over bins x0..x1 × y0..y1.
+    auto sweep = [&](float u0, float w0, float a11, float a12, float a21, float a22, float s0, float ds1, float ds2,
+                     int x0, int x1, int y0, int y1) __attribute__((always_inline)) {
+#if defined(__SSE2__)
+        const __m128 vu0 = _mm_set1_ps(u0), vw0 = _mm_set1_ps(w0), va11 = _mm_set1_ps(a11),
+                     va12 = _mm_set1_ps(a12), va21 = _mm_set1_ps(a21), va22 = _mm_set1_ps(a22),
+                     vs0 = _mm_set1_ps(s0), vds1 = _mm_set1_ps(ds1), vds2 = _mm_set1_ps(ds2);
+        const __m128 tol = _mm_set1_ps(kTol), one = _mm_set1_ps(1.0f), inf = _mm_set1_ps(kInf);
+#endif
+        for (int y = y0; y <= y1; ++y) {
+            // The bins x0..x1 of a row are adjacent slots: one run.
+            const size_t row = size_t(y) * size_t(bins);
+            const uint32_t end = bin_begin_[row + size_t(x1) + 1];
+            uint32_t k = bin_begin_[row + size_t(x0)];
+#if defined(__SSE2__)
+            // The same single-precision operations as the scalar loop below (so the same values).
+            for (; k < end; k += 4) {
+                const __m128 du = _mm_sub_ps(_mm_loadu_ps(su + k), vu0), dw = _mm_sub_ps(_mm_loadu_ps(sw + k), vw0);
+                const __m128 l1 = _mm_add_ps(_mm_mul_ps(va11, du), _mm_mul_ps(va12, dw));
+                const __m128 l2 = _mm_add_ps(_mm_mul_ps(va21, du), _mm_mul_ps(va22, dw));
+                const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
+                const __m128 in =
+                    _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
+                const __m128 sv = _mm_add_ps(_mm_add_ps(vs0, _mm_mul_ps(l1, vds1)), _mm_mul_ps(l2, vds2));
+                _mm_storeu_ps(best + k, _mm_min_ps(_mm_loadu_ps(best + k),
+                                                   _mm_or_ps(_mm_and_ps(in, sv), _mm_andnot_ps(in, inf))));
+            }
+#endif
+            for (; k < end; ++k) {
+                const float du = su[k] - u0, dw = sw[k] - w0;
+                const float l1 = a11 * du + a12 * dw, l2 = a21 * du + a22 * dw;
+                if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
+                best[k] = std::min(best[k], s0 + l1 * ds1 + l2 * ds2);
+            }
+        }
+    };
+    // A bin coordinate clamped in float (then truncated): the same bin as truncating first, without overflow (NaN
+    // gives bin 0).
+    auto bin_at = [&](float v, float origin, float inv) {
+        const float x = (v - origin) * inv;
+        return int(x > 0.0f ? std::min(x, top) : 0.0f);
+    };
+    // The kept triangles' corners on u, w and π, their exact bounds test (the sphere test above is coarser), the
+    // (u, w) → barycentric map, then the sweep.
+    size_t first = 0, front = 0;  // kept triangles before `first` went through the SIMD path
 #if defined(__SSE2__)
     {
         // Four kept triangles per step (the same single-precision operations as the scalar loop below, so the
-        // same values): corners projected on u, w and π, the exact bounds test, the (u, w) → barycentric map.
+        // same values).
         const __m128 vux = _mm_set1_ps(ux), vuy = _mm_set1_ps(uy), vuz = _mm_set1_ps(uz);
         const __m128 vwx = _mm_set1_ps(wx), vwy = _mm_set1_ps(wy), vwz = _mm_set1_ps(wz);
         const __m128 vsx = _mm_set1_ps(sx), vsy = _mm_set1_ps(sy), vsz = _mm_set1_ps(sz);
         const __m128 vulo = _mm_set1_ps(u_lo), vuhi = _mm_set1_ps(u_hi), vwlo = _mm_set1_ps(w_lo),
                      vwhi = _mm_set1_ps(w_hi), vshi = _mm_set1_ps(s_hi);
-        const __m128 tiny = _mm_set1_ps(1e-12f), one = _mm_set1_ps(1.0f), sign = _mm_set1_ps(-0.0f);
+        const __m128 vbinu = _mm_set1_ps(binv_u), vbinw = _mm_set1_ps(binv_w), vtop = _mm_set1_ps(top);
+        const __m128 tiny = _mm_set1_ps(1e-12f), one = _mm_set1_ps(1.0f), sign = _mm_set1_ps(-0.0f),
+                     zero = _mm_setzero_ps();
         // std::min(a, b) is (b < a ? b : a), which is MINPS with the operands swapped; likewise for max.
         auto mn3 = [](__m128 a, __m128 b, __m128 c) { return _mm_min_ps(c, _mm_min_ps(b, a)); };
         auto mx3 = [](__m128 a, __m128 b, __m128 c) { return _mm_max_ps(c, _mm_max_ps(b, a)); };
         auto dot = [](__m128 x, __m128 y, __m128 z, __m128 X, __m128 Y, __m128 Z) {
             return _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, X), _mm_mul_ps(y, Y)), _mm_mul_ps(z, Z));
+        };
+        auto bin4 = [&](__m128 v, __m128 origin, __m128 inv) {
+            return _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(v, origin), inv), zero), vtop));
         };
         const size_t nk = kept_.size();
         for (; first + 4 <= nk; first += 4) {
@@ -703,7 +798,8 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
             int keep = ~_mm_movemask_ps(out) & 0xF;
             if (!keep) continue;
             const __m128 inv = _mm_div_ps(one, det);
-            alignas(16) float f[13][4];
+            alignas(16) float f[9][4];
+            alignas(16) int box[4][4];
             _mm_store_ps(f[0], u0);
             _mm_store_ps(f[1], w0);
             _mm_store_ps(f[2], _mm_mul_ps(m11, inv));
@@ -713,15 +809,15 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
             _mm_store_ps(f[6], s0);
             _mm_store_ps(f[7], _mm_sub_ps(s1, s0));
             _mm_store_ps(f[8], _mm_sub_ps(s2, s0));
-            _mm_store_ps(f[9], ulo);
-            _mm_store_ps(f[10], uhi);
-            _mm_store_ps(f[11], wlo);
-            _mm_store_ps(f[12], whi);
+            _mm_store_si128(reinterpret_cast<__m128i*>(box[0]), bin4(ulo, vulo, vbinu));
+            _mm_store_si128(reinterpret_cast<__m128i*>(box[1]), bin4(uhi, vulo, vbinu));
+            _mm_store_si128(reinterpret_cast<__m128i*>(box[2]), bin4(wlo, vwlo, vbinw));
+            _mm_store_si128(reinterpret_cast<__m128i*>(box[3]), bin4(whi, vwlo, vbinw));
             for (; keep; keep &= keep - 1) {
                 const int l = __builtin_ctz(unsigned(keep));
-                // f[0..12] are FrontTri's fields in declaration order.
-                front_.push_back({f[0][l], f[1][l], f[2][l], f[3][l], f[4][l], f[5][l], f[6][l], f[7][l], f[8][l],
-                                  f[9][l], f[10][l], f[11][l], f[12][l]});
+                ++front;
+                sweep(f[0][l], f[1][l], f[2][l], f[3][l], f[4][l], f[5][l], f[6][l], f[7][l], f[8][l], box[0][l],
+                      box[1][l], box[2][l], box[3][l]);
             }
         }
     }
@@ -734,113 +830,20 @@ void ExactContact::compute_deformation(std::span<const Vec3f> verts_eye, const E
         const float u1 = ux * b0 + uy * b1 + uz * b2, w1 = wx * b0 + wy * b1 + wz * b2;
         const float u2 = ux * c0 + uy * c1 + uz * c2, w2 = wx * c0 + wy * c1 + wz * c2;
         const float s0 = sx * a0 + sy * a1 + sz * a2, s1 = sx * b0 + sy * b1 + sz * b2, s2 = sx * c0 + sy * c1 + sz * c2;
-        if (min3(s0, s1, s2) > s_hi || max3(u0, u1, u2) < u_lo || min3(u0, u1, u2) > u_hi || max3(w0, w1, w2) < w_lo ||
-            min3(w0, w1, w2) > w_hi)
-            continue;  // the exact bounds (the sphere test above is coarser)
+        const float ulo = min3(u0, u1, u2), uhi = max3(u0, u1, u2), wlo = min3(w0, w1, w2), whi = max3(w0, w1, w2);
+        if (min3(s0, s1, s2) > s_hi || uhi < u_lo || ulo > u_hi || whi < w_lo || wlo > w_hi) continue;
         const float m00 = u1 - u0, m01 = u2 - u0, m10 = w1 - w0, m11 = w2 - w0;
         const float det = m00 * m11 - m01 * m10;
         if (std::fabs(det) < 1e-12f) continue;  // seen edge-on: its neighbours cover the line
         const float inv = 1.0f / det;
-        FrontTri f;
-        f.u0 = u0;
-        f.w0 = w0;
-        f.a11 = m11 * inv;
-        f.a12 = -m01 * inv;
-        f.a21 = -m10 * inv;
-        f.a22 = m00 * inv;
-        f.s0 = s0;
-        f.ds1 = s1 - s0;
-        f.ds2 = s2 - s0;
-        f.ulo = min3(u0, u1, u2);
-        f.uhi = max3(u0, u1, u2);
-        f.wlo = min3(w0, w1, w2);
-        f.whi = max3(w0, w1, w2);
-        front_.push_back(f);
+        ++front;
+        sweep(u0, w0, m11 * inv, -m01 * inv, -m10 * inv, m00 * inv, s0, s1 - s0, s2 - s0, bin_at(ulo, u_lo, binv_u),
+              bin_at(uhi, u_lo, binv_u), bin_at(wlo, w_lo, binv_w), bin_at(whi, w_lo, binv_w));
     }
-    result_.front_triangles = front_.size();
-    // ZI at each sample point: the smallest depth along π of the front triangles over it. The points are binned
-    // over (u, w) and each front triangle visits the bins its bounds cover, four points at a time. Cost: per
-    // (triangle, bin) pair plus per point slot visited, so the bin count that balances them grows as
-    // √(points × front triangles): coarse for a few points, finer for a dense contact. The constant is the fewest
-    // instructions on the benchmark scenes.
-    const size_t np = pt_u_.size();
-    const int bins =
-        std::clamp(int(std::sqrt(kBinsPerRootWork * std::sqrt(double(np) * double(front_.size())))), 1, kMaxBins);
-    const float eu = std::max(u_hi - u_lo, 1e-6f), ew = std::max(w_hi - w_lo, 1e-6f);
-    const float binv_u = float(bins) / eu * (1.0f - 1e-6f), binv_w = float(bins) / ew * (1.0f - 1e-6f);
-    const size_t nb = size_t(bins) * size_t(bins);
-    constexpr uint32_t kNoBin = 0xFFFFFFFFu;
-    bin_begin_.assign(nb + 1, 0);
-    pt_bin_.resize(np);
-    for (size_t k = 0; k < np; ++k) {
-        const int bu = int((pt_u_[k] - u_lo) * binv_u), bw = int((pt_w_[k] - w_lo) * binv_w);
-        if (bu < 0 || bw < 0 || bu >= bins || bw >= bins) {
-            pt_bin_[k] = kNoBin;  // no instrument surface looked up (the region holds every corner and centroid)
-            continue;
-        }
-        pt_bin_[k] = uint32_t(bw) * uint32_t(bins) + uint32_t(bu);
-        ++bin_begin_[pt_bin_[k] + 1];
-    }
-    // Each bin padded to a multiple of four slots (padding: u NaN, never inside a triangle).
-    for (size_t b = 0; b < nb; ++b) bin_begin_[b + 1] = bin_begin_[b] + ((bin_begin_[b + 1] + 3u) & ~3u);
-    const uint32_t slots = bin_begin_[nb];
-    sl_u_.assign(slots, std::numeric_limits<float>::quiet_NaN());
-    sl_w_.assign(slots, 0.0f);
-    sl_best_.assign(slots, kInf);
-    sl_point_.resize(np);
-    bin_fill_.assign(bin_begin_.begin(), bin_begin_.end() - 1);
-    for (size_t k = 0; k < np; ++k) {
-        if (pt_bin_[k] == kNoBin) continue;
-        const uint32_t slot = bin_fill_[pt_bin_[k]]++;
-        sl_u_[slot] = pt_u_[k];
-        sl_w_[slot] = pt_w_[k];
-        sl_point_[k] = slot;
-    }
-    constexpr float kTol = -1e-6f;  // closed triangles: a line through a shared edge meets both
-    float* __restrict best = sl_best_.data();
-    const float* __restrict su = sl_u_.data();
-    const float* __restrict sw = sl_w_.data();
-    for (const FrontTri& f : front_) {
-        const int x0 = std::clamp(int((f.ulo - u_lo) * binv_u), 0, bins - 1);
-        const int x1 = std::clamp(int((f.uhi - u_lo) * binv_u), 0, bins - 1);
-        const int y0 = std::clamp(int((f.wlo - w_lo) * binv_w), 0, bins - 1);
-        const int y1 = std::clamp(int((f.whi - w_lo) * binv_w), 0, bins - 1);
-#if defined(__SSE2__)
-        const __m128 u0 = _mm_set1_ps(f.u0), w0 = _mm_set1_ps(f.w0), a11 = _mm_set1_ps(f.a11),
-                     a12 = _mm_set1_ps(f.a12), a21 = _mm_set1_ps(f.a21), a22 = _mm_set1_ps(f.a22),
-                     s0 = _mm_set1_ps(f.s0), ds1 = _mm_set1_ps(f.ds1), ds2 = _mm_set1_ps(f.ds2);
-        const __m128 tol = _mm_set1_ps(kTol), one = _mm_set1_ps(1.0f), inf = _mm_set1_ps(kInf);
-#endif
-        for (int y = y0; y <= y1; ++y) {
-            // The bins x0..x1 of a row are adjacent slots: one run.
-            const size_t row = size_t(y) * size_t(bins);
-            const uint32_t end = bin_begin_[row + size_t(x1) + 1];
-            uint32_t k = bin_begin_[row + size_t(x0)];
-#if defined(__SSE2__)
-            // The same single-precision operations as the scalar loop below (so the same values).
-            for (; k < end; k += 4) {
-                const __m128 du = _mm_sub_ps(_mm_loadu_ps(su + k), u0), dw = _mm_sub_ps(_mm_loadu_ps(sw + k), w0);
-                const __m128 l1 = _mm_add_ps(_mm_mul_ps(a11, du), _mm_mul_ps(a12, dw));
-                const __m128 l2 = _mm_add_ps(_mm_mul_ps(a21, du), _mm_mul_ps(a22, dw));
-                const __m128 l3 = _mm_sub_ps(_mm_sub_ps(one, l1), l2);
-                const __m128 in =
-                    _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(l1, tol), _mm_cmpge_ps(l2, tol)), _mm_cmpge_ps(l3, tol));
-                const __m128 sv = _mm_add_ps(_mm_add_ps(s0, _mm_mul_ps(l1, ds1)), _mm_mul_ps(l2, ds2));
-                _mm_storeu_ps(best + k, _mm_min_ps(_mm_loadu_ps(best + k),
-                                                   _mm_or_ps(_mm_and_ps(in, sv), _mm_andnot_ps(in, inf))));
-            }
-#endif
-            for (; k < end; ++k) {
-                const float du = su[k] - f.u0, dw = sw[k] - f.w0;
-                const float l1 = f.a11 * du + f.a12 * dw, l2 = f.a21 * du + f.a22 * dw;
-                if (l1 < kTol || l2 < kTol || 1.0f - l1 - l2 < kTol) continue;
-                best[k] = std::min(best[k], f.s0 + l1 * f.ds1 + l2 * f.ds2);
-            }
-        }
-    }
+    result_.front_triangles = front;
     // ZI − ZM at a sample point (≤ 0): the front-most instrument surface on its line minus its own depth.
-    auto delta = [&](uint32_t k) { return pt_bin_[k] == kNoBin ? 0.0f : std::min(0.0f, best[sl_point_[k]] - pt_s_[k]); };
-    for (size_t i = 0; i < out_.size(); ++i) {
+    auto delta = [&](uint32_t k) { return pt_bin_[k] == kNoBin ? 0.0f : std::min(0.0f, best[sl_point_[k]] - pz[k]); };
+    for (size_t i = 0; i < nout; ++i) {
         const auto& tr = triangles_[out_[i]];
         TriangleContact c;
         c.triangle = out_[i];

@@ -202,12 +202,6 @@ private:
     // the grid), the front-facing triangles over the contact as planes over (u, w) ⊥ π, binned.
     std::vector<float> tcx_, tcy_, tcz_, trad_, tnx_, tny_, tnz_;
     std::vector<uint32_t> kept_;
-    struct FrontTri {
-        float u0, w0, a11, a12, a21, a22;  // (u, w) → barycentric (l1, l2)
-        float s0, ds1, ds2;                // depth along π at the corners
-        float ulo, uhi, wlo, whi;          // bounds ⊥ π
-    };
-    std::vector<FrontTri> front_;
     // Sample points (colliding triangles' corners, then their centroids) on u, w, π; their bins over (u, w); the
     // points copied into bin order (slots, each bin padded to four), and the smallest front depth per slot.
     std::vector<float> pt_u_, pt_w_, pt_s_;
