@@ -200,18 +200,97 @@ void ExactContact::set_triangle(size_t t) {
     tnz_[t] = T.n.z();
 }
 
+void ExactContact::set_triangles(uint32_t t0, uint32_t t1) {
+    // Runs for every triangle of a part that moved (≈ 900 per forceps opening): four at a time with SSE2, the same
+    // single-precision operations in the same order as set_triangle (so the same values), the rest one by one.
+    uint32_t t = t0;
+#if defined(__SSE2__)
+    const __m128 zero = _mm_setzero_ps(), third = _mm_set1_ps(3.0f), grow = _mm_set1_ps(1.0f + 1e-5f),
+                 eps = _mm_set1_ps(kEps_mm);
+    // std::min(a, b) is (b < a ? b : a), which is MINPS with the operands swapped; likewise for max.
+    auto mn3 = [](__m128 a, __m128 b, __m128 c) { return _mm_min_ps(c, _mm_min_ps(b, a)); };
+    auto mx3 = [](__m128 a, __m128 b, __m128 c) { return _mm_max_ps(c, _mm_max_ps(b, a)); };
+    for (; t + 4 <= t1; t += 4) {
+        const Vec3f* v[4][3];
+        for (int l = 0; l < 4; ++l)
+            for (int k = 0; k < 3; ++k) v[l][k] = &inst_vertices_[inst_triangles_[t + uint32_t(l)][size_t(k)]];
+        auto lanes = [&](int corner, int axis) {
+            return _mm_setr_ps((*v[0][corner])[axis], (*v[1][corner])[axis], (*v[2][corner])[axis],
+                               (*v[3][corner])[axis]);
+        };
+        const __m128 ax = lanes(0, 0), ay = lanes(0, 1), az = lanes(0, 2), bx = lanes(1, 0), by = lanes(1, 1),
+                     bz = lanes(1, 2), cx = lanes(2, 0), cy = lanes(2, 1), cz = lanes(2, 2);
+        const __m128 e1x = _mm_sub_ps(bx, ax), e1y = _mm_sub_ps(by, ay), e1z = _mm_sub_ps(bz, az);
+        const __m128 e2x = _mm_sub_ps(cx, ax), e2y = _mm_sub_ps(cy, ay), e2z = _mm_sub_ps(cz, az);
+        const __m128 nx = _mm_sub_ps(_mm_mul_ps(e1y, e2z), _mm_mul_ps(e1z, e2y));
+        const __m128 ny = _mm_sub_ps(_mm_mul_ps(e1z, e2x), _mm_mul_ps(e1x, e2z));
+        const __m128 nz = _mm_sub_ps(_mm_mul_ps(e1x, e2y), _mm_mul_ps(e1y, e2x));
+        const __m128 len =
+            _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, nx), _mm_mul_ps(ny, ny)), _mm_mul_ps(nz, nz)));
+        const __m128 ok = _mm_cmpgt_ps(len, zero);  // degenerate: a zero normal, never rejected
+        const __m128 ux = _mm_and_ps(ok, _mm_div_ps(nx, len)), uy = _mm_and_ps(ok, _mm_div_ps(ny, len)),
+                     uz = _mm_and_ps(ok, _mm_div_ps(nz, len));
+        const __m128 d = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ux, ax), _mm_mul_ps(uy, ay)), _mm_mul_ps(uz, az));
+        const __m128 mx = _mm_div_ps(_mm_add_ps(_mm_add_ps(ax, bx), cx), third),
+                     my = _mm_div_ps(_mm_add_ps(_mm_add_ps(ay, by), cy), third),
+                     mz = _mm_div_ps(_mm_add_ps(_mm_add_ps(az, bz), cz), third);
+        auto d2 = [&](__m128 x, __m128 y, __m128 z) {
+            const __m128 dx = _mm_sub_ps(x, mx), dy = _mm_sub_ps(y, my), dz = _mm_sub_ps(z, mz);
+            return _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+        };
+        const __m128 r = _mm_add_ps(
+            _mm_mul_ps(_mm_sqrt_ps(_mm_max_ps(d2(cx, cy, cz), _mm_max_ps(d2(bx, by, bz), d2(ax, ay, az)))), grow), eps);
+        _mm_storeu_ps(&tcx_[t], mx);
+        _mm_storeu_ps(&tcy_[t], my);
+        _mm_storeu_ps(&tcz_[t], mz);
+        _mm_storeu_ps(&trad_[t], r);
+        _mm_storeu_ps(&tnx_[t], ux);
+        _mm_storeu_ps(&tny_[t], uy);
+        _mm_storeu_ps(&tnz_[t], uz);
+        // InstTri's first ten floats (lo, hi, n, d) per lane: three 4 × 4 transposes of the field rows.
+        static_assert(offsetof(InstTri, d) == 36 && offsetof(InstTri, a) == 40 && sizeof(InstTri) == 76);
+        __m128 r0 = mn3(ax, bx, cx), r1 = mn3(ay, by, cy), r2 = mn3(az, bz, cz), r3 = mx3(ax, bx, cx);
+        __m128 r4 = mx3(ay, by, cy), r5 = mx3(az, bz, cz), r6 = ux, r7 = uy;
+        __m128 r8 = uz, r9 = d, r10 = zero, r11 = zero;
+        _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
+        _MM_TRANSPOSE4_PS(r4, r5, r6, r7);
+        _MM_TRANSPOSE4_PS(r8, r9, r10, r11);
+        auto put = [&](int l, __m128 head, __m128 mid, __m128 tail) __attribute__((always_inline)) {
+            alignas(16) float rec[12];
+            _mm_store_ps(rec, head);
+            _mm_store_ps(rec + 4, mid);
+            _mm_store_ps(rec + 8, tail);
+            InstTri& T = tris_[t + uint32_t(l)];
+            std::memcpy(static_cast<void*>(&T), rec, 10 * sizeof(float));
+            T.a = *v[l][0];
+            T.b = *v[l][1];
+            T.c = *v[l][2];
+        };
+        put(0, r0, r4, r8);
+        put(1, r1, r5, r9);
+        put(2, r2, r6, r10);
+        put(3, r3, r7, r11);
+    }
+#endif
+    for (; t < t1; ++t) set_triangle(t);
+}
+
 void ExactContact::update_bounds(bool changed_only) {
     lo_ = Vec3f::Constant(kInf);
     hi_ = Vec3f::Constant(-kInf);
     for (size_t p = 0; p < grids_.size(); ++p) {
         if (!changed_only || grids_[p].changed) {
-            Vec3f lo = Vec3f::Constant(kInf), hi = Vec3f::Constant(-kInf);
-            for (uint32_t t = grids_[p].t0; t < grids_[p].t1; ++t) {
-                lo = lo.cwiseMin(tris_[t].lo);
-                hi = hi.cwiseMax(tris_[t].hi);
+            // The bounds of the part's triangles are those of their corners: its vertex list.
+            float lo[3] = {kInf, kInf, kInf}, hi[3] = {-kInf, -kInf, -kInf};
+            for (uint32_t v : grids_[p].vertices) {
+                const float* q = inst_vertices_[v].data();
+                for (int k = 0; k < 3; ++k) {
+                    lo[k] = std::min(lo[k], q[k]);
+                    hi[k] = std::max(hi[k], q[k]);
+                }
             }
-            part_lo_[p] = lo;
-            part_hi_[p] = hi;
+            part_lo_[p] = Vec3f(lo[0], lo[1], lo[2]);
+            part_hi_[p] = Vec3f(hi[0], hi[1], hi[2]);
             float* pb = &part_box_[p * 8];
             for (int k = 0; k < 3; ++k) {
                 pb[k] = lo[k];
@@ -283,7 +362,7 @@ void ExactContact::build_instrument(const MeshRef& ins, std::span<const uint32_t
     tris_.resize(nt);
     for (auto* v : {&tcx_, &tcy_, &tcz_, &trad_, &tnx_, &tny_, &tnz_}) v->resize(nt);
     kept_.reserve(nt);
-    for (size_t t = 0; t < nt; ++t) set_triangle(t);
+    set_triangles(0, uint32_t(nt));
     const size_t np = parts_.size() - 1;
     part_lo_.resize(np);
     part_hi_.resize(np);
@@ -329,7 +408,7 @@ void ExactContact::move_instrument(const MeshRef& ins) {
     std::copy(ins.vertices_mm.begin(), ins.vertices_mm.end(), inst_vertices_.begin());
     for (PartGrid& g : grids_) {
         if (!g.changed) continue;
-        for (uint32_t t = g.t0; t < g.t1; ++t) set_triangle(t);
+        set_triangles(g.t0, g.t1);
         // The rigid motion from the grid's frame to the part now (Kabsch, in double): a forceps jaw turning about
         // its hinge fits to rounding. Anything else that moves a vertex by more than a tenth of a cell from that
         // motion rebuilds the part's grid.

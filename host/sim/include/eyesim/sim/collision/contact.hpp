@@ -163,6 +163,7 @@ private:
     void move_instrument(const MeshRef& instrument);
     void build_grid(PartGrid& g);
     void set_triangle(size_t t);
+    void set_triangles(uint32_t t0, uint32_t t1);  // set_triangle over [t0, t1)
     void update_bounds(bool changed_only);
     bool intersects_any(uint32_t mt);
     bool inside_any_part(const Vec3f& p_local);
