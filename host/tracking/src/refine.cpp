@@ -90,46 +90,111 @@ constexpr double kOffset[3] = {16.0, 128.0, 128.0};
 using Vec = std::array<double, kMaxPar>;
 using Mat = std::array<double, kMaxPar * kMaxPar>;
 
-// Solves (A + λ·diag A)·x = g for the first n unknowns by Cholesky; false when not positive definite. The factor is
-// stored compactly (stride n) with reciprocal pivots: the divisions were most of a 15 × 15 solve.
-bool solve_damped(const Mat& a, const Vec& g, int n, double lambda, Vec& x) {
-    double l[kMaxPar * kMaxPar];  // lower triangle, row i at i·n
-    double inv_d[kMaxPar];
-    for (int i = 0; i < n; ++i) {
-        const double* ai = &a[static_cast<size_t>(i * kMaxPar)];
-        double* li = l + i * n;
-        for (int j = 0; j <= i; ++j) {
-            const double* lj = l + j * n;
-            // Two partial sums: independent chains (and SIMD pairs).
-            double s = ai[j] + (i == j ? lambda * ai[i] + 1e-9 : 0.0), s2 = 0.0;
-            int k = 0;
-            for (; k + 1 < j; k += 2) {
-                s -= li[k] * lj[k];
-                s2 -= li[k + 1] * lj[k + 1];
+// The unknowns' structure solve_damped_blocks() uses: parameters every channel's observations depend on (the
+// marker's, the outline's geometry) and, per channel, those only its own observations depend on (its background;
+// with an outline also the level beyond it and the limb's gain).
+template <int NS, int NB>
+struct BlockLayout {
+    int shared[NS];
+    int block[3][NB];
+};
+constexpr BlockLayout<6, 3> kLayoutMarker = {{kX0, kV0, kR, kE1, kE2, kA}, {{6, 7, 8}, {9, 10, 11}, {12, 13, 14}}};
+constexpr BlockLayout<9, 5> kLayoutOutline = {{kX0, kV0, kR, kE1, kE2, kA, kPhi, kD, kKappa},
+                                              {{6, 7, 8, kB2, kG}, {9, 10, 11, kB2 + 1, kG + 1}, {12, 13, 14, kB2 + 2, kG + 2}}};
+
+// Solves (A + λ·diag A)·x = g, Levenberg–Marquardt's damped normal equations, by Cholesky. The channels' blocks do
+// not couple with each other, so each is eliminated on its own (Schur complement) and only the shared parameters'
+// system is factorised whole: 6 × 6 instead of 15 × 15 without an outline, 9 × 9 instead of 24 × 24 with one (the
+// dense 24 × 24 factorisation was a fifth of an outline fit). The same solution to rounding (checked against it on
+// 20,000 systems of two surgery recordings: 1e-6 relative); false when not positive definite (a damped block or the
+// complement).
+template <int NS, int NB>
+bool solve_damped_blocks(const Mat& a, const Vec& g, const BlockLayout<NS, NB>& lay, double lambda, Vec& x) {
+    constexpr int kS = NS, kB = NB, ns = NS, nb = NB;
+    auto at = [&](int i, int j) {
+        return i >= j ? a[static_cast<size_t>(i * kMaxPar + j)] : a[static_cast<size_t>(j * kMaxPar + i)];
+    };
+    auto diag = [&](int i) { return a[static_cast<size_t>(i * kMaxPar + i)] * (1.0 + lambda) + 1e-9; };
+    // In place Cholesky of a lower triangle (row stride `st`), reciprocal pivots out.
+    auto factor = [](double* m, int n, int st, double* inv_d) {
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j <= i; ++j) {
+                double v = m[i * st + j];
+                for (int k = 0; k < j; ++k) v -= m[i * st + k] * m[j * st + k];
+                if (i == j) {
+                    if (!(v > 0)) return false;
+                    m[i * st + i] = std::sqrt(v);
+                    inv_d[i] = 1.0 / m[i * st + i];
+                } else {
+                    m[i * st + j] = v * inv_d[j];
+                }
             }
-            if (k < j) s -= li[k] * lj[k];
-            s += s2;
-            if (i == j) {
-                if (!(s > 0)) return false;
-                const double d = std::sqrt(s);
-                li[i] = d;
-                inv_d[i] = 1.0 / d;
-            } else {
-                li[j] = s * inv_d[j];
+        return true;
+    };
+    double s[kS * kS], h[kS];  // the shared parameters' complement (lower triangle) and right-hand side
+    for (int i = 0; i < ns; ++i) {
+        for (int j = 0; j < i; ++j) s[i * kS + j] = at(lay.shared[i], lay.shared[j]);
+        s[i * kS + i] = diag(lay.shared[i]);
+        h[i] = g[static_cast<size_t>(lay.shared[i])];
+    }
+    double l[3][kB * kB], inv_l[3][kB], wm[3][kB][kS], wg[3][kB];  // per channel: factor, L⁻¹·A_bs, L⁻¹·g_b
+    for (int c = 0; c < 3; ++c) {
+        const int* blk = lay.block[c];
+        double* lc = l[c];
+        for (int i = 0; i < nb; ++i) {
+            for (int j = 0; j < i; ++j) lc[i * kB + j] = at(blk[i], blk[j]);
+            lc[i * kB + i] = diag(blk[i]);
+        }
+        if (!factor(lc, nb, kB, inv_l[c])) return false;
+        // Forward substitution for the shared columns and the right-hand side together.
+        for (int i = 0; i < nb; ++i) {
+            double* wi = wm[c][i];
+            double gi = g[static_cast<size_t>(blk[i])];
+            for (int m = 0; m < ns; ++m) wi[m] = at(blk[i], lay.shared[m]);
+            for (int k = 0; k < i; ++k) {
+                const double lik = lc[i * kB + k];
+                for (int m = 0; m < ns; ++m) wi[m] -= lik * wm[c][k][m];
+                gi -= lik * wg[c][k];
+            }
+            for (int m = 0; m < ns; ++m) wi[m] *= inv_l[c][i];
+            wg[c][i] = gi * inv_l[c][i];
+        }
+        for (int k = 0; k < nb; ++k) {
+            const double* wk = wm[c][k];
+            for (int i = 0; i < ns; ++i) {
+                for (int j = 0; j <= i; ++j) s[i * kS + j] -= wk[i] * wk[j];
+                h[i] -= wk[i] * wg[c][k];
             }
         }
     }
-    double y[kMaxPar];
-    for (int i = 0; i < n; ++i) {
-        double s = g[static_cast<size_t>(i)];
-        for (int k = 0; k < i; ++k) s -= l[i * n + k] * y[k];
-        y[i] = s * inv_d[i];
+    double inv_d[kS];
+    if (!factor(s, ns, kS, inv_d)) return false;
+    double y[kS], xs[kS];
+    for (int i = 0; i < ns; ++i) {
+        double v = h[i];
+        for (int k = 0; k < i; ++k) v -= s[i * kS + k] * y[k];
+        y[i] = v * inv_d[i];
+    }
+    for (int i = ns - 1; i >= 0; --i) {
+        double v = y[i];
+        for (int k = i + 1; k < ns; ++k) v -= s[k * kS + i] * xs[k];
+        xs[i] = v * inv_d[i];
     }
     x.fill(0.0);
-    for (int i = n - 1; i >= 0; --i) {
-        double s = y[i];
-        for (int k = i + 1; k < n; ++k) s -= l[k * n + i] * x[static_cast<size_t>(k)];
-        x[static_cast<size_t>(i)] = s * inv_d[i];
+    for (int i = 0; i < ns; ++i) x[static_cast<size_t>(lay.shared[i])] = xs[i];
+    // Each channel's block: Lᵀ·x_b = L⁻¹·g_b − (L⁻¹·A_bs)·x_s.
+    for (int c = 0; c < 3; ++c) {
+        double r[kB], xb[kB];
+        for (int k = 0; k < nb; ++k) {
+            r[k] = wg[c][k];
+            for (int m = 0; m < ns; ++m) r[k] -= wm[c][k][m] * xs[m];
+        }
+        for (int i = nb - 1; i >= 0; --i) {
+            double v = r[i];
+            for (int k = i + 1; k < nb; ++k) v -= l[c][k * kB + i] * xb[k];
+            xb[i] = v * inv_l[c][i];
+        }
+        for (int i = 0; i < nb; ++i) x[static_cast<size_t>(lay.block[c][i])] = xb[i];
     }
     return true;
 }
@@ -1709,7 +1774,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                 Vec d;
                 const Mat& a = mats[at_t];
                 const Vec& g = grads[at_t];
-                if (solve_damped(a, g, np, lambda, d)) {
+                if (np == kPhi ? solve_damped_blocks(a, g, kLayoutMarker, lambda, d)
+                                : solve_damped_blocks(a, g, kLayoutOutline, lambda, d)) {
                     Vec tt = t;
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
                     if (k > 0 && tries == 0 && small_step(d)) {
