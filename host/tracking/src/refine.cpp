@@ -541,34 +541,49 @@ public:
         double* dc = w_.dcov.data();
         double* ds = w_.dshade.data();
         // Only the box the marker can reach is visited: ρ ≥ √(1 − |e|)·|d|, and pixel_integral() refuses
-        // ρ > r + 0.62·(1 + ap). Everything else is zero: the previous render's box is cleared first.
+        // ρ > r + 0.62·(1 + ap). Everything else is zero: each pixel of the new box is written, zero where the
+        // marker does not reach it, and of the previous render's box only what lies outside the new one is cleared
+        // (consecutive renders' boxes nearly coincide; clearing all of it first was an eighth of the render).
         std::array<int, 4>& box = written_[kDeriv ? 0 : 1];
-        for (int j = box[0]; j <= box[1]; ++j)
-            for (int i = box[2]; i <= box[3]; ++i) {
-                const int k = j * p_.cols + i;
-                cov[k] = shade[k] = 0.0;
-                if constexpr (kDeriv) {
-                    w_.touch[k] = 0;
-                    for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
-                }
+        const std::array<int, 4> old = box;
+        auto clear = [&](int k) {
+            cov[k] = shade[k] = 0.0;
+            if constexpr (kDeriv) {
+                w_.touch[k] = 0;
+                for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
             }
+        };
         const double reach = (r + 0.62 * (1.0 + ap)) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
         box = {0, -1, 0, -1};
-        if (!std::isfinite(x0) || !std::isfinite(v0) || !std::isfinite(reach)) return;  // a diverged trial: nothing
-        // Clamped before the conversion: a wild trial point may lie far outside the patch.
-        auto index = [](double v, int hi) { return static_cast<int>(std::clamp(v, -1.0, static_cast<double>(hi + 1))); };
-        const int i_lo = std::max(0, index(std::floor(x0 - reach) - (p_.x0 - 1), p_.cols));
-        const int i_hi = std::min(p_.cols - 1, index(std::ceil(x0 + reach) - (p_.x0 - 1), p_.cols));
-        const int j_lo = std::max(0, index(std::floor((v0 - reach - p_.parity) / 2.0) - p_.j0, p_.lines));
-        const int j_hi = std::min(p_.lines - 1, index(std::ceil((v0 + reach - p_.parity) / 2.0) - p_.j0, p_.lines));
-        box = {j_lo, j_hi, i_lo, i_hi};
+        if (std::isfinite(x0) && std::isfinite(v0) && std::isfinite(reach)) {
+            // Clamped before the conversion: a wild trial point may lie far outside the patch.
+            auto index = [](double v, int hi) {
+                return static_cast<int>(std::clamp(v, -1.0, static_cast<double>(hi + 1)));
+            };
+            box[2] = std::max(0, index(std::floor(x0 - reach) - (p_.x0 - 1), p_.cols));
+            box[3] = std::min(p_.cols - 1, index(std::ceil(x0 + reach) - (p_.x0 - 1), p_.cols));
+            box[0] = std::max(0, index(std::floor((v0 - reach - p_.parity) / 2.0) - p_.j0, p_.lines));
+            box[1] = std::min(p_.lines - 1, index(std::ceil((v0 + reach - p_.parity) / 2.0) - p_.j0, p_.lines));
+        }  // else a diverged trial: nothing
+        const int j_lo = box[0], j_hi = box[1], i_lo = box[2], i_hi = box[3];
+        for (int j = old[0]; j <= old[1]; ++j) {
+            if (j < j_lo || j > j_hi || i_lo > i_hi) {
+                for (int i = old[2]; i <= old[3]; ++i) clear(j * p_.cols + i);
+                continue;
+            }
+            for (int i = old[2]; i <= std::min(old[3], i_lo - 1); ++i) clear(j * p_.cols + i);
+            for (int i = std::max(old[2], i_hi + 1); i <= old[3]; ++i) clear(j * p_.cols + i);
+        }
         PixelIntegral pi;
         for (int j = j_lo; j <= j_hi; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - v0;
             for (int i = i_lo; i <= i_hi; ++i) {
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
-                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) continue;
+                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) {
+                    clear(k);
+                    continue;
+                }
                 cov[k] = pi.cov;
                 shade[k] = amb * pi.cov + dif * pi.q;
                 if constexpr (kDeriv) {
