@@ -153,8 +153,16 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
                                       const BlobBox& blob, int camera, const SphereFitConfig& config,
                                       SphereFitWorkspace& work, bool& hinted) {
     MarkerHint hint;
+    PatchMask mask;
     hinted = source && source->hint(camera, blob, hint);
-    return fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr);
+    const SphereFitResult r = fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr);
+    // Another instrument's shaft in the patch: its pixels left out only when the fit without that fails (the
+    // strip, from poses a field or two old, is wider than the shaft, and it takes marker pixels where it passes
+    // close: left out always, it cost fits that had stood).
+    const bool retry = !r.ok && (r.refusal == FitRefusal::kChi2 || r.refusal == FitRefusal::kOutliers ||
+                                 r.refusal == FitRefusal::kShift || r.refusal == FitRefusal::kImplausible);
+    if (!retry || !source || !source->foreign_shafts(camera, blob, mask)) return r;
+    return fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr, &mask);
 }
 
 bool MarkerHintSource::ready() const {
@@ -164,24 +172,24 @@ bool MarkerHintSource::ready() const {
     return false;
 }
 
-bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) const {
+bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const {
     if (camera < 0 || camera >= ncam_) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
     double best = kGatePx;
-    int best_b = -1, best_m = -1;  // best_b −1 with best_m set: an eye marker
-    Eigen::Vector3d best_centre = Eigen::Vector3d::Zero();
-    // A marker of the blob's class at `centre` (rig), nearer the blob than the best so far, becomes the best.
-    auto consider = [&](const BodyMarker& bm, const Eigen::Vector3d& centre, int body, int m) {
+    body = -1;
+    marker = -1;
+    // A marker of the blob's class at `c` (rig), nearer the blob than the best so far, becomes the best.
+    auto consider = [&](const BodyMarker& bm, const Eigen::Vector3d& c, int b, int m) {
         if (bm.colour_class != blob.class_id || !(bm.radius_mm > 0)) return;
         Eigen::Vector2d px;
-        if (!project_point(cam, centre, px)) return;
+        if (!project_point(cam, c, px)) return;
         const double d = (px - seen).norm();
         if (d < best) {
             best = d;
-            best_b = body;
-            best_m = m;
-            best_centre = centre;
+            body = b;
+            marker = m;
+            centre = c;
         }
     };
     for (int b = 0; b < bodies_.instrument_count; ++b) {
@@ -202,16 +210,79 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
             consider(bm, eye_.centre_rig_mm + r * bm.pos_body_mm, -1, m);
         }
     }
-    const bool eye_nearest = best_b < 0 && best_m >= 0;
-    if (eye_nearest)
-        return predict_eye_hint(cam, best_centre, bodies_.eye.markers[static_cast<std::size_t>(best_m)].radius_mm,
+    return marker >= 0;
+}
+
+bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) const {
+    int b = -1, m = -1;
+    Eigen::Vector3d centre;
+    if (!nearest(camera, blob, b, m, centre)) return false;
+    const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
+    if (b < 0)
+        return predict_eye_hint(cam, centre, bodies_.eye.markers[static_cast<std::size_t>(m)].radius_mm,
                                 eye_.centre_rig_mm, bodies_.eye.radius_mm, out);
-    if (best_b < 0) return false;
-    const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(best_b)];
-    const InstrumentPose& pose = poses_[static_cast<std::size_t>(best_b)];
+    const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
+    const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
     const Eigen::Vector3d axis = pose.rotation_body_to_rig * im.axis_body;
-    return predict_shaft_hint(cam, best_centre, im.markers[static_cast<std::size_t>(best_m)].radius_mm, axis,
-                              im.shaft_radius_mm, out);
+    return predict_shaft_hint(cam, centre, im.markers[static_cast<std::size_t>(m)].radius_mm, axis, im.shaft_radius_mm,
+                              out);
+}
+
+bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask& out) const {
+    out = PatchMask{};
+    int own = -1, m = -1;
+    Eigen::Vector3d centre;
+    if (!nearest(camera, blob, own, m, centre)) return false;
+    const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
+    const double marker_r_mm = own < 0 ? bodies_.eye.markers[static_cast<std::size_t>(m)].radius_mm
+                                       : bodies_.instruments[static_cast<std::size_t>(own)].markers[static_cast<std::size_t>(m)].radius_mm;
+    ProjectedOutline outline;
+    if (!project_sphere_outline(cam, centre, marker_r_mm, outline)) return false;
+    out.keep_x_px = outline.x_px;
+    out.keep_v_px = outline.v_px;
+    out.keep_radius_px = outline.r_px - 1.0;  // the marker's own pixels, short of its rim (which a shaft behind shares)
+    const Eigen::Vector3d cam_c = cam.centre_rig_mm();
+    const Eigen::Vector3d d = (centre - cam_c).normalized();
+    const double marker_depth = (centre - cam_c).dot(d);
+    const Eigen::Vector2d mc(outline.x_px, outline.v_px);
+    for (int b = 0; b < bodies_.instrument_count && out.count < PatchMask::kMaxShafts; ++b) {
+        const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
+        if (b == own || age_[static_cast<std::size_t>(b)] > kMaxAgeFrames || !(im.shaft_radius_mm > 0)) continue;
+        const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
+        const Eigen::Vector3d a = (pose.rotation_body_to_rig * im.axis_body).normalized();
+        const Eigen::Vector3d tip = pose.tip_rig_mm;
+        // The shaft's point nearest the marker's line of sight (tip → handle: s ≥ 0, up to its length).
+        const Eigen::Vector3d w0 = cam_c - tip;
+        const double bb = d.dot(a), dd = d.dot(w0), e = a.dot(w0), den = 1.0 - bb * bb;
+        if (!(den > 1e-9)) continue;  // along the line of sight: no strip
+        double s = e + bb * (bb * e - dd) / den;
+        s = std::max(0.0, im.shaft_length_mm > 0 ? std::min(s, im.shaft_length_mm) : s);
+        const Eigen::Vector3d p0 = tip + s * a;
+        Eigen::Vector2d px0, px1, pxw;
+        const Eigen::Vector3d across = a.cross(d).normalized();
+        if (!project_point(cam, p0, px0) || !project_point(cam, p0 + a, px1) ||
+            !project_point(cam, p0 + im.shaft_radius_mm * across, pxw))
+            continue;
+        Eigen::Vector2d u = px1 - px0;
+        if (!(u.norm() > 1e-9)) continue;
+        u.normalize();
+        ForeignShaft fs;
+        fs.x_px = px0.x();
+        fs.v_px = px0.y();
+        fs.ux = u.x();
+        fs.uv = u.y();
+        fs.half_width_px = (pxw - px0).norm() + kForeignMarginPx;
+        fs.from_start = s <= 0.0;
+        // Its distance from the marker's image, and whether it passes in front of the marker there.
+        const Eigen::Vector2d q = mc - px0;
+        const double along = q.dot(u), off = std::fabs(q.x() * u.y() - q.y() * u.x());
+        const double gap = (fs.from_start && along < 0 ? q.norm() : off) - fs.half_width_px;
+        if (gap > kForeignReachPx) continue;
+        const bool in_front = (p0 - cam_c).dot(d) < marker_depth;
+        if (gap < outline.r_px && in_front) continue;  // it hides part of the marker: not modelled
+        out.shafts[static_cast<std::size_t>(out.count++)] = fs;
+    }
+    return out.count > 0;
 }
 
 }  // namespace eyesim::tracking

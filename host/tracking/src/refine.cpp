@@ -44,6 +44,20 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     return config;
 }
 
+bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double hx, double hv) {
+    const double dx = x_px - shaft.x_px, dv = v_px - shaft.v_px;
+    const double along = dx * shaft.ux + dv * shaft.uv, across = std::fabs(dv * shaft.ux - dx * shaft.uv);
+    // The box's reach across and along the strip (its support in those directions).
+    const double reach_across = hx * std::fabs(shaft.uv) + hv * std::fabs(shaft.ux);
+    const double reach_along = hx * std::fabs(shaft.ux) + hv * std::fabs(shaft.uv);
+    if (across > shaft.half_width_px + reach_across) return false;
+    if (!shaft.from_start || along >= 0) return true;
+    if (along < -(shaft.half_width_px + reach_along)) return false;
+    // Beside the start: the rounded end, a disc of the half-width about the start point.
+    const double ex = std::max(0.0, std::fabs(dx) - hx), ev = std::max(0.0, std::fabs(dv) - hv);
+    return ex * ex + ev * ev <= shaft.half_width_px * shaft.half_width_px;
+}
+
 bool hint_covers(const MarkerHint& hint, double qx, double qy) {
     // In units of the sphere's radius about its centre, view frame (z away from the camera): the ray of q is
     // (qx, qy, z); the sphere's near surface is at z = −√(1 − q²); the shaft is every point within ρ of the axis a:
@@ -1184,15 +1198,16 @@ public:
             for (int x = 0; x < nx; ++x) {
                 const int o = j * nx + x;
                 const uint8_t c = touched[x + 1] != 0;
-                changed |= c != w_.hidden_y[o];
-                w_.hidden_y[o] = c;
-                w_.keep_y[o] = !c;
+                const uint8_t h = c | w_.foreign_y[o];
+                changed |= h != w_.hidden_y[o];
+                w_.hidden_y[o] = h;
+                w_.keep_y[o] = !h;
                 covered += c;
             }
             int sidx = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++sidx) {
                 const int o = j * nx + sidx, i = x - p_.x0 + 1;
-                const uint8_t c = (touched[i - 1] | touched[i] | touched[i + 1]) != 0;
+                const uint8_t c = (touched[i - 1] | touched[i] | touched[i + 1] | w_.foreign_c[o]) != 0;
                 changed |= c != w_.hidden_c[o];
                 w_.hidden_c[o] = c;
                 w_.keep_cb[o] = w_.keep_cr[o] = !c;
@@ -1589,7 +1604,7 @@ void moment_start(const BlobBox& blob, const Patch& p, const SphereFitConfig& cf
 }  // namespace
 
 SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& cfg,
-                           SphereFitWorkspace& w, const MarkerHint* hint) {
+                           SphereFitWorkspace& w, const MarkerHint* hint, const PatchMask* mask) {
     SphereFitResult res;
     constexpr int kWidth = 720, kStride = 1440;
     if (blob.class_id < 1 || blob.class_id > 4 || blob.x_max < blob.x_min || blob.y_max < blob.y_min) return res;
@@ -1614,6 +1629,34 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     std::fill(w.keep_cb.begin(), w.keep_cb.end(), uint8_t{1});
     std::fill(w.keep_cr.begin(), w.keep_cr.end(), uint8_t{1});
     const int nx = p.x1 - p.x0 + 1;
+    // Another instrument's shaft in the patch is neither marker nor background: its pixels are left out, as
+    // observations (always: hidden) and from the border's levels, except where the marker itself is.
+    const bool masked = mask && mask->count > 0;
+    auto foreign_at = [&](int x, int j) {
+        const double v = 2.0 * j + p.parity;
+        if (std::hypot(x - mask->keep_x_px, v - mask->keep_v_px) < mask->keep_radius_px) return false;
+        for (int k = 0; k < std::min(mask->count, PatchMask::kMaxShafts); ++k)
+            if (shaft_touches(mask->shafts[static_cast<size_t>(k)], x, v, 0.5, 0.5 * cfg.aperture_lines_px)) return true;
+        return false;
+    };
+    std::fill(w.foreign_y.begin(), w.foreign_y.end(), uint8_t{0});
+    std::fill(w.foreign_c.begin(), w.foreign_c.end(), uint8_t{0});
+    if (masked) {
+        for (int j = 0; j < p.lines; ++j) {
+            uint8_t col[kFitMaxCols + 2];  // columns x0 − 1 … x1 + 1: a chroma sample filters three
+            for (int x = p.x0 - 1; x <= p.x1 + 1; ++x) col[x - p.x0 + 1] = foreign_at(x, p.j0 + j);
+            for (int x = 0; x < nx; ++x) w.foreign_y[j * nx + x] = col[x + 1];
+            int s = 0;
+            for (int x = p.x0 + (p.x0 & 1); x <= p.x1; x += 2, ++s) {
+                const int i = x - p.x0 + 1;
+                w.foreign_c[j * nx + s] = (col[i - 1] | col[i] | col[i + 1]) != 0;
+            }
+        }
+        for (int o = 0; o < SphereFitWorkspace::kPx; ++o) {
+            w.keep_y[o] = !w.foreign_y[o];
+            w.keep_cb[o] = w.keep_cr[o] = !w.foreign_c[o];
+        }
+    }
     const double shot = cfg.shot_gain,
                  n2 = cfg.noise_dn * cfg.noise_dn + cfg.luma_noise_floor_dn * cfg.luma_noise_floor_dn;
     for (int j = 0; j < p.lines; ++j) {
@@ -1656,6 +1699,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     std::array<BorderPx, 2 * (kFitMaxCols + kFitMaxLines)> border;
     int nb = 0;
     auto push = [&](int x, int j) {
+        if (masked && foreign_at(x, j)) return;
         if (hint && box_touches_occluder(*hint, border_norm, x - t[kX0], 2.0 * j + p.parity - t[kV0], hidden_hx, hidden_hv))
             return;
         const uint8_t* line = field + static_cast<size_t>(j) * kStride;
@@ -1741,8 +1785,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     if (hint && p.outline && !cfg.hint_with_outline) return res;
 
     moment_start(blob, p, cfg, w, t);
-    std::fill(w.hidden_y.begin(), w.hidden_y.end(), uint8_t{0});
-    std::fill(w.hidden_c.begin(), w.hidden_c.end(), uint8_t{0});
+    w.hidden_y = w.foreign_y;
+    w.hidden_c = w.foreign_c;
     if (hint && hint->radius_px > 0) {  // the pose's outline is a better start than the visible part's moments
         t[kR] = hint->radius_px;
         t[kE1] = hint->e1;

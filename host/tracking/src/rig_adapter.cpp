@@ -56,6 +56,7 @@ BodySet body_set(const rig::Bodies& bodies, const std::vector<SceneInstrument>& 
         im.tip_body_mm = Eigen::Vector3d::Zero();  // instrument frame: origin at the tip, +z tip → handle
         im.axis_body = Eigen::Vector3d::UnitZ();
         im.shaft_radius_mm = body->shaft_radius_mm;
+        im.shaft_length_mm = body->shaft_length_mm;
         for (std::size_t i = 0; i < body->markers.size(); ++i) {
             BodyMarker& b = im.markers[std::size_t(im.marker_count++)];
             b.colour_class = std::uint8_t(body->markers[i].colour_class);

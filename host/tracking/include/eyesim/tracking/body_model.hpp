@@ -41,6 +41,7 @@ struct InstrumentModel {
     Eigen::Vector3d trocar_eye_mm = Eigen::Vector3d::Zero();   ///< entry point through the eye wall (eye frame)
     bool has_trocar = false;                                   ///< false: no insertion depth reported
     double shaft_radius_mm = 0.0;                              ///< shaft through the markers (occlusion model)
+    double shaft_length_mm = 0.0;                              ///< tip to the shaft's end (0: unknown, unbounded)
     int marker_count = 0;                                      ///< valid entries in `markers`
     std::array<BodyMarker, kMaxBodyMarkers> markers{};         ///< markers in the body frame
 

@@ -63,6 +63,15 @@ public:
     /// only where the eye hides part of it. False: no marker near, or nothing hides it (a plain fit).
     bool hint(int camera, const BlobBox& blob, MarkerHint& out) const;
 
+    /// The other instruments' shafts the poses put in `blob`'s patch (camera `camera`), for the fit to leave out:
+    /// those within kForeignReachPx of the blob's marker, not in front of it where they cross it (a foreign shaft
+    /// that hides part of the marker is not modelled). False: none.
+    bool foreign_shafts(int camera, const BlobBox& blob, PatchMask& out) const;
+    /// A foreign shaft's strip is widened by this much each side (frame px): its pose is a field or two old.
+    static constexpr double kForeignMarginPx = 1.0;
+    /// Shafts further than this from the marker's image are outside any patch (frame px).
+    static constexpr double kForeignReachPx = 24.0;
+
     /// Whether any instrument pose is at hand.
     bool ready() const;
 
@@ -72,6 +81,10 @@ public:
                                int camera, const SphereFitConfig& config, SphereFitWorkspace& work, bool& hinted);
 
 private:
+    // The marker of the blob's class predicted nearest the blob within kGatePx: its body (−1: the eye), index and
+    // centre (rig). False: none.
+    bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const;
+
     int ncam_ = 0;
     std::array<CameraGeometry, kMaxCameras> cams_{};
     BodySet bodies_;

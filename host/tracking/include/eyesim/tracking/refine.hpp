@@ -97,6 +97,28 @@ struct MarkerHint {
     double view_distance = 0;
 };
 
+/// Another instrument's shaft in a blob's patch, as the poses predict its image there: a strip of half-width
+/// `half_width_px` about the line through (x_px, v_px) along the unit (ux, uv), from that point on (the tip's end,
+/// rounded by the half-width; `from_start` false: unbounded both ways), frame px (v: frame rows). Its pixels are
+/// neither the marker nor the background, so the fit leaves them out (MarkerHintSource::foreign_shafts).
+struct ForeignShaft {
+    double x_px = 0, v_px = 0, ux = 1, uv = 0, half_width_px = 0;
+    bool from_start = false;
+};
+
+/// The foreign shafts of one patch (fixed capacity; count 0: none) and the marker pixels they must not take: those
+/// whose centre lies within keep_radius_px of (keep_x_px, keep_v_px) (the marker's predicted centre; a shaft behind
+/// it shows only beside it).
+struct PatchMask {
+    static constexpr int kMaxShafts = 3;
+    int count = 0;
+    std::array<ForeignShaft, kMaxShafts> shafts{};
+    double keep_x_px = 0, keep_v_px = 0, keep_radius_px = 0;
+};
+
+/// Whether a pixel box of half-sizes (hx, hv) about (x_px, v_px) (frame px) touches `shaft`'s strip.
+bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double hx, double hv);
+
 /// Whether an occluder of `hint` covers the point q of the marker's image, q in units of its radius about its
 /// centre (view frame x, y): the shaft's or the occluding sphere's surface there is nearer the camera than the
 /// marker's, or the marker is not there.
@@ -163,6 +185,7 @@ struct SphereFitWorkspace {
     std::array<uint8_t, kPx> keep_y{}, keep_cb{}, keep_cr{};  // 1: the observation is in the fit
     std::array<uint8_t, kPx> touch{};              // 1: the marker (or its derivatives) reaches the model pixel
     std::array<uint8_t, kPx> hidden_y{}, hidden_c{};  // 1: a MarkerHint's shaft covers the luma / chroma observation
+    std::array<uint8_t, kPx> foreign_y{}, foreign_c{};  // 1: a PatchMask's foreign shaft touches it
     std::array<double, kPx> obs_y{}, var_y{};
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
 };
@@ -185,8 +208,9 @@ BlobBox blob_box(const B& b) {
 /// Fits the blob's marker in `field` (UYVY, 720 × `height` lines). The field must hold the blob's lines and
 /// `margin_lines` more either side where the image has them.
 /// With `shaft`, the shaft's pixels are left out and cx/cy_px are the centroid of the sphere's part the shaft leaves
-/// visible (the pipeline's centroid measures that part too).
+/// visible (the pipeline's centroid measures that part too). With `mask`, the pixels its foreign shafts touch are
+/// left out (from the observations and from the border's levels and outline search).
 SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& config,
-                           SphereFitWorkspace& work, const MarkerHint* hint = nullptr);
+                           SphereFitWorkspace& work, const MarkerHint* hint = nullptr, const PatchMask* mask = nullptr);
 
 }  // namespace eyesim::tracking
