@@ -162,7 +162,10 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
     const bool retry = !r.ok && (r.refusal == FitRefusal::kChi2 || r.refusal == FitRefusal::kOutliers ||
                                  r.refusal == FitRefusal::kShift || r.refusal == FitRefusal::kImplausible);
     if (!retry || !source || !source->foreign_shafts(camera, blob, mask)) return r;
-    return fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr, &mask);
+    // The pipeline's centroid beside another shaft takes some of its chroma: the shift gate widens as on video.
+    SphereFitConfig wide = config;
+    wide.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
+    return fit_sphere(field, height, blob, wide, work, hinted ? &hint : nullptr, &mask);
 }
 
 bool MarkerHintSource::ready() const {
