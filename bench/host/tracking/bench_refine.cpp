@@ -46,6 +46,8 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 namespace fpga = eyesim::fpga;
 namespace rig = eyesim::rig;
 namespace tracking = eyesim::tracking;
@@ -213,8 +215,10 @@ int main(int argc, char** argv) {
         for (double noise : {1.0, 2.0}) {
             const std::vector<Method> ms = rig_methods(noise);
             for (uint64_t seed : seed_list) {
-                const std::string dir =
-                    (std::filesystem::temp_directory_path() / ("eyesim_bench_refine_" + std::to_string(seed))).string();
+                // The process id in the name: two runs at once (another scenario, the same seed) must not share it.
+                const std::string dir = (std::filesystem::temp_directory_path() /
+                                         ("eyesim_bench_refine_" + std::to_string(::getpid()) + "_" + std::to_string(seed)))
+                                            .string();
                 std::filesystem::remove_all(dir);
                 rig::SynthRequest req;
                 req.out_dir = dir;
