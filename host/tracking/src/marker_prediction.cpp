@@ -121,6 +121,23 @@ bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_r
     return false;
 }
 
+namespace {
+
+// A sphere (another marker, nearer the camera) as the hint's occluder, in the hint's view frame: the fit leaves out
+// the pixels it covers, across the marker's disc (the visible part's centroid then excludes them) and beside it.
+void set_sphere_occluder(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                         const Eigen::Vector3d& occ_centre_rig_mm, double occ_radius_mm, MarkerHint& out) {
+    const Eigen::Vector3d d = (centre_rig_mm - cam.centre_rig_mm()).normalized();  // as view_frame() sets it up
+    const Eigen::Vector3d ex = d.unitOrthogonal(), ey = d.cross(ex);
+    const Eigen::Vector3d e = (occ_centre_rig_mm - centre_rig_mm) / radius_mm;
+    out.occluder_view[0] = e.dot(ex);
+    out.occluder_view[1] = e.dot(ey);
+    out.occluder_view[2] = e.dot(d);
+    out.occluder_radius = occ_radius_mm / radius_mm;
+}
+
+}  // namespace
+
 MarkerHintSource::MarkerHintSource(std::span<const CameraGeometry> cameras, const BodySet& bodies) : bodies_(bodies) {
     ncam_ = static_cast<int>(std::min<std::size_t>(cameras.size(), kMaxCameras));
     for (int c = 0; c < ncam_; ++c) cams_[static_cast<std::size_t>(c)] = cameras[static_cast<std::size_t>(c)];
@@ -227,8 +244,37 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
     const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
     const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
     const Eigen::Vector3d axis = pose.rotation_body_to_rig * im.axis_body;
-    return predict_shaft_hint(cam, centre, im.markers[static_cast<std::size_t>(m)].radius_mm, axis, im.shaft_radius_mm,
-                              out);
+    const double radius_mm = im.markers[static_cast<std::size_t>(m)].radius_mm;
+    if (!predict_shaft_hint(cam, centre, radius_mm, axis, im.shaft_radius_mm, out)) return false;
+    // Another marker nearer the camera with its image in the patch (markers along a shaft seen near its axis: it
+    // may hide part of this one, and its pixels are not the background): the nearest such one is the hint's
+    // occluding sphere.
+    const Eigen::Vector3d cam_c = cam.centre_rig_mm();
+    const double depth = (centre - cam_c).norm();
+    Eigen::Vector2d px;
+    if (!project_point(cam, centre, px)) return true;
+    double best = HUGE_VAL;
+    for (int ob = 0; ob < bodies_.instrument_count; ++ob) {
+        const InstrumentModel& om = bodies_.instruments[static_cast<std::size_t>(ob)];
+        if (age_[static_cast<std::size_t>(ob)] > kMaxAgeFrames) continue;
+        const InstrumentPose& op = poses_[static_cast<std::size_t>(ob)];
+        const Eigen::Matrix3d r = op.rotation_body_to_rig.toRotationMatrix();
+        for (int om_i = 0; om_i < om.marker_count; ++om_i) {
+            if (ob == b && om_i == m) continue;
+            const BodyMarker& bm = om.markers[static_cast<std::size_t>(om_i)];
+            const Eigen::Vector3d c = op.tip_rig_mm + r * (bm.pos_body_mm - om.tip_body_mm);
+            const double sep = (c - centre).norm();
+            Eigen::Vector2d opx;
+            if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx))
+                continue;
+            // Its image's edge within the patch's reach (radii from the outline prediction's scale).
+            const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
+            if ((opx - px).norm() - r_px - or_px > kForeignReachPx) continue;
+            set_sphere_occluder(cam, centre, radius_mm, c, bm.radius_mm, out);
+            best = sep;
+        }
+    }
+    return true;
 }
 
 bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask& out) const {
@@ -285,7 +331,39 @@ bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask
         if (gap < outline.r_px && in_front) continue;  // it hides part of the marker: not modelled
         out.shafts[static_cast<std::size_t>(out.count++)] = fs;
     }
-    return out.count > 0;
+    // Other markers in the patch: their discs, but not one in front across the marker (the hint's occluder).
+    auto add_disc = [&](const Eigen::Vector3d& c, double r_mm) {
+        if (out.disc_count >= PatchMask::kMaxDiscs || !(r_mm > 0)) return;
+        ProjectedOutline o;
+        if (!project_sphere_outline(cam, c, r_mm, o)) return;
+        const double gap = std::hypot(o.x_px - outline.x_px, o.v_px - outline.v_px) - o.r_px - outline.r_px;
+        if (gap > kForeignReachPx) return;
+        if (gap < 0 && (c - cam_c).dot(d) < marker_depth) return;  // in front, across it
+        out.discs[static_cast<std::size_t>(out.disc_count++)] = {o.x_px, o.v_px, o.r_px + kForeignMarginPx};
+    };
+    for (int b = 0; b < bodies_.instrument_count; ++b) {
+        const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
+        if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames) continue;
+        const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
+        const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
+        for (int k = 0; k < im.marker_count; ++k) {
+            if (b == own && k == m) continue;
+            const BodyMarker& bm = im.markers[static_cast<std::size_t>(k)];
+            add_disc(pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm), bm.radius_mm);
+        }
+    }
+    if (eye_age_ <= kMaxAgeFrames) {
+        const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
+        for (int k = 0; k < bodies_.eye.marker_count; ++k) {
+            if (own < 0 && k == m) continue;
+            const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(k)];
+            const Eigen::Vector3d c = eye_.centre_rig_mm + r * bm.pos_body_mm;
+            // An eye marker on the far side of the eye is hidden by it: only the near side's are seen.
+            if ((c - eye_.centre_rig_mm).dot(cam_c - c) <= 0) continue;
+            add_disc(c, bm.radius_mm);
+        }
+    }
+    return out.count > 0 || out.disc_count > 0;
 }
 
 }  // namespace eyesim::tracking

@@ -1631,12 +1631,17 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     const int nx = p.x1 - p.x0 + 1;
     // Another instrument's shaft in the patch is neither marker nor background: its pixels are left out, as
     // observations (always: hidden) and from the border's levels, except where the marker itself is.
-    const bool masked = mask && mask->count > 0;
+    const bool masked = mask && (mask->count > 0 || mask->disc_count > 0);
     auto foreign_at = [&](int x, int j) {
-        const double v = 2.0 * j + p.parity;
+        const double v = 2.0 * j + p.parity, hv = 0.5 * cfg.aperture_lines_px;
         if (std::hypot(x - mask->keep_x_px, v - mask->keep_v_px) < mask->keep_radius_px) return false;
         for (int k = 0; k < std::min(mask->count, PatchMask::kMaxShafts); ++k)
-            if (shaft_touches(mask->shafts[static_cast<size_t>(k)], x, v, 0.5, 0.5 * cfg.aperture_lines_px)) return true;
+            if (shaft_touches(mask->shafts[static_cast<size_t>(k)], x, v, 0.5, hv)) return true;
+        for (int k = 0; k < std::min(mask->disc_count, PatchMask::kMaxDiscs); ++k) {
+            const ForeignDisc& d = mask->discs[static_cast<size_t>(k)];
+            const double ex = std::max(0.0, std::fabs(x - d.x_px) - 0.5), ev = std::max(0.0, std::fabs(v - d.v_px) - hv);
+            if (ex * ex + ev * ev <= d.r_px * d.r_px) return true;
+        }
         return false;
     };
     std::fill(w.foreign_y.begin(), w.foreign_y.end(), uint8_t{0});

@@ -348,7 +348,7 @@ TEST_CASE("marker hints: the nearest predicted marker of the blob's class, withi
     MarkerHint h;
     CHECK(source.hint(0, blob_at(0, 0, 0.0), h));
     CHECK(h.radius_ratio == Approx(0.25 / 0.7));
-    CHECK(h.occluder_radius == 0);
+    CHECK(h.occluder_radius == Approx(1.0));  // its instrument's other marker, nearer the camera, 5 mm up the shaft
     CHECK(std::fabs(std::hypot(h.axis_view[0], h.axis_view[1]) - std::sqrt(1 - h.axis_view[2] * h.axis_view[2])) < 1e-12);
     CHECK(source.hint(0, blob_at(1, 1, 2.0), h));           // within the gate
     CHECK_FALSE(source.hint(0, blob_at(1, 1, 6.5), h));     // beyond it
@@ -565,4 +565,76 @@ TEST_CASE("foreign shafts: clear markers with another instrument's shaft in thei
     CHECK(rescued >= 0.8 * plain_refused);
     CHECK(rms_rescue < 0.5 * rms_pipe);
     CHECK(rms_all < 0.015);
+}
+
+TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, others are discs of the patch mask",
+          "[tracking][refine]") {
+    // Two markers of one instrument nearly along a camera's line of sight (the shaft seen end-on), a third beside.
+    CameraGeometry cam;
+    cam.fx = cam.fy = 800.0;
+    cam.cx = 360.0;
+    cam.cy = 288.0;
+    BodySet bodies;
+    bodies.instrument_count = 1;
+    InstrumentModel& im = bodies.instruments[0];
+    im.shaft_radius_mm = 0.25;
+    im.shaft_length_mm = 60.0;
+    im.marker_count = 3;
+    im.markers[0] = {1, Eigen::Vector3d(0, 0, 3), 0.5};
+    im.markers[1] = {2, Eigen::Vector3d(0, 0, 4), 0.5};
+    im.markers[2] = {3, Eigen::Vector3d(0, 0, 8), 0.5};
+    MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
+    std::array<InstrumentPose, 1> poses{};
+    // The shaft points towards the camera, tilted so that each marker is 0.5 mm across the line of sight from the
+    // one before it along the shaft (its image a radius away): marker 1 is behind marker 0.
+    const Eigen::Vector3d axis = Eigen::Vector3d(0.5, 0.0, -1.0).normalized();
+    poses[0].tip_rig_mm = Eigen::Vector3d(0, 0, 120) - 3.0 * axis;
+    poses[0].axis_rig = axis;
+    poses[0].rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
+    poses[0].flags = kPoseOk;
+    source.update(EyePose{}, poses);
+    auto centre = [&](int m) -> Eigen::Vector3d {
+        return poses[0].tip_rig_mm + poses[0].rotation_body_to_rig * im.markers[static_cast<size_t>(m)].pos_body_mm;
+    };
+    auto blob_of = [&](int m) {
+        Eigen::Vector2d px;
+        REQUIRE(project_point(cam, centre(m), px));
+        BlobBox b;
+        b.class_id = im.markers[static_cast<size_t>(m)].colour_class;
+        b.cx_px = px.x();
+        b.cy_px = 0.5 * px.y();
+        return b;
+    };
+    // The axis runs from the tip towards the camera: marker 1 (further along it) is in front of marker 0.
+    REQUIRE((centre(1) - cam.centre_rig_mm()).norm() < (centre(0) - cam.centre_rig_mm()).norm());
+    MarkerHint h0, h1;
+    REQUIRE(source.hint(0, blob_of(0), h0));
+    CHECK(h0.radius_ratio == Approx(0.5));
+    REQUIRE(h0.occluder_radius == Approx(1.0));  // marker 1's sphere, in marker radii
+    const Eigen::Vector3d e = (centre(1) - centre(0)) / 0.5;
+    CHECK(std::hypot(std::hypot(h0.occluder_view[0], h0.occluder_view[1]), h0.occluder_view[2]) == Approx(e.norm()));
+    CHECK(h0.occluder_view[2] < 0);  // towards the camera
+    REQUIRE(source.hint(0, blob_of(1), h1));
+    // Marker 2, in front of marker 1 too and in its patch though not across its disc: the occluder all the same
+    // (its pixels are not the background).
+    CHECK(h1.occluder_radius == Approx(1.0));
+    CHECK(h1.occluder_view[2] < 0);
+    BodySet one = bodies;
+    one.instruments[0].marker_count = 1;  // marker 0 alone: nothing in front of it
+    MarkerHintSource single(std::span<const CameraGeometry>(&cam, 1), one);
+    single.update(EyePose{}, poses);
+    MarkerHint hs;
+    REQUIRE(single.hint(0, blob_of(0), hs));
+    CHECK(hs.occluder_radius == 0);
+    // Marker 1's patch mask: marker 0 (behind it) and marker 2 (beside) are discs; marker 0's about its outline.
+    PatchMask mask;
+    REQUIRE(source.foreign_shafts(0, blob_of(1), mask));
+    REQUIRE(mask.disc_count == 2);
+    ProjectedOutline o0;
+    REQUIRE(project_sphere_outline(cam, centre(0), 0.5, o0));
+    CHECK(mask.discs[0].x_px == Approx(o0.x_px));
+    CHECK(mask.discs[0].r_px == Approx(o0.r_px + MarkerHintSource::kForeignMarginPx));
+    // Marker 0's mask leaves marker 1 out of its discs: in front and across it, it is the hint's occluder.
+    REQUIRE(source.foreign_shafts(0, blob_of(0), mask));
+    CHECK(mask.disc_count == 1);
 }

@@ -106,13 +106,22 @@ struct ForeignShaft {
     bool from_start = false;
 };
 
-/// The foreign shafts of one patch (fixed capacity; count 0: none) and the marker pixels they must not take: those
-/// whose centre lies within keep_radius_px of (keep_x_px, keep_v_px) (the marker's predicted centre; a shaft behind
-/// it shows only beside it).
+/// Another marker's image in a blob's patch: a disc about (x_px, v_px) of radius r_px (its predicted outline's,
+/// plus a margin), frame px.
+struct ForeignDisc {
+    double x_px = 0, v_px = 0, r_px = 0;
+};
+
+/// What else the poses put in one patch (fixed capacity; counts 0: nothing): other instruments' shafts and other
+/// markers, and the marker pixels they must not take: those whose centre lies within keep_radius_px of (keep_x_px,
+/// keep_v_px) (the marker's predicted centre; what lies behind it shows only beside it).
 struct PatchMask {
     static constexpr int kMaxShafts = 3;
-    int count = 0;
+    static constexpr int kMaxDiscs = 4;
+    int count = 0;  ///< shafts
     std::array<ForeignShaft, kMaxShafts> shafts{};
+    int disc_count = 0;
+    std::array<ForeignDisc, kMaxDiscs> discs{};
     double keep_x_px = 0, keep_v_px = 0, keep_radius_px = 0;
 };
 
