@@ -212,16 +212,9 @@ bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& 
             centre = c;
         }
     };
-    for (int b = 0; b < bodies_.instrument_count; ++b) {
-        const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
-        const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
-        if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames || !(im.shaft_radius_mm > 0)) continue;
-        const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
-        for (int m = 0; m < im.marker_count; ++m) {
-            const BodyMarker& bm = im.markers[static_cast<std::size_t>(m)];
-            consider(bm, pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm), b, m);
-        }
-    }
+    for_each_instrument_marker([&](int b, int m, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (bodies_.instruments[static_cast<std::size_t>(b)].shaft_radius_mm > 0) consider(bm, c, b, m);
+    });
     // The eye's markers: the nearest of all wins (an eye marker is not fitted with a shaft).
     if (eye_age_ <= kMaxAgeFrames) {
         const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
@@ -254,26 +247,17 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
     Eigen::Vector2d px;
     if (!project_point(cam, centre, px)) return true;
     double best = HUGE_VAL;
-    for (int ob = 0; ob < bodies_.instrument_count; ++ob) {
-        const InstrumentModel& om = bodies_.instruments[static_cast<std::size_t>(ob)];
-        if (age_[static_cast<std::size_t>(ob)] > kMaxAgeFrames) continue;
-        const InstrumentPose& op = poses_[static_cast<std::size_t>(ob)];
-        const Eigen::Matrix3d r = op.rotation_body_to_rig.toRotationMatrix();
-        for (int om_i = 0; om_i < om.marker_count; ++om_i) {
-            if (ob == b && om_i == m) continue;
-            const BodyMarker& bm = om.markers[static_cast<std::size_t>(om_i)];
-            const Eigen::Vector3d c = op.tip_rig_mm + r * (bm.pos_body_mm - om.tip_body_mm);
-            const double sep = (c - centre).norm();
-            Eigen::Vector2d opx;
-            if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx))
-                continue;
-            // Its image's edge within the patch's reach (radii from the outline prediction's scale).
-            const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
-            if ((opx - px).norm() - r_px - or_px > kForeignReachPx) continue;
-            set_sphere_occluder(cam, centre, radius_mm, c, bm.radius_mm, out);
-            best = sep;
-        }
-    }
+    for_each_instrument_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (ob == b && om_i == m) return;
+        const double sep = (c - centre).norm();
+        Eigen::Vector2d opx;
+        if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx)) return;
+        // Its image's edge within the patch's reach (radii from the outline prediction's scale).
+        const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
+        if ((opx - px).norm() - r_px - or_px > kForeignReachPx) return;
+        set_sphere_occluder(cam, centre, radius_mm, c, bm.radius_mm, out);
+        best = sep;
+    });
     return true;
 }
 
@@ -341,17 +325,9 @@ bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask
         if (gap < 0 && (c - cam_c).dot(d) < marker_depth) return;  // in front, across it
         out.discs[static_cast<std::size_t>(out.disc_count++)] = {o.x_px, o.v_px, o.r_px + kForeignMarginPx};
     };
-    for (int b = 0; b < bodies_.instrument_count; ++b) {
-        const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
-        if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames) continue;
-        const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
-        const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
-        for (int k = 0; k < im.marker_count; ++k) {
-            if (b == own && k == m) continue;
-            const BodyMarker& bm = im.markers[static_cast<std::size_t>(k)];
-            add_disc(pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm), bm.radius_mm);
-        }
-    }
+    for_each_instrument_marker([&](int b, int k, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (!(b == own && k == m)) add_disc(c, bm.radius_mm);
+    });
     if (eye_age_ <= kMaxAgeFrames) {
         const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
         for (int k = 0; k < bodies_.eye.marker_count; ++k) {

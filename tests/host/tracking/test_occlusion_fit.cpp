@@ -24,6 +24,9 @@ using namespace eyesim::fpga::test;
 using namespace eyesim::tracking;
 namespace rig = eyesim::rig;
 
+// The sphere fit with the rig's marker colours (test_refine.cpp).
+SphereFitConfig rig_config();
+
 namespace {
 
 // The reference: march along the ray of q (view frame, sphere radius 1 at the origin, z away from the camera)
@@ -48,6 +51,53 @@ int shaft_first_by_marching(const Eigen::Vector3d& a, double rho, double qx, dou
     if (z_shaft > 1e8) return 0;
     if (std::fabs(z_shaft - z_sphere) < 5e-3) return -1;
     return z_shaft < z_sphere ? 1 : 0;
+}
+
+// A 720 × 576 camera at the rig's origin looking down +z, 800 px focal length, no distortion.
+CameraGeometry straight_camera() {
+    CameraGeometry cam;
+    cam.fx = cam.fy = 800.0;
+    cam.cx = 360.0;
+    cam.cy = 288.0;
+    return cam;
+}
+
+// The hint source of a recording's cameras and bodies.
+MarkerHintSource hint_source_of(const RigRecording& written) {
+    const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
+    std::vector<SceneInstrument> scene;
+    for (const rig::InstrumentTruth& it : written.truth.front().instruments) scene.push_back({it.kind, it.trocar});
+    std::vector<CameraGeometry> cams;
+    for (const rig::CameraModel& m : written.rec.cameras()) cams.push_back(camera_geometry(m));
+    return MarkerHintSource(cams, body_set(bodies, scene));
+}
+
+// Each of the first `fields` fields of every camera through the pipeline, `source` updated first with the field's
+// true poses; on_match(field, camera, blobs, match) for every detected marker `keep` admits (matched within 3 px).
+template <class Keep, class OnMatch>
+void for_each_matched_blob(RigRecording& written, int64_t fields, MarkerHintSource& source, Field& f, Keep keep,
+                           OnMatch on_match) {
+    Pipeline p{RegisterMap{}};
+    for (int64_t i = 0; i < fields; ++i) {
+        const rig::FieldTruth& tr = written.truth[static_cast<size_t>(i)];
+        std::array<InstrumentPose, kMaxInstruments> poses{};
+        EyePose eye;
+        const int ni = truth_poses(tr, eye, poses);
+        source.update(eye, std::span<const InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
+        for (int cam = 0; cam < written.rec.camera_count(); ++cam) {
+            written.rec.read_field(cam, i, f.bytes.data());
+            const std::vector<Blob> blobs = run_field(p, f);
+            std::vector<rig::DetectedMarker> det;
+            for (const Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
+            std::vector<bool> used;
+            rig::match_markers(
+                tr, cam, det, 3.0, keep,
+                [&](const rig::MarkerMatch& m) {
+                    if (m.detection >= 0) on_match(tr, cam, blobs[static_cast<size_t>(m.detection)], m);
+                },
+                used);
+        }
+    }
 }
 
 }  // namespace
@@ -179,49 +229,22 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
     // exposures are up to a field apart: a pose as old as the live chain's).
     const std::string format = GENERATE(std::string("uyvy"), std::string("dv"));
     RigRecording written("eyesim_shaft_fit_" + format, "sweep", 0.4, 1.0, 5, format);
-    rig::Recording& rec = written.rec;
     const std::vector<rig::FieldTruth>& truth = written.truth;
     REQUIRE(truth.size() == 20);
     const bool lossy = format != "uyvy";
-    SphereFitConfig cfg;
-    for (int c = 1; c <= 4; ++c) {
-        const auto rgb = rig::marker_class_rgb(c);
-        cfg.colour[static_cast<size_t>(c)] = MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
-    }
+    SphereFitConfig cfg = rig_config();
     if (lossy) cfg = sphere_fit_config_for_source(cfg, "4:2:0", false);
-
-    const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
-    std::vector<SceneInstrument> scene;
-    for (const rig::InstrumentTruth& it : truth.front().instruments) scene.push_back({it.kind, it.trocar});
-    const BodySet set = body_set(bodies, scene);
-    std::vector<CameraGeometry> cams;
-    for (const rig::CameraModel& m : rec.cameras()) cams.push_back(camera_geometry(m));
-    MarkerHintSource source(cams, set);
+    MarkerHintSource source = hint_source_of(written);
 
     auto work = std::make_unique<SphereFitWorkspace>();
-    Pipeline p{RegisterMap{}};
     Field f(rig::kFieldHeight);
     double se_pipe = 0, se_fit = 0, se_centre = 0, sum_dy[2] = {0, 0}, se_eye_pipe = 0, se_eye_fit = 0;
     int eye_hidden = 0, eye_accepted = 0, eye_clear = 0, eye_clear_hinted = 0;
     int hidden = 0, hinted = 0, accepted = 0, centred = 0, refused_outline = 0, n_parity[2] = {0, 0}, eye_hinted = 0;
-    for (int64_t i = 0; i < 20; ++i) {
-        const rig::FieldTruth& tr = truth[static_cast<size_t>(i)];
-        std::array<InstrumentPose, kMaxInstruments> poses{};
-        EyePose eye;
-        const int ni = truth_poses(tr, eye, poses);
-        source.update(eye, std::span<const InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
-        for (int cam = 0; cam < rec.camera_count(); ++cam) {
-            rec.read_field(cam, i, f.bytes.data());
-            const std::vector<Blob> blobs = run_field(p, f);
-            std::vector<rig::DetectedMarker> det;
-            for (const Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
-            std::vector<bool> used;
-            rig::match_markers(
-                tr, cam, det, 3.0,
-                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
-                [&](const rig::MarkerMatch& m) {
-                    if (m.detection < 0) return;
-                    const Blob& b = blobs[static_cast<size_t>(m.detection)];
+    for_each_matched_blob(
+        written, 20, source, f,
+        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
+        [&](const rig::FieldTruth& tr, int cam, const Blob& b, const rig::MarkerMatch& m) {
                     MarkerHint h;
                     const bool has = source.hint(cam, blob_box(b), h);
                     if (m.marker->body == "eye") {
@@ -271,10 +294,7 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
                     const int par = static_cast<int>(tr.cameras[static_cast<size_t>(cam)].parity) & 1;
                     sum_dy[par] += got.y() - t.y();
                     ++n_parity[par];
-                },
-                used);
-        }
-    }
+        });
     const double rms_pipe = std::sqrt(se_pipe / std::max(1, hinted)), rms_fit = std::sqrt(se_fit / std::max(1, hinted));
     const double rms_centre = std::sqrt(se_centre / std::max(1, centred));
     INFO(format << ": partly hidden " << hidden << ", hinted " << hinted << ", fitted " << accepted
@@ -306,10 +326,7 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
 
 TEST_CASE("marker hints: the nearest predicted marker of the blob's class, within the gate, while the pose is fresh",
           "[tracking][refine]") {
-    CameraGeometry cam;
-    cam.fx = cam.fy = 800.0;
-    cam.cx = 360.0;
-    cam.cy = 288.0;
+    const CameraGeometry cam = straight_camera();
     BodySet bodies;
     bodies.instrument_count = 2;
     for (int b = 0; b < 2; ++b) {
@@ -415,10 +432,7 @@ TEST_CASE("foreign shafts: the strip test against boxes beside, across and off t
 
 TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch from its pose", "[tracking][refine]") {
     // A camera looking down +z; instrument 0's marker 120 mm away, instrument 1's shaft passing beside it.
-    CameraGeometry cam;
-    cam.fx = cam.fy = 800.0;
-    cam.cx = 360.0;
-    cam.cy = 288.0;
+    const CameraGeometry cam = straight_camera();
     BodySet bodies;
     bodies.instrument_count = 2;
     for (int b = 0; b < 2; ++b) {
@@ -487,49 +501,23 @@ TEST_CASE("foreign shafts: clear markers with another instrument's shaft in thei
     // Sweep seed 40 (no parameter chosen on it), 20 fields, raw: where the plain fit refuses a clear marker, the
     // fit with the other instruments' shafts left out (MarkerHintSource::fit) takes it, near the truth.
     RigRecording written("eyesim_foreign_shaft", "sweep", 0.4, 1.0, 40);
-    rig::Recording& rec = written.rec;
-    const std::vector<rig::FieldTruth>& truth = written.truth;
-    REQUIRE(truth.size() == 20);
-    SphereFitConfig cfg;
-    for (int c = 1; c <= 4; ++c) {
-        const auto rgb = rig::marker_class_rgb(c);
-        cfg.colour[static_cast<size_t>(c)] = MarkerColour::from_rgb(rgb[0], rgb[1], rgb[2]);
-    }
-    const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
-    std::vector<SceneInstrument> scene;
-    for (const rig::InstrumentTruth& it : truth.front().instruments) scene.push_back({it.kind, it.trocar});
-    const BodySet set = body_set(bodies, scene);
-    std::vector<CameraGeometry> cams;
-    for (const rig::CameraModel& m : rec.cameras()) cams.push_back(camera_geometry(m));
-    MarkerHintSource source(cams, set);
+    REQUIRE(written.truth.size() == 20);
+    const SphereFitConfig cfg = rig_config();
+    MarkerHintSource source = hint_source_of(written);
     auto work = std::make_unique<SphereFitWorkspace>();
-    Pipeline p{RegisterMap{}};
     Field f(rig::kFieldHeight);
     int clear = 0, with_shaft = 0, plain_refused = 0, rescued = 0;
     double se_all = 0, se_pipe_rescue = 0, se_rescue = 0;
-    for (int64_t i = 0; i < 20; ++i) {
-        const rig::FieldTruth& tr = truth[static_cast<size_t>(i)];
-        std::array<InstrumentPose, kMaxInstruments> poses{};
-        EyePose eye;
-        const int ni = truth_poses(tr, eye, poses);
-        source.update(eye, std::span<const InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
-        for (int cam = 0; cam < rec.camera_count(); ++cam) {
-            rec.read_field(cam, i, f.bytes.data());
-            const std::vector<Blob> blobs = run_field(p, f);
-            std::vector<rig::DetectedMarker> det;
-            for (const Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
-            std::vector<bool> used;
-            rig::match_markers(
-                tr, cam, det, 3.0,
-                [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
-                    return v.visible && !(v.area_px < 2.0) && v.occluded_fraction == 0.0;
-                },
-                [&](const rig::MarkerMatch& m) {
-                    if (m.detection < 0) return;
+    for_each_matched_blob(
+        written, 20, source, f,
+        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) {
+            return v.visible && !(v.area_px < 2.0) && v.occluded_fraction == 0.0;
+        },
+        [&](const rig::FieldTruth&, int cam, const Blob& b, const rig::MarkerMatch& m) {
                     const double d = 2.0 * m.view->radius_px;
                     if (d < 6.0 || d >= 10.0) return;
                     ++clear;
-                    const BlobBox box = blob_box(blobs[static_cast<size_t>(m.detection)]);
+                    const BlobBox box = blob_box(b);
                     const Eigen::Vector2d t = m.view->centroid_px, pipe(box.cx_px, box.cy_px);
                     bool hinted = false;
                     const SphereFitResult r = MarkerHintSource::fit(&source, f.bytes.data(), f.height, box, cam, cfg, *work, hinted);
@@ -549,10 +537,7 @@ TEST_CASE("foreign shafts: clear markers with another instrument's shaft in thei
                     rescued += r.ok;
                     se_pipe_rescue += (pipe - t).squaredNorm();
                     se_rescue += (got - t).squaredNorm();
-                },
-                used);
-        }
-    }
+        });
     const double rms_all = std::sqrt(se_all / std::max(1, clear));
     const double rms_pipe = std::sqrt(se_pipe_rescue / std::max(1, plain_refused)),
                  rms_rescue = std::sqrt(se_rescue / std::max(1, plain_refused));
@@ -570,10 +555,7 @@ TEST_CASE("foreign shafts: clear markers with another instrument's shaft in thei
 TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, others are discs of the patch mask",
           "[tracking][refine]") {
     // Two markers of one instrument nearly along a camera's line of sight (the shaft seen end-on), a third beside.
-    CameraGeometry cam;
-    cam.fx = cam.fy = 800.0;
-    cam.cx = 360.0;
-    cam.cy = 288.0;
+    const CameraGeometry cam = straight_camera();
     BodySet bodies;
     bodies.instrument_count = 1;
     InstrumentModel& im = bodies.instruments[0];

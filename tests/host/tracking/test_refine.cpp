@@ -20,8 +20,7 @@ using namespace eyesim::fpga::test;
 using namespace eyesim::tracking;
 namespace rig = eyesim::rig;
 
-namespace {
-
+// The sphere fit with the rig's marker colours (test_occlusion_fit.cpp too).
 SphereFitConfig rig_config() {
     SphereFitConfig cfg;
     for (int c = 1; c <= 4; ++c) {
@@ -30,6 +29,8 @@ SphereFitConfig rig_config() {
     }
     return cfg;
 }
+
+namespace {
 
 // The fit's configuration with field_gen's marker colours.
 SphereFitConfig generator_config() {

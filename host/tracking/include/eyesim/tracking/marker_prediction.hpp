@@ -84,6 +84,20 @@ private:
     // The marker of the blob's class predicted nearest the blob within kGatePx: its body (−1: the eye), index and
     // centre (rig). False: none.
     bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const;
+    // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose.
+    template <class F>
+    void for_each_instrument_marker(F&& f) const {
+        for (int b = 0; b < bodies_.instrument_count; ++b) {
+            if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames) continue;
+            const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
+            const InstrumentPose& pose = poses_[static_cast<std::size_t>(b)];
+            const Eigen::Matrix3d r = pose.rotation_body_to_rig.toRotationMatrix();
+            for (int k = 0; k < im.marker_count; ++k) {
+                const BodyMarker& bm = im.markers[static_cast<std::size_t>(k)];
+                f(b, k, bm, Eigen::Vector3d(pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm)));
+            }
+        }
+    }
 
     int ncam_ = 0;
     std::array<CameraGeometry, kMaxCameras> cams_{};
