@@ -180,7 +180,7 @@ struct SphereFitResult {
 inline constexpr int kFitMaxCols = 40;
 inline constexpr int kFitMaxLines = 18;
 
-/// Working storage for one fit (about 156 KiB; allocate once, reuse).
+/// Working storage for one fit (about 160 KiB; allocate once, reuse).
 struct SphereFitWorkspace {
     static constexpr int kCols = kFitMaxCols + 2, kLines = kFitMaxLines;
     static constexpr int kPx = kCols * kLines;
