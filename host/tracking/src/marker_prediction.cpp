@@ -57,6 +57,27 @@ bool project_sphere_outline(const CameraGeometry& cam, const Eigen::Vector3d& ce
 
 namespace {
 
+// The hint's view-frame axes for a marker at `centre_rig_mm`: d along the line of sight from the camera, ex and ey
+// across it.
+void view_axes(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, Eigen::Vector3d& ex, Eigen::Vector3d& ey,
+               Eigen::Vector3d& d) {
+    d = (centre_rig_mm - cam.centre_rig_mm()).normalized();
+    ex = d.unitOrthogonal();
+    ey = d.cross(ex);
+}
+
+// A sphere (the eye, or another marker nearer the camera) as the hint's occluder, in the view frame (ex, ey, d) of
+// the marker at `centre_rig_mm`: centre and radius in marker radii.
+void set_sphere_occluder(const Eigen::Vector3d& ex, const Eigen::Vector3d& ey, const Eigen::Vector3d& d,
+                         const Eigen::Vector3d& centre_rig_mm, double radius_mm, const Eigen::Vector3d& occ_centre_rig_mm,
+                         double occ_radius_mm, MarkerHint& out) {
+    const Eigen::Vector3d e = (occ_centre_rig_mm - centre_rig_mm) / radius_mm;
+    out.occluder_view[0] = e.dot(ex);
+    out.occluder_view[1] = e.dot(ey);
+    out.occluder_view[2] = e.dot(d);
+    out.occluder_radius = occ_radius_mm / radius_mm;
+}
+
 // The hint's view frame for a marker: outline prior and the map from frame px to marker radii; `ex`, `ey`, `d`
 // the view frame's axes in the rig frame.
 bool view_frame(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm, MarkerHint& out,
@@ -69,9 +90,7 @@ bool view_frame(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm,
     // View frame: z along the line of sight, x and y across it; a view-frame offset projects by j (moving along the
     // line of sight does not move the image), so its inverse maps frame-px offsets back to marker radii.
     const Eigen::Vector3d los = centre_rig_mm - cam.centre_rig_mm();
-    d = los.normalized();
-    ex = d.unitOrthogonal();
-    ey = d.cross(ex);
+    view_axes(cam, centre_rig_mm, ex, ey, d);
     Eigen::Matrix2d across;
     across.col(0) = j * ex;
     across.col(1) = j * ey;
@@ -108,11 +127,7 @@ bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_r
                       const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out) {
     Eigen::Vector3d ex, ey, d;
     if (!view_frame(cam, centre_rig_mm, radius_mm, out, ex, ey, d)) return false;
-    const Eigen::Vector3d e = (eye_centre_rig_mm - centre_rig_mm) / radius_mm;
-    out.occluder_view[0] = e.dot(ex);
-    out.occluder_view[1] = e.dot(ey);
-    out.occluder_view[2] = e.dot(d);
-    out.occluder_radius = eye_radius_mm / radius_mm;
+    set_sphere_occluder(ex, ey, d, centre_rig_mm, radius_mm, eye_centre_rig_mm, eye_radius_mm, out);
     // Only where the eye hides some of the marker's disc: elsewhere the plain fit stands.
     for (int k = 0; k < 32; ++k) {
         const double phi = 2.0 * M_PI * k / 32, rr = 0.97;
@@ -120,23 +135,6 @@ bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_r
     }
     return false;
 }
-
-namespace {
-
-// A sphere (another marker, nearer the camera) as the hint's occluder, in the hint's view frame: the fit leaves out
-// the pixels it covers, across the marker's disc (the visible part's centroid then excludes them) and beside it.
-void set_sphere_occluder(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
-                         const Eigen::Vector3d& occ_centre_rig_mm, double occ_radius_mm, MarkerHint& out) {
-    const Eigen::Vector3d d = (centre_rig_mm - cam.centre_rig_mm()).normalized();  // as view_frame() sets it up
-    const Eigen::Vector3d ex = d.unitOrthogonal(), ey = d.cross(ex);
-    const Eigen::Vector3d e = (occ_centre_rig_mm - centre_rig_mm) / radius_mm;
-    out.occluder_view[0] = e.dot(ex);
-    out.occluder_view[1] = e.dot(ey);
-    out.occluder_view[2] = e.dot(d);
-    out.occluder_radius = occ_radius_mm / radius_mm;
-}
-
-}  // namespace
 
 MarkerHintSource::MarkerHintSource(std::span<const CameraGeometry> cameras, const BodySet& bodies) : bodies_(bodies) {
     ncam_ = static_cast<int>(std::min<std::size_t>(cameras.size(), kMaxCameras));
@@ -178,7 +176,7 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
     // close: left out always, it cost fits that had stood).
     const bool retry = !r.ok && (r.refusal == FitRefusal::kChi2 || r.refusal == FitRefusal::kOutliers ||
                                  r.refusal == FitRefusal::kShift || r.refusal == FitRefusal::kImplausible);
-    if (!retry || !source || !source->foreign_shafts(camera, blob, mask)) return r;
+    if (!retry || !source || !source->patch_mask(camera, blob, mask)) return r;
     // The pipeline's centroid beside another shaft takes some of its chroma: the shift gate widens as on video.
     SphereFitConfig wide = config;
     wide.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
@@ -212,17 +210,10 @@ bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& 
             centre = c;
         }
     };
-    for_each_instrument_marker([&](int b, int m, const BodyMarker& bm, const Eigen::Vector3d& c) {
-        if (bodies_.instruments[static_cast<std::size_t>(b)].shaft_radius_mm > 0) consider(bm, c, b, m);
+    // The eye's markers too: the nearest of all wins (an eye marker is not fitted with a shaft).
+    for_each_marker([&](int b, int m, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (b < 0 || bodies_.instruments[static_cast<std::size_t>(b)].shaft_radius_mm > 0) consider(bm, c, b, m);
     });
-    // The eye's markers: the nearest of all wins (an eye marker is not fitted with a shaft).
-    if (eye_age_ <= kMaxAgeFrames) {
-        const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
-        for (int m = 0; m < bodies_.eye.marker_count; ++m) {
-            const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(m)];
-            consider(bm, eye_.centre_rig_mm + r * bm.pos_body_mm, -1, m);
-        }
-    }
     return marker >= 0;
 }
 
@@ -247,21 +238,29 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out) co
     Eigen::Vector2d px;
     if (!project_point(cam, centre, px)) return true;
     double best = HUGE_VAL;
-    for_each_instrument_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
-        if (ob == b && om_i == m) return;
+    Eigen::Vector3d occ_c;
+    double occ_r_mm = 0;
+    for_each_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (ob < 0 || (ob == b && om_i == m)) return;
         const double sep = (c - centre).norm();
         Eigen::Vector2d opx;
         if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx)) return;
         // Its image's edge within the patch's reach (radii from the outline prediction's scale).
         const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
         if ((opx - px).norm() - r_px - or_px > kForeignReachPx) return;
-        set_sphere_occluder(cam, centre, radius_mm, c, bm.radius_mm, out);
         best = sep;
+        occ_c = c;
+        occ_r_mm = bm.radius_mm;
     });
+    if (occ_r_mm > 0) {
+        Eigen::Vector3d ex, ey, d;
+        view_axes(cam, centre, ex, ey, d);
+        set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out);
+    }
     return true;
 }
 
-bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask& out) const {
+bool MarkerHintSource::patch_mask(int camera, const BlobBox& blob, PatchMask& out) const {
     out = PatchMask{};
     int own = -1, m = -1;
     Eigen::Vector3d centre;
@@ -325,20 +324,12 @@ bool MarkerHintSource::foreign_shafts(int camera, const BlobBox& blob, PatchMask
         if (gap < 0 && (c - cam_c).dot(d) < marker_depth) return;  // in front, across it
         out.discs[static_cast<std::size_t>(out.disc_count++)] = {o.x_px, o.v_px, o.r_px + kForeignMarginPx};
     };
-    for_each_instrument_marker([&](int b, int k, const BodyMarker& bm, const Eigen::Vector3d& c) {
-        if (!(b == own && k == m)) add_disc(c, bm.radius_mm);
+    for_each_marker([&](int b, int k, const BodyMarker& bm, const Eigen::Vector3d& c) {
+        if (b == own && k == m) return;
+        // An eye marker on the far side of the eye is hidden by it: only the near side's are seen.
+        if (b < 0 && (c - eye_.centre_rig_mm).dot(cam_c - c) <= 0) return;
+        add_disc(c, bm.radius_mm);
     });
-    if (eye_age_ <= kMaxAgeFrames) {
-        const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
-        for (int k = 0; k < bodies_.eye.marker_count; ++k) {
-            if (own < 0 && k == m) continue;
-            const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(k)];
-            const Eigen::Vector3d c = eye_.centre_rig_mm + r * bm.pos_body_mm;
-            // An eye marker on the far side of the eye is hidden by it: only the near side's are seen.
-            if ((c - eye_.centre_rig_mm).dot(cam_c - c) <= 0) continue;
-            add_disc(c, bm.radius_mm);
-        }
-    }
     return out.count > 0 || out.disc_count > 0;
 }
 

@@ -44,6 +44,16 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     return config;
 }
 
+namespace {
+
+// Whether a box of half-sizes (hx, hv) whose centre is (dx, dv) from a point lies within r of it.
+bool box_within(double dx, double dv, double hx, double hv, double r) {
+    const double ex = std::max(0.0, std::fabs(dx) - hx), ev = std::max(0.0, std::fabs(dv) - hv);
+    return ex * ex + ev * ev <= r * r;
+}
+
+}  // namespace
+
 bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double hx, double hv) {
     const double dx = x_px - shaft.x_px, dv = v_px - shaft.v_px;
     const double along = dx * shaft.ux + dv * shaft.uv, across = std::fabs(dv * shaft.ux - dx * shaft.uv);
@@ -54,8 +64,7 @@ bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double h
     if (!shaft.from_start || along >= 0) return true;
     if (along < -(shaft.half_width_px + reach_along)) return false;
     // Beside the start: the rounded end, a disc of the half-width about the start point.
-    const double ex = std::max(0.0, std::fabs(dx) - hx), ev = std::max(0.0, std::fabs(dv) - hv);
-    return ex * ex + ev * ev <= shaft.half_width_px * shaft.half_width_px;
+    return box_within(dx, dv, hx, hv, shaft.half_width_px);
 }
 
 bool hint_covers(const MarkerHint& hint, double qx, double qy) {
@@ -1629,8 +1638,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     std::fill(w.keep_cb.begin(), w.keep_cb.end(), uint8_t{1});
     std::fill(w.keep_cr.begin(), w.keep_cr.end(), uint8_t{1});
     const int nx = p.x1 - p.x0 + 1;
-    // Another instrument's shaft in the patch is neither marker nor background: its pixels are left out, as
-    // observations (always: hidden) and from the border's levels, except where the marker itself is.
+    // Another instrument's shaft or another marker in the patch is neither this marker nor background: its pixels
+    // are left out, as observations (always: hidden) and from the border's levels, except where the marker is.
     const bool masked = mask && (mask->count > 0 || mask->disc_count > 0);
     auto foreign_at = [&](int x, int j) {
         const double v = 2.0 * j + p.parity, hv = 0.5 * cfg.aperture_lines_px;
@@ -1639,8 +1648,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
             if (shaft_touches(mask->shafts[static_cast<size_t>(k)], x, v, 0.5, hv)) return true;
         for (int k = 0; k < std::min(mask->disc_count, PatchMask::kMaxDiscs); ++k) {
             const ForeignDisc& d = mask->discs[static_cast<size_t>(k)];
-            const double ex = std::max(0.0, std::fabs(x - d.x_px) - 0.5), ev = std::max(0.0, std::fabs(v - d.v_px) - hv);
-            if (ex * ex + ev * ev <= d.r_px * d.r_px) return true;
+            if (box_within(x - d.x_px, v - d.v_px, 0.5, hv, d.r_px)) return true;
         }
         return false;
     };
@@ -1704,7 +1712,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     std::array<BorderPx, 2 * (kFitMaxCols + kFitMaxLines)> border;
     int nb = 0;
     auto push = [&](int x, int j) {
-        if (masked && foreign_at(x, j)) return;
+        if (masked && w.foreign_y[(j - p.j0) * nx + (x - p.x0)]) return;
         if (hint && box_touches_occluder(*hint, border_norm, x - t[kX0], 2.0 * j + p.parity - t[kV0], hidden_hx, hidden_hv))
             return;
         const uint8_t* line = field + static_cast<size_t>(j) * kStride;

@@ -470,7 +470,7 @@ TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch
 
     crossing_at(3.0, 0.8);
     PatchMask mask;
-    REQUIRE(source.foreign_shafts(0, blob, mask));
+    REQUIRE(source.patch_mask(0, blob, mask));
     REQUIRE(mask.count == 1);
     const ForeignShaft& fs = mask.shafts[0];
     CHECK_FALSE(fs.from_start);  // the tip is 20 mm away
@@ -489,11 +489,11 @@ TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch
     CHECK(std::hypot(mask.keep_x_px - px.x(), mask.keep_v_px - px.y()) < 0.05);
 
     crossing_at(-3.0, 0.1);  // in front of the marker and across it: a foreign occluder, not modelled
-    CHECK_FALSE(source.foreign_shafts(0, blob, mask));
+    CHECK_FALSE(source.patch_mask(0, blob, mask));
     crossing_at(-3.0, 2.0);  // in front, beside it: left out
-    CHECK(source.foreign_shafts(0, blob, mask));
+    CHECK(source.patch_mask(0, blob, mask));
     crossing_at(3.0, 8.0);   // ≈ 50 px away: outside any patch
-    CHECK_FALSE(source.foreign_shafts(0, blob, mask));
+    CHECK_FALSE(source.patch_mask(0, blob, mask));
 }
 
 TEST_CASE("foreign shafts: clear markers with another instrument's shaft in their patch are fitted, not refused",
@@ -524,7 +524,7 @@ TEST_CASE("foreign shafts: clear markers with another instrument's shaft in thei
                     const Eigen::Vector2d got = r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe;
                     se_all += (got - t).squaredNorm();
                     PatchMask mask;
-                    if (!source.foreign_shafts(cam, box, mask)) return;
+                    if (!source.patch_mask(cam, box, mask)) return;
                     ++with_shaft;
                     MarkerHint h;
                     const bool has = source.hint(cam, box, h);
@@ -610,13 +610,13 @@ TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, other
     CHECK(hs.occluder_radius == 0);
     // Marker 1's patch mask: marker 0 (behind it) and marker 2 (beside) are discs; marker 0's about its outline.
     PatchMask mask;
-    REQUIRE(source.foreign_shafts(0, blob_of(1), mask));
+    REQUIRE(source.patch_mask(0, blob_of(1), mask));
     REQUIRE(mask.disc_count == 2);
     ProjectedOutline o0;
     REQUIRE(project_sphere_outline(cam, centre(0), 0.5, o0));
     CHECK(mask.discs[0].x_px == Approx(o0.x_px));
     CHECK(mask.discs[0].r_px == Approx(o0.r_px + MarkerHintSource::kForeignMarginPx));
     // Marker 0's mask leaves marker 1 out of its discs: in front and across it, it is the hint's occluder.
-    REQUIRE(source.foreign_shafts(0, blob_of(0), mask));
+    REQUIRE(source.patch_mask(0, blob_of(0), mask));
     CHECK(mask.disc_count == 1);
 }

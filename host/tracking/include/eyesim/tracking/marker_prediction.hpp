@@ -63,10 +63,11 @@ public:
     /// only where the eye hides part of it. False: no marker near, or nothing hides it (a plain fit).
     bool hint(int camera, const BlobBox& blob, MarkerHint& out) const;
 
-    /// The other instruments' shafts the poses put in `blob`'s patch (camera `camera`), for the fit to leave out:
-    /// those within kForeignReachPx of the blob's marker, not in front of it where they cross it (a foreign shaft
-    /// that hides part of the marker is not modelled). False: none.
-    bool foreign_shafts(int camera, const BlobBox& blob, PatchMask& out) const;
+    /// What else the poses put in `blob`'s patch (camera `camera`), for the fit to leave out: the other instruments'
+    /// shafts and the other markers within kForeignReachPx of the blob's marker, none in front of it where it
+    /// crosses it (a shaft hiding part of the marker is not modelled; a marker doing so is the hint's occluder).
+    /// False: nothing.
+    bool patch_mask(int camera, const BlobBox& blob, PatchMask& out) const;
     /// A foreign shaft's strip is widened by this much each side (frame px): its pose is a field or two old.
     static constexpr double kForeignMarginPx = 1.0;
     /// Shafts further than this from the marker's image are outside any patch (frame px).
@@ -84,9 +85,10 @@ private:
     // The marker of the blob's class predicted nearest the blob within kGatePx: its body (−1: the eye), index and
     // centre (rig). False: none.
     bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const;
-    // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose.
+    // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose,
+    // then (body −1) of the eye if its pose is fresh.
     template <class F>
-    void for_each_instrument_marker(F&& f) const {
+    void for_each_marker(F&& f) const {
         for (int b = 0; b < bodies_.instrument_count; ++b) {
             if (age_[static_cast<std::size_t>(b)] > kMaxAgeFrames) continue;
             const InstrumentModel& im = bodies_.instruments[static_cast<std::size_t>(b)];
@@ -96,6 +98,12 @@ private:
                 const BodyMarker& bm = im.markers[static_cast<std::size_t>(k)];
                 f(b, k, bm, Eigen::Vector3d(pose.tip_rig_mm + r * (bm.pos_body_mm - im.tip_body_mm)));
             }
+        }
+        if (eye_age_ > kMaxAgeFrames) return;
+        const Eigen::Matrix3d r = eye_.rotation_eye_to_rig.toRotationMatrix();
+        for (int k = 0; k < bodies_.eye.marker_count; ++k) {
+            const BodyMarker& bm = bodies_.eye.markers[static_cast<std::size_t>(k)];
+            f(-1, k, bm, Eigen::Vector3d(eye_.centre_rig_mm + r * bm.pos_body_mm));
         }
     }
 

@@ -100,7 +100,7 @@ struct MarkerHint {
 /// Another instrument's shaft in a blob's patch, as the poses predict its image there: a strip of half-width
 /// `half_width_px` about the line through (x_px, v_px) along the unit (ux, uv), from that point on (the tip's end,
 /// rounded by the half-width; `from_start` false: unbounded both ways), frame px (v: frame rows). Its pixels are
-/// neither the marker nor the background, so the fit leaves them out (MarkerHintSource::foreign_shafts).
+/// neither the marker nor the background, so the fit leaves them out (MarkerHintSource::patch_mask).
 struct ForeignShaft {
     double x_px = 0, v_px = 0, ux = 1, uv = 0, half_width_px = 0;
     bool from_start = false;
