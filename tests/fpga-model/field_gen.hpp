@@ -313,11 +313,11 @@ inline std::vector<RefBlob> reference_blobs(const Pipeline& p, const Field& f, c
 }
 
 /// Runs a whole field, collecting every emitted blob (sink callback), sorted like RefBlob.
-inline std::vector<Blob> run_field(Pipeline& p, const Field& f, uint32_t counter = 0) {
+inline std::vector<Blob> run_field(Pipeline& p, const Field& f, uint32_t counter = 0, uint8_t parity = 0) {
     std::vector<Blob> blobs;
     blobs.reserve(1024);
     p.set_sink([](void* ctx, const Blob& b) { static_cast<std::vector<Blob>*>(ctx)->push_back(b); }, &blobs);
-    p.process_field(f.bytes.data(), f.height, counter, 0);
+    p.process_field(f.bytes.data(), f.height, counter, parity);
     p.set_sink(nullptr, nullptr);
     std::sort(blobs.begin(), blobs.end(), [](const Blob& a, const Blob& b) {
         return std::tie(a.class_id, a.y_min, a.x_min, a.area_px, a.x_max, a.y_max) <

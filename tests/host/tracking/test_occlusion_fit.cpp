@@ -86,7 +86,8 @@ void for_each_matched_blob(RigRecording& written, int64_t fields, MarkerHintSour
         source.update(eye, std::span<const InstrumentPose>(poses.data(), static_cast<size_t>(ni)));
         for (int cam = 0; cam < written.rec.camera_count(); ++cam) {
             written.rec.read_field(cam, i, f.bytes.data());
-            const std::vector<Blob> blobs = run_field(p, f);
+            // The field's parity: a fit places its lines, and a hint's fixed occluder, in frame rows by it.
+            const std::vector<Blob> blobs = run_field(p, f, 0, tr.cameras[static_cast<size_t>(cam)].parity);
             std::vector<rig::DetectedMarker> det;
             for (const Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
             std::vector<bool> used;
@@ -239,14 +240,27 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
     auto work = std::make_unique<SphereFitWorkspace>();
     Field f(rig::kFieldHeight);
     double se_pipe = 0, se_fit = 0, se_centre = 0, sum_dy[2] = {0, 0}, se_eye_pipe = 0, se_eye_fit = 0;
-    int eye_hidden = 0, eye_accepted = 0, eye_clear = 0, eye_clear_hinted = 0;
+    double se_behind_pipe = 0, se_behind_fit = 0;
+    int eye_hidden = 0, eye_accepted = 0, eye_clear = 0, eye_clear_hinted = 0, behind_eye = 0, behind_accepted = 0;
     int hidden = 0, hinted = 0, accepted = 0, centred = 0, refused_outline = 0, n_parity[2] = {0, 0}, eye_hinted = 0;
     for_each_matched_blob(
         written, 20, source, f,
         [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && !(v.area_px < 2.0); },
         [&](const rig::FieldTruth& tr, int cam, const Blob& b, const rig::MarkerMatch& m) {
                     MarkerHint h;
-                    const bool has = source.hint(cam, blob_box(b), h);
+                    const bool has = source.hint(cam, blob_box(b), h, cfg.hint_with_outline);
+                    if (m.marker->body != "eye" && has && h.occluder_fixed) {
+                        // An instrument marker seen past the eye's outline, the eye in front (lossy sources only).
+                        REQUIRE(cfg.hint_with_outline);
+                        CHECK(h.occluder_radius > 10);
+                        ++behind_eye;
+                        const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blob_box(b), cfg, *work, &h);
+                        const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
+                        se_behind_pipe += (pipe - t).squaredNorm();
+                        se_behind_fit += ((r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe) - t).squaredNorm();
+                        behind_accepted += r.ok;
+                        return;
+                    }
                     if (m.marker->body == "eye") {
                         // The eye hides part of a marker on its surface near its outline: hinted only there.
                         const double occ = m.view->occluded_fraction;
@@ -304,7 +318,10 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
                 << "; eye markers the eye partly hides " << eye_hidden << ", hinted " << eye_hinted << ", fitted "
                 << eye_accepted << ": RMS pipeline " << std::sqrt(se_eye_pipe / std::max(1, eye_hinted))
                 << " px, with the fit " << std::sqrt(se_eye_fit / std::max(1, eye_hinted)) << "; clear eye markers "
-                << eye_clear << ", hinted " << eye_clear_hinted);
+                << eye_clear << ", hinted " << eye_clear_hinted << "; instrument markers behind the eye's outline "
+                << behind_eye << ", fitted " << behind_accepted << ": RMS pipeline "
+                << std::sqrt(se_behind_pipe / std::max(1, behind_eye)) << " px, with the fit "
+                << std::sqrt(se_behind_fit / std::max(1, behind_eye)));
     REQUIRE(hidden > 150);
     CHECK(hinted >= 0.9 * hidden);
     CHECK(accepted >= 0.75 * hinted);
@@ -315,6 +332,13 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
     CHECK(eye_clear_hinted <= 0.1 * eye_clear);  // near the outline, the eye's pose a field old
     CHECK(eye_accepted >= 0.8 * eye_hinted);
     CHECK(se_eye_fit < 0.25 * se_eye_pipe);  // RMS: half the pipeline's
+    if (lossy) {
+        REQUIRE(behind_eye > 10);
+        CHECK(behind_accepted >= 0.8 * behind_eye);
+        CHECK(se_behind_fit < 0.5 * se_behind_pipe);
+    } else {
+        CHECK(behind_eye == 0);  // raw: the pipeline's centroid is the better there (MarkerHintSource::hint)
+    }
     // Raw: the pipeline's visible centroid is already good; lossy: the codec's chroma moves it by ≈ 0.1 px.
     CHECK(rms_fit < (lossy ? 0.5 : 0.9) * rms_pipe);
     CHECK(rms_centre < (lossy ? 0.035 : 0.02));
@@ -619,4 +643,88 @@ TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, other
     // Marker 0's mask leaves marker 1 out of its discs: in front and across it, it is the hint's occluder.
     REQUIRE(source.patch_mask(0, blob_of(0), mask));
     CHECK(mask.disc_count == 1);
+}
+
+TEST_CASE("the eye in front of part of an instrument marker is the hint's occluding sphere", "[tracking][refine]") {
+    // A marker outside the eye, further from the camera than the eye's outline and seen just past it: the eye
+    // hides the side of its disc towards the eye's centre. The same marker nearer the camera than the eye: nothing
+    // hides it.
+    const CameraGeometry cam = straight_camera();
+    BodySet bodies;
+    bodies.eye.centre_rig_mm = Eigen::Vector3d(0, 0, 100);
+    bodies.eye.radius_mm = 12.0;
+    bodies.instrument_count = 1;
+    InstrumentModel& im = bodies.instruments[0];
+    im.shaft_radius_mm = 0.25;
+    im.shaft_length_mm = 60.0;
+    im.marker_count = 1;
+    im.markers[0] = {1, Eigen::Vector3d(0, 0, 3), 0.5};
+    EyePose eye;
+    eye.centre_rig_mm = bodies.eye.centre_rig_mm;
+    eye.flags = kPoseOk;
+    // The eye's outline seen from the camera: a cone of half-angle asin(12 / 100) about +z.
+    const double outline_rad = std::asin(12.0 / 100.0);
+    auto place = [&](double distance_mm, double past_outline_radii) {
+        const double marker_rad = 0.5 / distance_mm;
+        const double a = outline_rad + past_outline_radii * marker_rad;
+        const Eigen::Vector3d centre = distance_mm * Eigen::Vector3d(std::sin(a), 0, std::cos(a));
+        std::array<InstrumentPose, 1> poses{};
+        const Eigen::Vector3d axis = Eigen::Vector3d::UnitY();  // the shaft across the line of sight, along the outline
+        poses[0].tip_rig_mm = centre - 3.0 * axis;
+        poses[0].axis_rig = axis;
+        poses[0].rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
+        poses[0].flags = kPoseOk;
+        Eigen::Vector2d px;
+        REQUIRE(project_point(cam, centre, px));
+        BlobBox b;
+        b.class_id = 1;
+        b.cx_px = px.x();
+        b.cy_px = 0.5 * px.y();
+        return std::make_pair(poses, b);
+    };
+    MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
+    // Behind the eye's outline (the outline's tangent points are 99.3 mm away), its centre 0.4 radii past it.
+    auto [behind, blob_behind] = place(105.0, 0.4);
+    const Eigen::Vector3d centre_behind = behind[0].tip_rig_mm + 3.0 * Eigen::Vector3d::UnitY();
+    REQUIRE((centre_behind - bodies.eye.centre_rig_mm).norm() > 12.5);  // outside the eye
+    source.update(eye, behind);
+    MarkerHint h;
+    REQUIRE(source.hint(0, blob_behind, h));
+    CHECK(h.radius_ratio == Approx(0.5));        // its own shaft, as before
+    REQUIRE(h.occluder_radius == Approx(24.0));  // the eye, in marker radii
+    CHECK(h.occluder_fixed);                     // it stands still in the image while the fit moves the marker
+    Eigen::Vector2d predicted_px;
+    REQUIRE(project_point(cam, centre_behind, predicted_px));
+    CHECK(h.centre_x_px == Approx(predicted_px.x()));
+    CHECK(h.centre_v_px == Approx(predicted_px.y()));
+    // Rig x (towards the eye's centre is −x) in the hint's view frame (MarkerHint: x, y across the line of sight).
+    const Eigen::Vector3d d = (centre_behind - cam.centre_rig_mm()).normalized();
+    const Eigen::Vector3d ex = d.unitOrthogonal(), ey = d.cross(ex);
+    const double ux = Eigen::Vector3d::UnitX().dot(ex), uy = Eigen::Vector3d::UnitX().dot(ey);
+    const double un = std::hypot(ux, uy);
+    // 0.9 radii from the centre towards the eye (past the outline, 0.4 radii that way): hidden; away from it: not
+    // (the shaft's band runs across, along rig y).
+    CHECK(hint_covers(h, -0.9 * ux / un, -0.9 * uy / un));
+    CHECK_FALSE(hint_covers(h, 0.9 * ux / un, 0.9 * uy / un));
+    CHECK_FALSE(hint_covers(h, -0.2 * ux / un, -0.2 * uy / un));  // short of the outline
+    // Not asked for (a source fitted without the eye's outline): the shaft alone.
+    MarkerHint shaft_only;
+    REQUIRE(source.hint(0, blob_behind, shaft_only, false));
+    CHECK(shaft_only.occluder_radius == 0);
+    CHECK(shaft_only.radius_ratio == Approx(0.5));
+    // In front of the eye at the same angle: the eye is behind it.
+    auto [front, blob_front] = place(80.0, 0.4);
+    source.update(eye, front);
+    REQUIRE(source.hint(0, blob_front, h));
+    CHECK(h.occluder_radius == 0);
+    // Clear of the outline by two radii, behind: nothing of the eye across the disc.
+    auto [beside, blob_beside] = place(105.0, 2.5);
+    source.update(eye, beside);
+    REQUIRE(source.hint(0, blob_beside, h));
+    CHECK(h.occluder_radius == 0);
+    // Without a measured eye pose the eye is not placed.
+    MarkerHintSource no_eye(std::span<const CameraGeometry>(&cam, 1), bodies);
+    no_eye.update(EyePose{}, behind);
+    REQUIRE(no_eye.hint(0, blob_behind, h));
+    CHECK(h.occluder_radius == 0);
 }

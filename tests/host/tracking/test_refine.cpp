@@ -305,18 +305,26 @@ TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma
 TEST_CASE("sphere fit: on DV video the wider shift gate takes fits the pipeline's centroid is further off than",
           "[tracking][rig][refine]") {
     // DV (lossy 4:2:0): the codec moves the pipeline's chroma-only centroid by ≈ 0.1 px, so the fit of a clear
-    // marker lands more than 0.15 px from it as often as not. The fits only the wider gate accepts must be closer
-    // to the rendered centroid than the pipeline's centroids they replace.
-    RigRecording written("eyesim_fit_dv_test", "sweep", 0.4, 1.0, 4, "dv");  // 20 fields, σ 1 DN
+    // marker lands more than 0.15 px from it as often as not. DVCPRO25 (lossy 4:1:1, one chroma sample in four
+    // columns): the pipeline's centroid is off twice as far in x as in y, and the gate reaches twice as far in x.
+    // The fits only the wider gate accepts must be closer to the rendered centroid than the pipeline's centroids
+    // they replace.
+    const std::string format = GENERATE(std::string("dv"), std::string("dv411"));
+    RigRecording written("eyesim_fit_" + format + "_test", "sweep", 0.4, 1.0, 4, format);  // 20 fields, σ 1 DN
     rig::Recording& rec = written.rec;
     REQUIRE(rec.format(0) == rig::StreamFormat::kVideo);
     const std::vector<rig::FieldTruth>& truth = written.truth;
     REQUIRE(truth.size() == 20);
 
-    const SphereFitConfig lossy = sphere_fit_config_for_source(rig_config(), "4:2:0", false);
+    const bool is411 = format == "dv411";
+    const SphereFitConfig lossy = sphere_fit_config_for_source(rig_config(), is411 ? "4:1:1" : "4:2:0", false);
     CHECK(lossy.max_shift_px == kLossyMaxShiftPx);
+    CHECK(lossy.shift_x_scale == (is411 ? 2.0 : 1.0));
     SphereFitConfig narrow = lossy;
-    narrow.max_shift_px = rig_config().max_shift_px;
+    if (is411)
+        narrow.shift_x_scale = 1.0;  // the 4:2:0 gate
+    else
+        narrow.max_shift_px = rig_config().max_shift_px;  // the camera's own gate
 
     auto work = std::make_unique<SphereFitWorkspace>();
     Pipeline p{RegisterMap{}};

@@ -61,7 +61,9 @@ public:
     /// The hint for `blob` of camera `camera` (its class, parity and centroid): the marker of its class predicted
     /// nearest, within kGatePx. An instrument marker's hint holds its shaft; an eye marker's the eye's sphere, and
     /// only where the eye hides part of it. False: no marker near, or nothing hides it (a plain fit).
-    bool hint(int camera, const BlobBox& blob, MarkerHint& out) const;
+    /// An instrument marker's occluding sphere is the eye where the eye hides part of it and `eye_in_front` (the
+    /// eye's outline crosses the patch: SphereFitConfig::hint_with_outline), else the nearest marker in front.
+    bool hint(int camera, const BlobBox& blob, MarkerHint& out, bool eye_in_front = true) const;
 
     /// What else the poses put in `blob`'s patch (camera `camera`), for the fit to leave out: the other instruments'
     /// shafts and the other markers within kForeignReachPx of the blob's marker, none in front of it where it

@@ -50,6 +50,12 @@ struct SphereFitConfig {
     double max_outlier_fraction = 0.3;     ///< observations a refit may leave out (0: no refit)
     double outlier_sigma = 4.0;            ///< residual (in σ) beyond which an observation is left out
     double max_shift_outliers_px = 0.06;   ///< max_shift_px for a fit that left observations out
+    double max_shift_hinted_px = 0.0;      ///< when > 0: max_shift_px for a fit with a MarkerHint
+    /// The shift gate's reach in x and in y as multiples of max_shift_px: the pipeline's chroma-only centroid is
+    /// that much less certain along a direction in which the source's chroma is coarser than the camera's 4:2:2
+    /// (4:1:1: 2 in x; 4:2:0, a chroma line for two field lines: 2 in y).
+    double shift_x_scale = 1.0;
+    double shift_y_scale = 1.0;
     double aperture_lines_px = 1.0;        ///< a pixel's height in frame px (1: one frame row; 2: a whole field line)
     /// Chroma σ (DN) when > 0, instead of noise_dn: for sources whose chroma is not the sensor's 4:2:2 (subsampled
     /// to 4:2:0 or 4:1:1 and upsampled again, or quantised by a lossy codec), which the model's full-resolution
@@ -95,6 +101,13 @@ struct MarkerHint {
     double occluder_view[3] = {0, 0, 0};
     double occluder_radius = 0;
     double view_distance = 0;
+    /// The occluding sphere stands still in the image (the eye: its centre is fixed in the rig and a sphere's
+    /// outline does not turn with it): occluder_view is about the marker's predicted centre, at (centre_x_px,
+    /// centre_v_px) frame px, and moves with the fit's centre by the difference. Otherwise (a neighbour on the same
+    /// shaft) it moves with the marker. A pose a field old can be a fraction of a marker off along its motion, which
+    /// at the eye's outline is most of the visible part.
+    bool occluder_fixed = false;
+    double centre_x_px = 0, centre_v_px = 0;
 };
 
 /// Another instrument's shaft in a blob's patch, as the poses predict its image there: a strip of half-width
@@ -135,10 +148,13 @@ bool hint_covers(const MarkerHint& hint, double qx, double qy);
 
 /// max_shift_px for a lossy source, whose pipeline centroid is itself ≈ 0.1 px off (the codec's chroma).
 inline constexpr double kLossyMaxShiftPx = 0.25;
+/// max_shift_hinted_px for a lossy source: a partly hidden marker's pipeline centroid is further off still.
+inline constexpr double kLossyMaxShiftHintedPx = 0.4;
 
 /// Chroma and luma σ, and the shift gate, of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1"
-/// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx).
-/// Raw or lossless 4:2:2 leaves `config` unchanged.
+/// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx and
+/// max_shift_hinted_px to kLossyMaxShiftHintedPx; subsampled chroma stretches the gate along its coarse
+/// direction; either fits hints beside the eye's outline). Raw or lossless 4:2:2 leaves `config` unchanged.
 SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
 /// Why a fit was refused (the pipeline's centroid then stands).
