@@ -1976,7 +1976,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     res.refusal = FitRefusal::kChi2;
     if (!(res.reduced_chi2 <= cfg.max_reduced_chi2)) return res;
     res.refusal = FitRefusal::kImplausible;
-    const bool sane = t[kR] > 0.5 && t[kR] < 2.0 * box_r + 2.0 && t[kA] > 0.2 && t[kA] < 5.0 &&
+    // A hint's radius comes from the pose (held by a prior): the blob's box, which is what the occluders left of
+    // the marker, bounds it no more (a marker 86 % behind the eye can be a one-column blob on video).
+    const double max_r = hint && hint->radius_px > 0 ? 1.5 * hint->radius_px + 1.0 : 2.0 * box_r + 2.0;
+    const bool sane = t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 &&
                       std::hypot(t[kE1], t[kE2]) < 0.3 &&
                       std::fabs(t[kX0] - x_start) < 1.5 && std::fabs(t[kV0] - v_start) < 2.0;
     if (!sane) return res;
