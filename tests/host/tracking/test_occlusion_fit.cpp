@@ -62,6 +62,42 @@ CameraGeometry straight_camera() {
     return cam;
 }
 
+// One straight instrument (a 0.25 mm shaft, 60 mm long) with 0.5 mm markers of classes 1, 2, … at `z_mm` along its
+// axis (body frame), as the only body of a BodySet.
+BodySet one_instrument(std::initializer_list<double> z_mm) {
+    BodySet bodies;
+    bodies.instrument_count = 1;
+    InstrumentModel& im = bodies.instruments[0];
+    im.shaft_radius_mm = 0.25;
+    im.shaft_length_mm = 60.0;
+    for (double z : z_mm) {
+        im.markers[static_cast<size_t>(im.marker_count)] = {static_cast<uint8_t>(im.marker_count + 1), Eigen::Vector3d(0, 0, z), 0.5};
+        ++im.marker_count;
+    }
+    return bodies;
+}
+
+// A measured instrument pose: the tip at `tip_rig_mm`, the shaft along the unit `axis` (tip → handle).
+InstrumentPose pose_along(const Eigen::Vector3d& tip_rig_mm, const Eigen::Vector3d& axis) {
+    InstrumentPose p;
+    p.tip_rig_mm = tip_rig_mm;
+    p.axis_rig = axis;
+    p.rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
+    p.flags = kPoseOk;
+    return p;
+}
+
+// A blob of class `class_id` whose centroid is the projection of `c_rig_mm` (field px).
+BlobBox blob_at(const CameraGeometry& cam, const Eigen::Vector3d& c_rig_mm, int class_id) {
+    Eigen::Vector2d px;
+    REQUIRE(project_point(cam, c_rig_mm, px));
+    BlobBox b;
+    b.class_id = class_id;
+    b.cx_px = px.x();
+    b.cy_px = 0.5 * px.y();
+    return b;
+}
+
 // The hint source of a recording's cameras and bodies.
 MarkerHintSource hint_source_of(const RigRecording& written) {
     const rig::Bodies bodies = rig::load_bodies(rig::default_bodies_path());
@@ -485,12 +521,7 @@ TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch
         place(poses[1], through - 20.0 * axis1.normalized(), axis1);
         source.update(EyePose{}, poses);
     };
-    Eigen::Vector2d px;
-    REQUIRE(project_point(cam, marker, px));
-    BlobBox blob;
-    blob.class_id = 1;
-    blob.cx_px = px.x();
-    blob.cy_px = 0.5 * px.y();
+    const BlobBox blob = blob_at(cam, marker, 1);
 
     crossing_at(3.0, 0.8);
     PatchMask mask;
@@ -510,7 +541,7 @@ TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch
     const double depth = (poses[1].tip_rig_mm + 20.0 * poses[1].axis_rig).dot(los);
     CHECK(fs.half_width_px == Approx(0.25 * 800.0 / depth + MarkerHintSource::kForeignMarginPx).epsilon(0.05));
     CHECK(mask.keep_radius_px == Approx(0.5 * 800.0 / marker.norm() - 1.0).epsilon(0.05));
-    CHECK(std::hypot(mask.keep_x_px - px.x(), mask.keep_v_px - px.y()) < 0.05);
+    CHECK(std::hypot(mask.keep_x_px - blob.cx_px, mask.keep_v_px - 2.0 * blob.cy_px) < 0.05);
 
     crossing_at(-3.0, 0.1);  // in front of the marker and across it: a foreign occluder, not modelled
     CHECK_FALSE(source.patch_mask(0, blob, mask));
@@ -580,37 +611,18 @@ TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, other
           "[tracking][refine]") {
     // Two markers of one instrument nearly along a camera's line of sight (the shaft seen end-on), a third beside.
     const CameraGeometry cam = straight_camera();
-    BodySet bodies;
-    bodies.instrument_count = 1;
-    InstrumentModel& im = bodies.instruments[0];
-    im.shaft_radius_mm = 0.25;
-    im.shaft_length_mm = 60.0;
-    im.marker_count = 3;
-    im.markers[0] = {1, Eigen::Vector3d(0, 0, 3), 0.5};
-    im.markers[1] = {2, Eigen::Vector3d(0, 0, 4), 0.5};
-    im.markers[2] = {3, Eigen::Vector3d(0, 0, 8), 0.5};
+    BodySet bodies = one_instrument({3, 4, 8});
+    const InstrumentModel& im = bodies.instruments[0];
     MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
-    std::array<InstrumentPose, 1> poses{};
     // The shaft points towards the camera, tilted so that each marker is 0.5 mm across the line of sight from the
     // one before it along the shaft (its image a radius away): marker 1 is behind marker 0.
     const Eigen::Vector3d axis = Eigen::Vector3d(0.5, 0.0, -1.0).normalized();
-    poses[0].tip_rig_mm = Eigen::Vector3d(0, 0, 120) - 3.0 * axis;
-    poses[0].axis_rig = axis;
-    poses[0].rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
-    poses[0].flags = kPoseOk;
+    std::array<InstrumentPose, 1> poses{pose_along(Eigen::Vector3d(0, 0, 120) - 3.0 * axis, axis)};
     source.update(EyePose{}, poses);
     auto centre = [&](int m) -> Eigen::Vector3d {
         return poses[0].tip_rig_mm + poses[0].rotation_body_to_rig * im.markers[static_cast<size_t>(m)].pos_body_mm;
     };
-    auto blob_of = [&](int m) {
-        Eigen::Vector2d px;
-        REQUIRE(project_point(cam, centre(m), px));
-        BlobBox b;
-        b.class_id = im.markers[static_cast<size_t>(m)].colour_class;
-        b.cx_px = px.x();
-        b.cy_px = 0.5 * px.y();
-        return b;
-    };
+    auto blob_of = [&](int m) { return blob_at(cam, centre(m), im.markers[static_cast<size_t>(m)].colour_class); };
     // The axis runs from the tip towards the camera: marker 1 (further along it) is in front of marker 0.
     REQUIRE((centre(1) - cam.centre_rig_mm()).norm() < (centre(0) - cam.centre_rig_mm()).norm());
     MarkerHint h0, h1;
@@ -650,15 +662,9 @@ TEST_CASE("the eye in front of part of an instrument marker is the hint's occlud
     // hides the side of its disc towards the eye's centre. The same marker nearer the camera than the eye: nothing
     // hides it.
     const CameraGeometry cam = straight_camera();
-    BodySet bodies;
+    BodySet bodies = one_instrument({3});
     bodies.eye.centre_rig_mm = Eigen::Vector3d(0, 0, 100);
     bodies.eye.radius_mm = 12.0;
-    bodies.instrument_count = 1;
-    InstrumentModel& im = bodies.instruments[0];
-    im.shaft_radius_mm = 0.25;
-    im.shaft_length_mm = 60.0;
-    im.marker_count = 1;
-    im.markers[0] = {1, Eigen::Vector3d(0, 0, 3), 0.5};
     EyePose eye;
     eye.centre_rig_mm = bodies.eye.centre_rig_mm;
     eye.flags = kPoseOk;
@@ -668,19 +674,9 @@ TEST_CASE("the eye in front of part of an instrument marker is the hint's occlud
         const double marker_rad = 0.5 / distance_mm;
         const double a = outline_rad + past_outline_radii * marker_rad;
         const Eigen::Vector3d centre = distance_mm * Eigen::Vector3d(std::sin(a), 0, std::cos(a));
-        std::array<InstrumentPose, 1> poses{};
         const Eigen::Vector3d axis = Eigen::Vector3d::UnitY();  // the shaft across the line of sight, along the outline
-        poses[0].tip_rig_mm = centre - 3.0 * axis;
-        poses[0].axis_rig = axis;
-        poses[0].rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis);
-        poses[0].flags = kPoseOk;
-        Eigen::Vector2d px;
-        REQUIRE(project_point(cam, centre, px));
-        BlobBox b;
-        b.class_id = 1;
-        b.cx_px = px.x();
-        b.cy_px = 0.5 * px.y();
-        return std::make_pair(poses, b);
+        std::array<InstrumentPose, 1> poses{pose_along(centre - 3.0 * axis, axis)};
+        return std::make_pair(poses, blob_at(cam, centre, 1));
     };
     MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
     // Behind the eye's outline (the outline's tangent points are 99.3 mm away), its centre 0.4 radii past it.
