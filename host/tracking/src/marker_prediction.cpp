@@ -243,15 +243,16 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
     // keeps the occluder where the image has it (occluder_fixed). Only for sources whose pipeline centroid the
     // eye's outline spoils (hint_with_outline): on raw fields the pipeline's is as good there (2 s sweeps, seeds
     // 1–4: equal on three, 0.0296 → 0.0303 px over all blobs on seed 2).
+    Eigen::Vector3d ex, ey, d;
+    view_axes(cam, centre, ex, ey, d);
     if (eye_in_front && eye_age_ <= kMaxAgeFrames) {
-        Eigen::Vector3d ex, ey, d;
-        view_axes(cam, centre, ex, ey, d);
-        MarkerHint eye_only = out;
+        MarkerHint with_eye = out;
+        set_sphere_occluder(ex, ey, d, centre, radius_mm, eye_.centre_rig_mm, bodies_.eye.radius_mm, with_eye);
+        with_eye.occluder_fixed = true;
+        MarkerHint eye_only = with_eye;
         eye_only.radius_ratio = 0;
-        set_sphere_occluder(ex, ey, d, centre, radius_mm, eye_.centre_rig_mm, bodies_.eye.radius_mm, eye_only);
         if (disc_rim_covered(eye_only)) {
-            set_sphere_occluder(ex, ey, d, centre, radius_mm, eye_.centre_rig_mm, bodies_.eye.radius_mm, out);
-            out.occluder_fixed = true;
+            out = with_eye;
             return true;
         }
     }
@@ -260,8 +261,7 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
     // occluding sphere.
     const Eigen::Vector3d cam_c = cam.centre_rig_mm();
     const double depth = (centre - cam_c).norm();
-    Eigen::Vector2d px;
-    if (!project_point(cam, centre, px)) return true;
+    const Eigen::Vector2d px(out.centre_x_px, out.centre_v_px);  // the view frame's projection of the centre
     double best = HUGE_VAL;
     Eigen::Vector3d occ_c;
     double occ_r_mm = 0;
@@ -277,11 +277,7 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
         occ_c = c;
         occ_r_mm = bm.radius_mm;
     });
-    if (occ_r_mm > 0) {
-        Eigen::Vector3d ex, ey, d;
-        view_axes(cam, centre, ex, ey, d);
-        set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out);
-    }
+    if (occ_r_mm > 0) set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out);
     return true;
 }
 

@@ -413,6 +413,12 @@ MarkerHint hint_at(const MarkerHint& hint, const OutlineNorm& nm, double x0, dou
     return h;
 }
 
+// A fit's centroid offset from the pipeline's in units of the shift gate's reach along x and y (SphereFitConfig::
+// shift_x_scale, shift_y_scale): compared with max_shift_px.
+double gate_distance(const SphereFitConfig& cfg, double dx_px, double dy_px) {
+    return std::hypot(dx_px / cfg.shift_x_scale, dy_px / cfg.shift_y_scale);
+}
+
 // The occluders' images are at least two pixels across (a shaft's band; the eye's rim is nearly straight at this
 // scale), so samples one pixel apart cannot pass between their edges: the tests below look at box corners only.
 
@@ -1954,9 +1960,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
             if (too_many) break;
             solve(cfg.max_iterations, true);
             // A refit whose centre is this far from the pipeline's will not come within max_shift_outliers_px.
-            if (std::hypot((t[kX0] - cx0) / cfg.shift_x_scale, 0.5 * (t[kV0] - p.vc) / cfg.shift_y_scale) >
-                4.0 * cfg.max_shift_outliers_px)
-                break;
+            if (gate_distance(cfg, t[kX0] - cx0, 0.5 * (t[kV0] - p.vc)) > 4.0 * cfg.max_shift_outliers_px) break;
         }
         // Only a band through the marker is a shaft; left-out pixels on one side (an eye limb the background
         // model cannot follow) or all round it are not mended by leaving them out.
@@ -2003,7 +2007,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // their chroma spread across the occluder's edge): the gate widens as the visible share shrinks.
     const double gate = hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px;
     const double max_shift = (res.outliers > 0 ? cfg.max_shift_outliers_px : gate) / std::max(0.3, visible);
-    if (std::hypot((res.cx_px - cx0) / cfg.shift_x_scale, (res.cy_px - cy0) / cfg.shift_y_scale) > max_shift) return res;
+    if (gate_distance(cfg, res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
     res.refusal = FitRefusal::kNone;
     res.ok = true;
     return res;

@@ -62,17 +62,20 @@ CameraGeometry straight_camera() {
     return cam;
 }
 
-// One straight instrument (a 0.25 mm shaft, 60 mm long) with 0.5 mm markers of classes 1, 2, … at `z_mm` along its
-// axis (body frame), as the only body of a BodySet.
-BodySet one_instrument(std::initializer_list<double> z_mm) {
+// `count` straight instruments (a 0.25 mm shaft, 60 mm long), each with markers of `marker_radius_mm` at `z_mm`
+// along its axis (body frame): marker k of instrument b has class 1 + k + b · `class_step`.
+BodySet straight_instruments(int count, std::initializer_list<double> z_mm, double marker_radius_mm = 0.5,
+                             int class_step = 0) {
     BodySet bodies;
-    bodies.instrument_count = 1;
-    InstrumentModel& im = bodies.instruments[0];
-    im.shaft_radius_mm = 0.25;
-    im.shaft_length_mm = 60.0;
-    for (double z : z_mm) {
-        im.markers[static_cast<size_t>(im.marker_count)] = {static_cast<uint8_t>(im.marker_count + 1), Eigen::Vector3d(0, 0, z), 0.5};
-        ++im.marker_count;
+    bodies.instrument_count = count;
+    for (int b = 0; b < count; ++b) {
+        InstrumentModel& im = bodies.instruments[static_cast<size_t>(b)];
+        im.shaft_radius_mm = 0.25;
+        im.shaft_length_mm = 60.0;
+        for (double z : z_mm) {
+            const auto cls = static_cast<uint8_t>(1 + im.marker_count + b * class_step);
+            im.markers[static_cast<size_t>(im.marker_count++)] = {cls, Eigen::Vector3d(0, 0, z), marker_radius_mm};
+        }
     }
     return bodies;
 }
@@ -387,15 +390,7 @@ TEST_CASE("occlusion-aware fit: markers their shaft or the eye partly hides, raw
 TEST_CASE("marker hints: the nearest predicted marker of the blob's class, within the gate, while the pose is fresh",
           "[tracking][refine]") {
     const CameraGeometry cam = straight_camera();
-    BodySet bodies;
-    bodies.instrument_count = 2;
-    for (int b = 0; b < 2; ++b) {
-        InstrumentModel& im = bodies.instruments[static_cast<size_t>(b)];
-        im.shaft_radius_mm = 0.25;
-        im.marker_count = 2;
-        im.markers[0] = {1, Eigen::Vector3d(0, 0, 5), 0.7};
-        im.markers[1] = {2, Eigen::Vector3d(0, 0, 10), 0.7};
-    }
+    const BodySet bodies = straight_instruments(2, {5, 10}, 0.7);
     MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
     std::array<InstrumentPose, 2> poses{};
     const Eigen::Vector3d axis = Eigen::Vector3d(0.4, 0.2, -0.9).normalized();
@@ -493,15 +488,7 @@ TEST_CASE("foreign shafts: the strip test against boxes beside, across and off t
 TEST_CASE("foreign shafts: another instrument's shaft placed in a marker's patch from its pose", "[tracking][refine]") {
     // A camera looking down +z; instrument 0's marker 120 mm away, instrument 1's shaft passing beside it.
     const CameraGeometry cam = straight_camera();
-    BodySet bodies;
-    bodies.instrument_count = 2;
-    for (int b = 0; b < 2; ++b) {
-        InstrumentModel& im = bodies.instruments[static_cast<size_t>(b)];
-        im.shaft_radius_mm = 0.25;
-        im.shaft_length_mm = 60.0;
-        im.marker_count = 1;
-        im.markers[0] = {static_cast<uint8_t>(1 + b), Eigen::Vector3d(0, 0, 5), 0.5};
-    }
+    const BodySet bodies = straight_instruments(2, {5}, 0.5, 1);
     MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
     std::array<InstrumentPose, 2> poses{};
     auto place = [&](InstrumentPose& p, const Eigen::Vector3d& tip, const Eigen::Vector3d& axis) {
@@ -611,7 +598,7 @@ TEST_CASE("neighbour markers: one in front is the hint's occluding sphere, other
           "[tracking][refine]") {
     // Two markers of one instrument nearly along a camera's line of sight (the shaft seen end-on), a third beside.
     const CameraGeometry cam = straight_camera();
-    BodySet bodies = one_instrument({3, 4, 8});
+    BodySet bodies = straight_instruments(1, {3, 4, 8});
     const InstrumentModel& im = bodies.instruments[0];
     MarkerHintSource source(std::span<const CameraGeometry>(&cam, 1), bodies);
     // The shaft points towards the camera, tilted so that each marker is 0.5 mm across the line of sight from the
@@ -662,7 +649,7 @@ TEST_CASE("the eye in front of part of an instrument marker is the hint's occlud
     // hides the side of its disc towards the eye's centre. The same marker nearer the camera than the eye: nothing
     // hides it.
     const CameraGeometry cam = straight_camera();
-    BodySet bodies = one_instrument({3});
+    BodySet bodies = straight_instruments(1, {3});
     bodies.eye.centre_rig_mm = Eigen::Vector3d(0, 0, 100);
     bodies.eye.radius_mm = 12.0;
     EyePose eye;
