@@ -32,11 +32,15 @@ BlobRefiner::BlobRefiner(const tracking::SphereFitConfig& config)
     : config_(config), work_(std::make_unique<tracking::SphereFitWorkspace>()) {}
 
 int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob>& blobs, int camera) {
+    boxes_.clear();
+    for (const fpga::Blob& b : blobs) boxes_.push_back(tracking::blob_box(b));
+    tracking::mark_foreign_overlaps(boxes_);
     int refined = 0;
-    for (fpga::Blob& b : blobs) {
+    for (std::size_t i = 0; i < blobs.size(); ++i) {
+        fpga::Blob& b = blobs[i];
         bool hinted = false;
-        const tracking::SphereFitResult r = tracking::MarkerHintSource::fit(
-            hints_, field, height, tracking::blob_box(b), camera, config_, *work_, hinted);
+        const tracking::SphereFitResult r =
+            tracking::MarkerHintSource::fit(hints_, field, height, boxes_[i], camera, config_, *work_, hinted);
         hinted_fits_ += hinted;
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];

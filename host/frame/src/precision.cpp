@@ -102,14 +102,14 @@ void PatchRefiner::on_patch(const proto::BlobPatch& fragment) {
         const int k = int(p->blob_index - h.first_blob);
         if (!((h.waiting >> k) & 1)) break;  // a second patch for the marker, or one not asked for
         h.waiting = std::uint16_t(h.waiting & ~(1u << k));
-        refine(h.part.markers[std::size_t(k)], *p);
+        refine(cam, h.part.markers[std::size_t(k)], *p);
         release_ready(cam);
         return;
     }
     ++stats_.unmatched;
 }
 
-void PatchRefiner::refine(proto::Marker& m, const transport::AssembledPatch& p) {
+void PatchRefiner::refine(const Camera& cam, proto::Marker& m, const transport::AssembledPatch& p) {
     // The patch at its field coordinates (the fit indexes the field); its bounds were checked by the codec.
     const std::size_t stride = std::size_t(2) * proto::kPatchFieldWidthPx;
     const std::size_t row_bytes = std::size_t(2) * p.width_px;
@@ -125,6 +125,20 @@ void PatchRefiner::refine(proto::Marker& m, const transport::AssembledPatch& p) 
     box.y_max = m.bbox_y1;
     box.cx_px = double(m.x_q16) / 65536.0;
     box.cy_px = double(m.y_q16) / 65536.0;
+    // Another class's marker of the field overlapping its box (tracking::BlobBox::foreign_overlap), among those
+    // held here: a neighbour emitted later, or already released, is not seen.
+    for (int i = 0; i < cam.count && !box.foreign_overlap; ++i) {
+        const Held& h = cam.held[std::size_t((cam.head + i) % kMaxHeld)];
+        if (h.part.field_counter != p.field_counter) continue;
+        for (int k = 0; k < h.part.marker_count; ++k) {
+            const proto::Marker& o = h.part.markers[std::size_t(k)];
+            if (o.colour_class != m.colour_class && o.bbox_x0 <= box.x_max && box.x_min <= o.bbox_x1 &&
+                o.bbox_y0 <= box.y_max && box.y_min <= o.bbox_y1) {
+                box.foreign_overlap = true;
+                break;
+            }
+        }
+    }
     // The fit reads only the box and its margin: it must lie inside the patch.
     const int fx0 = std::max(1, box.x_min - config_.margin_px);
     const int fx1 = std::min(int(proto::kPatchFieldWidthPx) - 2, box.x_max + config_.margin_px);

@@ -70,12 +70,13 @@ void view_axes(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, 
 // the marker at `centre_rig_mm`: centre and radius in marker radii.
 void set_sphere_occluder(const Eigen::Vector3d& ex, const Eigen::Vector3d& ey, const Eigen::Vector3d& d,
                          const Eigen::Vector3d& centre_rig_mm, double radius_mm, const Eigen::Vector3d& occ_centre_rig_mm,
-                         double occ_radius_mm, MarkerHint& out) {
+                         double occ_radius_mm, MarkerHint& out, bool second = false) {
     const Eigen::Vector3d e = (occ_centre_rig_mm - centre_rig_mm) / radius_mm;
-    out.occluder_view[0] = e.dot(ex);
-    out.occluder_view[1] = e.dot(ey);
-    out.occluder_view[2] = e.dot(d);
-    out.occluder_radius = occ_radius_mm / radius_mm;
+    double* view = second ? out.occluder2_view : out.occluder_view;
+    view[0] = e.dot(ex);
+    view[1] = e.dot(ey);
+    view[2] = e.dot(d);
+    (second ? out.occluder2_radius : out.occluder_radius) = occ_radius_mm / radius_mm;
 }
 
 // The hint's view frame for a marker: outline prior and the map from frame px to marker radii; `ex`, `ey`, `d`
@@ -237,14 +238,40 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
     const Eigen::Vector3d axis = pose.rotation_body_to_rig * im.axis_body;
     const double radius_mm = im.markers[static_cast<std::size_t>(m)].radius_mm;
     if (!predict_shaft_hint(cam, centre, radius_mm, axis, im.shaft_radius_mm, out)) return false;
+    Eigen::Vector3d ex, ey, d;
+    view_axes(cam, centre, ex, ey, d);
+    // Another marker nearer the camera with its image in the patch (markers along a shaft seen near its axis: it
+    // may hide part of this one, and its pixels are not the background): the nearest such one; `eye_markers`: the
+    // eye's markers count too.
+    const Eigen::Vector3d cam_c = cam.centre_rig_mm();
+    const double depth = (centre - cam_c).norm();
+    const Eigen::Vector2d px(out.centre_x_px, out.centre_v_px);  // the view frame's projection of the centre
+    int occ_body = 0;
+    Eigen::Vector3d occ_c;
+    double occ_r_mm = 0;
+    auto nearest_in_front = [&](bool eye_markers) {
+        double best = HUGE_VAL;
+        occ_r_mm = 0;
+        for_each_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
+            if ((ob < 0 && !eye_markers) || (ob == b && om_i == m)) return;
+            const double sep = (c - centre).norm();
+            Eigen::Vector2d opx;
+            if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx)) return;
+            // Its image's edge within the patch's reach (radii from the outline prediction's scale).
+            const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
+            if ((opx - px).norm() - r_px - or_px > kForeignReachPx) return;
+            best = sep;
+            occ_body = ob;
+            occ_c = c;
+            occ_r_mm = bm.radius_mm;
+        });
+    };
     // The eye in front of part of the marker (a marker outside the eye seen past its outline): the eye is the
     // occluding sphere, the largest thing across a marker the poses place. Its outline stands still in the image
     // (the eye's centre is fixed in the rig) while the marker's predicted place is a pose a field old: the fit
     // keeps the occluder where the image has it (occluder_fixed). Only for sources whose pipeline centroid the
     // eye's outline spoils (hint_with_outline): on raw fields the pipeline's is as good there (2 s sweeps, seeds
     // 1–4: equal on three, 0.0296 → 0.0303 px over all blobs on seed 2).
-    Eigen::Vector3d ex, ey, d;
-    view_axes(cam, centre, ex, ey, d);
     if (eye_in_front && eye_age_ <= kMaxAgeFrames) {
         MarkerHint with_eye = out;
         set_sphere_occluder(ex, ey, d, centre, radius_mm, eye_.centre_rig_mm, bodies_.eye.radius_mm, with_eye);
@@ -253,30 +280,17 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
         eye_only.radius_ratio = 0;
         if (disc_rim_covered(eye_only)) {
             out = with_eye;
+            // A marker in front across it as well (an eye marker at the outline, where the eye hides the rest: sweep
+            // seed 6): the second occluder, kept where the image has it when it is on another body.
+            nearest_in_front(true);
+            if (occ_r_mm > 0) {
+                set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out, true);
+                out.occluder2_fixed = occ_body != b;
+            }
             return true;
         }
     }
-    // Another marker nearer the camera with its image in the patch (markers along a shaft seen near its axis: it
-    // may hide part of this one, and its pixels are not the background): the nearest such one is the hint's
-    // occluding sphere.
-    const Eigen::Vector3d cam_c = cam.centre_rig_mm();
-    const double depth = (centre - cam_c).norm();
-    const Eigen::Vector2d px(out.centre_x_px, out.centre_v_px);  // the view frame's projection of the centre
-    double best = HUGE_VAL;
-    Eigen::Vector3d occ_c;
-    double occ_r_mm = 0;
-    for_each_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
-        if (ob < 0 || (ob == b && om_i == m)) return;
-        const double sep = (c - centre).norm();
-        Eigen::Vector2d opx;
-        if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx)) return;
-        // Its image's edge within the patch's reach (radii from the outline prediction's scale).
-        const double r_px = out.radius_px, or_px = out.radius_px * bm.radius_mm / radius_mm * depth / (c - cam_c).norm();
-        if ((opx - px).norm() - r_px - or_px > kForeignReachPx) return;
-        best = sep;
-        occ_c = c;
-        occ_r_mm = bm.radius_mm;
-    });
+    nearest_in_front(false);
     if (occ_r_mm > 0) set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out);
     return true;
 }

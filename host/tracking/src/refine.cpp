@@ -76,24 +76,36 @@ bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double h
     return box_within(dx, dv, hx, hv, shaft.half_width_px);
 }
 
+namespace {
+
+// Whether the ray of (qx, qy) from the camera at (0, 0, −l) meets the sphere about `o` (radius `r`) before the
+// marker (centre 0, radius 1), or meets it where it misses the marker; all in marker radii, view frame.
+bool sphere_hides(const double o[3], double r, double l, double qx, double qy) {
+    // The ray (0, 0, −L) + t·(qx, qy, L).
+    const double dx = qx, dy = qy, dz = l;
+    const double a2 = dx * dx + dy * dy + dz * dz;
+    const double ox = -o[0], oy = -o[1], oz = -l - o[2];
+    const double b = ox * dx + oy * dy + oz * dz, c0 = ox * ox + oy * oy + oz * oz - r * r;
+    const double disc_o = b * b - a2 * c0;
+    if (disc_o < 0) return false;
+    const double t_occ = (-b - std::sqrt(disc_o)) / a2;
+    const double bm = -l * dz, cm = l * l - 1.0, disc_m = bm * bm - a2 * cm;
+    return t_occ > 0 && (disc_m < 0 || t_occ < (-bm - std::sqrt(disc_m)) / a2);
+}
+
+}  // namespace
+
 bool hint_covers(const MarkerHint& hint, double qx, double qy) {
     // In units of the sphere's radius about its centre, view frame (z away from the camera): the ray of q is
     // (qx, qy, z); the sphere's near surface is at z = −√(1 − q²); the shaft is every point within ρ of the axis a:
     // (1 − a_z²)·z² − 2·s·a_z·z + q² − s² − ρ² ≤ 0 with s = q·(a_x, a_y).
     const double q2 = qx * qx + qy * qy;
-    if (hint.occluder_radius > 0 && hint.view_distance > 0) {
-        // The ray from the camera at (0, 0, −L) through (qx, qy, 0): (0, 0, −L) + t·(qx, qy, L). Hidden where it
-        // meets the occluding sphere before the marker (or misses the marker).
-        const double l = hint.view_distance, dx = qx, dy = qy, dz = l;
-        const double a2 = dx * dx + dy * dy + dz * dz;
-        const double ox = -hint.occluder_view[0], oy = -hint.occluder_view[1], oz = -l - hint.occluder_view[2];
-        const double b = ox * dx + oy * dy + oz * dz, c0 = ox * ox + oy * oy + oz * oz - hint.occluder_radius * hint.occluder_radius;
-        const double disc_o = b * b - a2 * c0;
-        if (disc_o >= 0) {
-            const double t_occ = (-b - std::sqrt(disc_o)) / a2;
-            const double bm = -l * dz, cm = l * l - 1.0, disc_m = bm * bm - a2 * cm;  // the marker: centre 0, radius 1
-            if (t_occ > 0 && (disc_m < 0 || t_occ < (-bm - std::sqrt(disc_m)) / a2)) return true;
-        }
+    if (hint.view_distance > 0) {
+        if (hint.occluder_radius > 0 && sphere_hides(hint.occluder_view, hint.occluder_radius, hint.view_distance, qx, qy))
+            return true;
+        if (hint.occluder2_radius > 0 &&
+            sphere_hides(hint.occluder2_view, hint.occluder2_radius, hint.view_distance, qx, qy))
+            return true;
     }
     if (!(hint.radius_ratio > 0)) return false;
     const double ax = hint.axis_view[0], ay = hint.axis_view[1], az = hint.axis_view[2], rho = hint.radius_ratio;
@@ -103,6 +115,18 @@ bool hint_covers(const MarkerHint& hint, double qx, double qy) {
     if (disc < 0) return false;  // the ray passes beside the shaft
     if (q2 >= 1.0) return true;
     return (s * az - std::sqrt(disc)) / a < -std::sqrt(1.0 - q2);
+}
+
+void mark_foreign_overlaps(std::span<BlobBox> boxes) {
+    for (BlobBox& b : boxes) {
+        b.foreign_overlap = false;
+        for (const BlobBox& o : boxes)
+            if (o.class_id != b.class_id && o.x_min <= b.x_max && b.x_min <= o.x_max && o.y_min <= b.y_max &&
+                b.y_min <= o.y_max) {
+                b.foreign_overlap = true;
+                break;
+            }
+    }
 }
 
 namespace {
@@ -404,11 +428,18 @@ struct OutlineNorm {
 // image, so about the fitted centre it is displaced by the fitted centre's offset from the predicted one.
 MarkerHint hint_at(const MarkerHint& hint, const OutlineNorm& nm, double x0, double v0) {
     MarkerHint h = hint;
-    if (h.occluder_fixed && h.occluder_radius > 0) {
+    const bool fixed1 = h.occluder_fixed && h.occluder_radius > 0, fixed2 = h.occluder2_fixed && h.occluder2_radius > 0;
+    if (fixed1 || fixed2) {
         double qx, qy;
         nm(x0 - h.centre_x_px, v0 - h.centre_v_px, qx, qy);
-        h.occluder_view[0] -= qx;
-        h.occluder_view[1] -= qy;
+        if (fixed1) {
+            h.occluder_view[0] -= qx;
+            h.occluder_view[1] -= qy;
+        }
+        if (fixed2) {
+            h.occluder2_view[0] -= qx;
+            h.occluder2_view[1] -= qy;
+        }
     }
     return h;
 }
@@ -1983,9 +2014,12 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // A hint's radius comes from the pose (held by a prior): the blob's box, which is what the occluders left of
     // the marker, bounds it no more (a marker 86 % behind the eye can be a one-column blob on video).
     const double max_r = hint && hint->radius_px > 0 ? 1.5 * hint->radius_px + 1.0 : 2.0 * box_r + 2.0;
+    // The centre near where it started, or with a hint near the pose's prediction where another class's blob
+    // overlaps this one (BlobBox::foreign_overlap): its chroma spoiled the moments the start came from.
+    auto near = [&](double x, double v) { return std::fabs(t[kX0] - x) < 1.5 && std::fabs(t[kV0] - v) < 2.0; };
     const bool sane = t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 &&
                       std::hypot(t[kE1], t[kE2]) < 0.3 &&
-                      std::fabs(t[kX0] - x_start) < 1.5 && std::fabs(t[kV0] - v_start) < 2.0;
+                      (near(x_start, v_start) || (hint && blob.foreign_overlap && near(hint->centre_x_px, hint->centre_v_px)));
     if (!sane) return res;
     res.hinted = hint != nullptr;
     double visible = 1.0;  // the share of the marker's light the hint's occluders leave
@@ -2005,7 +2039,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     res.refusal = FitRefusal::kShift;
     // The pipeline's centroid of a marker mostly hidden is itself off by up to a few tenths of a pixel (few pixels,
     // their chroma spread across the occluder's edge): the gate widens as the visible share shrinks.
-    const double gate = hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px;
+    const double gate = (hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px) *
+                        (blob.foreign_overlap ? kForeignOverlapGateScale : 1.0);
     const double max_shift = (res.outliers > 0 ? cfg.max_shift_outliers_px : gate) / std::max(0.3, visible);
     if (gate_distance(cfg, res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
     res.refusal = FitRefusal::kNone;

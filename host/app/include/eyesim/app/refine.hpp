@@ -53,6 +53,7 @@ private:
     std::array<int64_t, tracking::kFitRefusalCount> refusals_{};
     const tracking::MarkerHintSource* hints_ = nullptr;
     int64_t hinted_fits_ = 0;
+    std::vector<tracking::BlobBox> boxes_;  // the field's blobs as the fit takes them (reused)
 };
 
 }  // namespace eyesim::app

@@ -89,7 +89,7 @@ private:
     };
     void release_ready(Camera& cam);
     void release_front(Camera& cam);
-    void refine(protocol::Marker& m, const transport::AssembledPatch& p);
+    void refine(const Camera& cam, protocol::Marker& m, const transport::AssembledPatch& p);
 
     tracking::SphereFitConfig config_;
     std::uint8_t mask_;

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <array>
+#include <span>
 #include <cstdint>
 
 namespace eyesim::tracking {
@@ -108,6 +109,12 @@ struct MarkerHint {
     /// at the eye's outline is most of the visible part.
     bool occluder_fixed = false;
     double centre_x_px = 0, centre_v_px = 0;
+    /// A second occluding sphere, as the first: a marker nearer the camera across this one where the eye is the
+    /// first (an eye marker at the outline in front of an instrument marker the eye also hides). occluder2_fixed:
+    /// it stays where the image has it (a marker of another body). occluder2_radius 0: none.
+    double occluder2_view[3] = {0, 0, 0};
+    double occluder2_radius = 0;
+    bool occluder2_fixed = false;
 };
 
 /// Another instrument's shaft in a blob's patch, as the poses predict its image there: a strip of half-width
@@ -222,13 +229,25 @@ struct BlobBox {
     int x_min = 0, x_max = -1;               ///< bounding box, inclusive columns
     int y_min = 0, y_max = -1;               ///< bounding box, inclusive field lines
     double cx_px = 0, cy_px = 0;             ///< the pipeline's centroid (field px)
+    /// Another class's blob box overlaps this one's (mark_foreign_overlaps): that marker's chroma, spread across
+    /// the border between them (most on subsampled video), took or added pixels to the pipeline's blob, whose
+    /// centroid and moments are then off by more (sweep seed 6, 4:1:1: an eye marker across a light-pipe marker,
+    /// 0.7 and 2.3 px). The fit's shift gate is kForeignOverlapGateScale wider, and a hinted fit's centre may be
+    /// near the pose's prediction instead of near where the moments started it.
+    bool foreign_overlap = false;
 };
+
+/// The shift gate's factor for a blob with BlobBox::foreign_overlap.
+inline constexpr double kForeignOverlapGateScale = 2.0;
 
 /// The BlobBox of any blob type with the pipeline blob's fields (fpga::Blob).
 template <class B>
 BlobBox blob_box(const B& b) {
-    return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px()};
+    return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px(), false};
 }
+
+/// Sets BlobBox::foreign_overlap of each of `boxes` (one field's blobs): whether another class's box overlaps it.
+void mark_foreign_overlaps(std::span<BlobBox> boxes);
 
 /// Fits the blob's marker in `field` (UYVY, 720 × `height` lines). The field must hold the blob's lines and
 /// `margin_lines` more either side where the image has them.
