@@ -132,8 +132,13 @@ void PatchRefiner::refine(const Camera& cam, proto::Marker& m, const transport::
         if (h.part.field_counter != p.field_counter) continue;
         for (int k = 0; k < h.part.marker_count; ++k) {
             const proto::Marker& o = h.part.markers[std::size_t(k)];
-            if (o.colour_class != m.colour_class && o.bbox_x0 <= box.x_max && box.x_min <= o.bbox_x1 &&
-                o.bbox_y0 <= box.y_max && box.y_min <= o.bbox_y1) {
+            tracking::BlobBox ob;
+            ob.class_id = o.colour_class;
+            ob.x_min = o.bbox_x0;
+            ob.x_max = o.bbox_x1;
+            ob.y_min = o.bbox_y0;
+            ob.y_max = o.bbox_y1;
+            if (tracking::foreign_overlap(ob, box)) {
                 box.foreign_overlap = true;
                 break;
             }

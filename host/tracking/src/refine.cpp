@@ -121,8 +121,7 @@ void mark_foreign_overlaps(std::span<BlobBox> boxes) {
     for (BlobBox& b : boxes) {
         b.foreign_overlap = false;
         for (const BlobBox& o : boxes)
-            if (o.class_id != b.class_id && o.x_min <= b.x_max && b.x_min <= o.x_max && o.y_min <= b.y_max &&
-                b.y_min <= o.y_max) {
+            if (foreign_overlap(o, b)) {
                 b.foreign_overlap = true;
                 break;
             }

@@ -112,6 +112,21 @@ MarkerHintSource hint_source_of(const RigRecording& written) {
     return MarkerHintSource(cams, body_set(bodies, scene));
 }
 
+// A 0.4 s (20-field) `sweep` recording of `seed` in video `format`, the fit configured for its `chroma` (lossy), the
+// hint source of its cameras and instruments, a workspace and a field buffer.
+struct VideoFitCase {
+    RigRecording written;
+    SphereFitConfig cfg;
+    MarkerHintSource source;
+    std::unique_ptr<SphereFitWorkspace> work = std::make_unique<SphereFitWorkspace>();
+    Field f{rig::kFieldHeight};
+    VideoFitCase(const std::string& name, uint64_t seed, const std::string& format, const char* chroma)
+        : written(name, "sweep", 0.4, 1.0, seed, format),
+          cfg(sphere_fit_config_for_source(rig_config(), chroma, false)), source(hint_source_of(written)) {
+        REQUIRE(written.truth.size() == 20);
+    }
+};
+
 // Each of the first `fields` fields of every camera through the pipeline, `source` updated first with the field's
 // true poses; on_match(field, camera, blob, match) for every detected marker `keep` admits (matched within 3 px),
 // or on_match(field, camera, blob, match, box): with the blob's BlobBox as the refiner gives it (foreign_overlap).
@@ -732,13 +747,12 @@ TEST_CASE("a marker mostly behind the eye whose blob is a sliver is fitted, not 
     // (2 · half-width + 2 px): every such fit was refused as implausible and the pipeline's centroid, 0.2–0.5 px
     // off, stood. The hint's radius, from the pose, is the bound now. Here the 0.4 s recording's blobs (3–4 columns)
     // are cut to the column of their centroid, as that codec left them.
-    RigRecording written("eyesim_sliver_h264", "sweep", 0.4, 1.0, 7, "h264");
-    const std::vector<rig::FieldTruth>& truth = written.truth;
-    REQUIRE(truth.size() == 20);
-    const SphereFitConfig cfg = sphere_fit_config_for_source(rig_config(), "4:2:0", false);
-    MarkerHintSource source = hint_source_of(written);
-    auto work = std::make_unique<SphereFitWorkspace>();
-    Field f(rig::kFieldHeight);
+    VideoFitCase vc("eyesim_sliver_h264", 7, "h264", "4:2:0");
+    const SphereFitConfig& cfg = vc.cfg;
+    MarkerHintSource& source = vc.source;
+    SphereFitWorkspace* work = vc.work.get();
+    Field& f = vc.f;
+    RigRecording& written = vc.written;
     int slivers = 0, fitted = 0;
     double se_pipe = 0, se_fit = 0;
     for_each_matched_blob(
@@ -794,13 +808,12 @@ TEST_CASE("a marker another class's blob overlaps is fitted though the neighbour
     // left the eye marker in front of it out of the model. Now: the eye marker a second occluder beside the eye,
     // and for a blob another class's box overlaps, the shift gate twice as wide and the centre allowed near the
     // pose's prediction.
-    RigRecording written("eyesim_overlap_dv411", "sweep", 0.4, 1.0, 6, "dv411");
-    const std::vector<rig::FieldTruth>& truth = written.truth;
-    REQUIRE(truth.size() == 20);
-    const SphereFitConfig cfg = sphere_fit_config_for_source(rig_config(), "4:1:1", false);
-    MarkerHintSource source = hint_source_of(written);
-    auto work = std::make_unique<SphereFitWorkspace>();
-    Field f(rig::kFieldHeight);
+    VideoFitCase vc("eyesim_overlap_dv411", 6, "dv411", "4:1:1");
+    const SphereFitConfig& cfg = vc.cfg;
+    MarkerHintSource& source = vc.source;
+    SphereFitWorkspace* work = vc.work.get();
+    Field& f = vc.f;
+    RigRecording& written = vc.written;
     int overlapped = 0, fitted = 0, fitted_unflagged = 0, second_occluder = 0;
     double se_pipe = 0, se_fit = 0, se_unflagged = 0;
     for_each_matched_blob(

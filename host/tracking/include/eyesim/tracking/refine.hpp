@@ -246,6 +246,12 @@ BlobBox blob_box(const B& b) {
     return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px(), false};
 }
 
+/// Whether `a` and `b` are of different classes and their boxes overlap (BlobBox::foreign_overlap).
+inline bool foreign_overlap(const BlobBox& a, const BlobBox& b) {
+    return a.class_id != b.class_id && a.x_min <= b.x_max && b.x_min <= a.x_max && a.y_min <= b.y_max &&
+           b.y_min <= a.y_max;
+}
+
 /// Sets BlobBox::foreign_overlap of each of `boxes` (one field's blobs): whether another class's box overlaps it.
 void mark_foreign_overlaps(std::span<BlobBox> boxes);
 
