@@ -184,7 +184,8 @@ int run(const FpgaOptions& opt) {
     }
 
     // One pipeline per camera with the reset register map, as the device powers up, plus any --reg writes.
-    eyesim::app::FpgaModelRun model(rec, cams, eyesim::app::register_maps(opt.regs, rec.camera_count()));
+    const std::vector<fpga::RegisterMap> maps = eyesim::app::register_maps(opt.regs, rec.camera_count());
+    eyesim::app::FpgaModelRun model(rec, cams, maps);
     std::vector<CameraStats> stats;
     for (int c : cams) stats.push_back(CameraStats{c});
     std::array<uint8_t, proto::kMaxFrameBytes> frame{};
@@ -223,7 +224,9 @@ int run(const FpgaOptions& opt) {
     double refine_s = 0;
     // Refinement stage: a model fit on each blob's patch with the rig's marker colours (tracking/refine.hpp).
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
-    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
+    const eyesim::tracking::SphereFitConfig refiner_config =
+        opt.refine ? eyesim::app::recording_sphere_fit_config(rec) : eyesim::tracking::SphereFitConfig{};
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(refiner_config);
     // What hides part of a marker (its shaft, the eye) for the fits, as the host's live chain has it: a tracker runs
     // on the refined blobs, and each field's fits take the occluders of the newest poses it gave (earlier fields).
     std::unique_ptr<eyesim::tracking::Tracker> hint_tracker;
@@ -240,6 +243,9 @@ int run(const FpgaOptions& opt) {
                 scene = eyesim::tracking::all_instruments(bodies);
             eyesim::tracking::TrackerConfig tcfg = eyesim::frame::tracker_config(rec.cameras(), bodies, scene);
             marker_hints = eyesim::tracking::MarkerHintSource(tcfg.cameras, tcfg.bodies);
+            // The first fields' hints from the poses a look ahead finds (they have no earlier fields' poses).
+            eyesim::app::prime_marker_hints(opt.recording, cams, maps, refiner_config, tcfg,
+                                            std::min(eyesim::app::kMaxPrimingFields, n_fields), marker_hints);
             hint_tracker = std::make_unique<eyesim::tracking::Tracker>(std::move(tcfg));
             refiner->set_hints(&marker_hints);
         } catch (const std::invalid_argument& e) {

@@ -1245,11 +1245,22 @@ int run_validate(const ValidateOptions& opt) {
     double fpga_us = 0, refine_us = 0;
     // Refinement stage on each blob's patch (eyesim/app/refine.hpp); the modelled link timing does not include it.
     std::unique_ptr<eyesim::app::BlobRefiner> refiner;
-    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(eyesim::app::recording_sphere_fit_config(rec));
+    const tr::SphereFitConfig fit_config = opt.refine ? eyesim::app::recording_sphere_fit_config(rec) : tr::SphereFitConfig{};
+    if (opt.refine) refiner = std::make_unique<eyesim::app::BlobRefiner>(fit_config);
     // What hides part of a marker (its shaft, the eye) for the fits, from the chain's own newest poses (the fields
-    // before this one).
+    // before this one); the first fields' from the poses a look ahead finds.
     tr::MarkerHintSource marker_hints(cfg.cameras, cfg.bodies);
-    if (refiner && !opt.no_hints) refiner->set_hints(&marker_hints);
+    if (refiner && !opt.no_hints) {
+        refiner->set_hints(&marker_hints);
+        std::vector<int> all_cams(static_cast<std::size_t>(ncam));
+        for (int c = 0; c < ncam; ++c) all_cams[static_cast<std::size_t>(c)] = c;
+        try {
+            eyesim::app::prime_marker_hints(opt.dir, all_cams, std::vector<eyesim::fpga::RegisterMap>(std::size_t(ncam)),
+                                            fit_config, cfg, std::min(eyesim::app::kMaxPrimingFields, n), marker_hints);
+        } catch (const rig::RigError& e) {
+            throw Error(e.what());
+        }
+    }
     long refined = 0;
     Progress pr(progress, "validate", "fields");
 

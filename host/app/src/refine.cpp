@@ -1,9 +1,13 @@
 #include "eyesim/app/refine.hpp"
 
+#include "eyesim/app/fpga_run.hpp"
+
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/video.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace eyesim::app {
 
@@ -59,6 +63,37 @@ nlohmann::json BlobRefiner::refusals_json() const {
     for (int r = 1; r < tracking::kFitRefusalCount; ++r)
         why[tracking::to_string(static_cast<tracking::FitRefusal>(r))] = refusals_[static_cast<size_t>(r)];
     return why;
+}
+
+int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
+                           const std::vector<fpga::RegisterMap>& maps, const tracking::SphereFitConfig& fit,
+                           tracking::TrackerConfig tracker_config, int64_t max_fields,
+                           tracking::MarkerHintSource& hints) {
+    // A second opening: its own decoder state and warnings (the tool's pass reports what the fields hold).
+    rig::Recording rec = rig::Recording::open(dir);
+    const int64_t n = std::min(max_fields, rec.common_field_count());
+    FpgaModelRun model(rec, cams, maps);
+    BlobRefiner refiner(fit);
+    tracking::Tracker tracker(std::move(tracker_config));
+    tracking::TrackingFrame frame;
+    std::vector<std::pair<double, protocol::FieldMarkers>> msgs;
+    int64_t i = 0;
+    while (i < n && !hints.ready()) {
+        model.run_field(i, [&](ModelField& f) {
+            refiner.refine(f.uyvy, rig::kFieldHeight, *f.blobs, f.camera);
+            const double ready_us = 1e-3 * static_cast<double>(field_ready_ns(f));
+            for (const protocol::FieldMarkers& m : field_messages(f)) msgs.push_back({ready_us, m});
+        });
+        ++i;
+        // As `eyesim fpga` feeds its hint tracker: in the order the device would have the messages ready.
+        std::stable_sort(msgs.begin(), msgs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+        for (const auto& [t_us, m] : msgs) {
+            tracker.push(m, t_us);
+            while (tracker.pop(frame, t_us)) hints.update(frame);
+        }
+        msgs.clear();
+    }
+    return i;
 }
 
 }  // namespace eyesim::app

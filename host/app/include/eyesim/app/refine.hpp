@@ -4,14 +4,17 @@
 /// `eyesim fpga --refine` and `eyesim validate --refine` run it.
 
 #include "eyesim/fpga/blob.hpp"
+#include "eyesim/fpga/register_map.hpp"
 #include "eyesim/rig/recording.hpp"
 #include "eyesim/tracking/marker_prediction.hpp"
 #include "eyesim/tracking/refine.hpp"
+#include "eyesim/tracking/tracker.hpp"
 
 #include <array>
 #include <cstdint>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <string>
 #include <vector>
 
 namespace eyesim::app {
@@ -55,5 +58,20 @@ private:
     int64_t hinted_fits_ = 0;
     std::vector<tracking::BlobBox> boxes_;  // the field's blobs as the fit takes them (reused)
 };
+
+/// Hints for a recording's first fields, for the offline tools. A field's hints come from the poses of the fields
+/// before it, so the fields before a tracker's first pose (two on the rig) would be fitted without them; on lossy
+/// video their partly hidden markers were then 4–17× the error of later fields' (DVCPRO25 `sweep`, seeds 1–8). A tool that reads a recording may look ahead: this opens `dir` a second time, runs
+/// the model (`maps`, cameras `cams`), the refinement without hints (`fit`) and a tracker (`tracker`) over its
+/// first fields until the tracker gives a pose, at most `max_fields`, and updates `hints` with those poses, which
+/// then stand for the first fields of the tool's own pass. The live chain cannot look ahead: it fits them plain.
+/// Returns the fields read; `hints.ready()` says whether a pose was found. Throws rig::RigError, Error as
+/// FpgaModelRun does.
+int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
+                           const std::vector<fpga::RegisterMap>& maps, const tracking::SphereFitConfig& fit,
+                           tracking::TrackerConfig tracker, int64_t max_fields, tracking::MarkerHintSource& hints);
+
+/// Fields prime_marker_hints() reads at most: a rig's tracker gives its first pose after two.
+inline constexpr int64_t kMaxPrimingFields = 8;
 
 }  // namespace eyesim::app
