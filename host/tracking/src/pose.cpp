@@ -90,9 +90,12 @@ struct AssignmentSearch {
     }
 };
 
-double weight_of(const TriangulatedPoint& p) {
-    const double var = p.cov_mm2.trace() / 3.0;
-    return var > 0.0 && std::isfinite(var) ? 1.0 / var : 1.0;
+// 1 / the point's variance; a flagged marker's (MatchedMarker::occluded) with its bias's `occluded_var_mm2` added.
+double weight_of(const MatchedMarker& m, double occluded_var_mm2) {
+    double var = m.point.cov_mm2.trace() / 3.0;
+    if (!(var > 0.0) || !std::isfinite(var)) var = 1.0;
+    if (m.occluded) var += occluded_var_mm2;
+    return 1.0 / var;
 }
 
 }  // namespace
@@ -199,14 +202,14 @@ namespace {
 /// Gathers assigned markers (search.best) into contiguous arrays; returns the count.
 int gather(const std::array<int, kMaxBodyMarkers>& best, int model_count, const CorrespondenceResult& found,
            std::array<Eigen::Vector3d, kMaxBodyMarkers>& meas, std::array<int, kMaxBodyMarkers>& which,
-           std::array<double, kMaxBodyMarkers>& w) {
+           std::array<double, kMaxBodyMarkers>& w, double occluded_var_mm2 = 0.0) {
     int n = 0;
     for (int i = 0; i < model_count; ++i) {
         const int k = best[std::size_t(i)];
         if (k < 0) continue;
         meas[std::size_t(n)] = found.markers[std::size_t(k)].point.X_rig_mm;
         which[std::size_t(n)] = i;
-        w[std::size_t(n)] = weight_of(found.markers[std::size_t(k)].point);
+        w[std::size_t(n)] = weight_of(found.markers[std::size_t(k)], occluded_var_mm2);
         ++n;
     }
     return n;
@@ -324,7 +327,8 @@ void fit_poses(const BodySet& bodies, const CorrespondenceResult& found, const P
         search.claimed = &claimed;
         search.tol_mm = opt.distance_tol_mm;
         search.run();
-        const int n = gather(search.best, model.marker_count, found, meas, which, w);
+        const int n = gather(search.best, model.marker_count, found, meas, which, w,
+                             opt.occluded_sigma_mm * opt.occluded_sigma_mm);
         const int need = was ? opt.min_markers_keep : std::min(opt.min_markers_acquire, model.marker_count);
         InstrumentPose fitted = pose;
         const std::span<const Eigen::Vector3d> ms(meas.data(), std::size_t(n));

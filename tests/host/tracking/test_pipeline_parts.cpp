@@ -249,3 +249,35 @@ TEST_CASE("an instrument measured last frame is kept from one marker and its tro
     fit_poses(d.bodies, d.frame(Eigen::Vector3d(4.0, -3.0, -8.0), 1), opt, eye0, prev, eye, cur, asg);
     CHECK_FALSE(cur[0].measured());
 }
+
+TEST_CASE("a marker flagged partly hidden carries little weight in its instrument's fit", "[tracking][pose]") {
+    // The distal marker's point is the centroid of its visible part (the eye hides most of it in one view): 0.4 mm
+    // off its centre across the shaft. Flagged (MatchedMarker::occluded), it is weighted by occluded_sigma_mm, and
+    // the two clean markers and the trocar carry the pose; at full weight it tilts the shaft.
+    DeepShaft d;
+    const Eigen::Vector3d tip(0.5, -0.3, -8.0);
+    CorrespondenceResult found = d.frame(tip, 3);
+    MatchedMarker& distal = found.markers[3];  // after the eye's three: class 1, 26 mm behind the tip
+    REQUIRE(distal.colour_class == 1);
+    const Eigen::Vector3d axis = (d.trocar - tip).normalized();
+    distal.point.X_rig_mm += 0.4 * axis.cross(Eigen::Vector3d::UnitX()).normalized();
+    distal.occluded = true;
+    EyePose eye0, eye;
+    MarkerAssignment asg;
+    std::array<InstrumentPose, 1> prev{}, cur{};
+
+    PoseOptions opt;
+    fit_poses(d.bodies, found, opt, eye0, prev, eye, cur, asg);
+    REQUIRE(cur[0].measured());
+    CHECK(cur[0].markers_used == 3);
+    CHECK(asg.body[3] == 1);  // still assigned to the instrument
+    const double weighted_um = (cur[0].tip_rig_mm - tip).norm() * 1e3;
+    CHECK(weighted_um < 20.0);
+
+    opt.occluded_sigma_mm = 0.0;  // as a clean marker
+    fit_poses(d.bodies, found, opt, eye0, prev, eye, cur, asg);
+    REQUIRE(cur[0].measured());
+    const double full_um = (cur[0].tip_rig_mm - tip).norm() * 1e3;
+    INFO("tip error: " << weighted_um << " um weighted, " << full_um << " um at full weight");
+    CHECK(full_um > 100.0);
+}

@@ -75,6 +75,10 @@ struct PoseOptions {
     /// An instrument measured last frame is kept from a single marker (and its trocar) when that marker lies
     /// this close to where the last pose puts it.
     double single_marker_gate_mm = 1.5;
+    /// 1σ of a marker the correspondence flagged partly hidden with fewer than two clean views (MatchedMarker::
+    /// occluded): its point is the visible parts' centroid, up to a few tenths of a mm from the centre. Instrument
+    /// fits weight it by that, so the clean markers and the trocar carry the pose and it only fills in.
+    double occluded_sigma_mm = 0.3;
 };
 
 /// Which body (and which of its markers) each triangulated marker was assigned to.
