@@ -300,15 +300,7 @@ int run(const FpgaOptions& opt) {
                 }
             }
         });
-        if (hint_tracker) {
-            std::stable_sort(hint_msgs.begin(), hint_msgs.end(),
-                             [](const auto& a, const auto& b) { return a.first < b.first; });
-            for (const auto& [t_us, m] : hint_msgs) {
-                hint_tracker->push(m, t_us);
-                while (hint_tracker->pop(hint_frame, t_us)) marker_hints.update(hint_frame);
-            }
-            hint_msgs.clear();
-        }
+        if (hint_tracker) eyesim::app::feed_hint_tracker(hint_msgs, *hint_tracker, hint_frame, marker_hints);
         if (capture_on) {
             // Everything of the next field is ready no earlier than its earliest camera's vertical sync.
             uint64_t horizon_ns = ~uint64_t{0};

@@ -85,15 +85,19 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
             for (const protocol::FieldMarkers& m : field_messages(f)) msgs.push_back({ready_us, m});
         });
         ++i;
-        // As `eyesim fpga` feeds its hint tracker: in the order the device would have the messages ready.
-        std::stable_sort(msgs.begin(), msgs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-        for (const auto& [t_us, m] : msgs) {
-            tracker.push(m, t_us);
-            while (tracker.pop(frame, t_us)) hints.update(frame);
-        }
-        msgs.clear();
+        feed_hint_tracker(msgs, tracker, frame, hints);
     }
     return i;
+}
+
+void feed_hint_tracker(std::vector<std::pair<double, protocol::FieldMarkers>>& msgs, tracking::Tracker& tracker,
+                       tracking::TrackingFrame& frame, tracking::MarkerHintSource& hints) {
+    std::stable_sort(msgs.begin(), msgs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (const auto& [t_us, m] : msgs) {
+        tracker.push(m, t_us);
+        while (tracker.pop(frame, t_us)) hints.update(frame);
+    }
+    msgs.clear();
 }
 
 }  // namespace eyesim::app

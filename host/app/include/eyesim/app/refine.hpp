@@ -15,6 +15,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace eyesim::app {
@@ -61,15 +62,20 @@ private:
 
 /// Hints for a recording's first fields, for the offline tools. A field's hints come from the poses of the fields
 /// before it, so the fields before a tracker's first pose (two on the rig) would be fitted without them; on lossy
-/// video their partly hidden markers were then 4–17× the error of later fields' (DVCPRO25 `sweep`, seeds 1–8). A tool that reads a recording may look ahead: this opens `dir` a second time, runs
-/// the model (`maps`, cameras `cams`), the refinement without hints (`fit`) and a tracker (`tracker`) over its
-/// first fields until the tracker gives a pose, at most `max_fields`, and updates `hints` with those poses, which
-/// then stand for the first fields of the tool's own pass. The live chain cannot look ahead: it fits them plain.
-/// Returns the fields read; `hints.ready()` says whether a pose was found. Throws rig::RigError, Error as
-/// FpgaModelRun does.
+/// video their partly hidden markers were then 4–17× the error of later fields' (DVCPRO25 `sweep`, seeds 1–8).
+/// A tool that reads a recording may look ahead: this opens `dir` a second time, runs the model (`maps`, cameras
+/// `cams`), the refinement without hints (`fit`) and a tracker (`tracker`) over its first fields until the tracker
+/// gives a pose, at most `max_fields`, and updates `hints` with those poses, which then stand for the first fields
+/// of the tool's own pass. The live chain cannot look ahead: it fits them plain. Returns the fields read;
+/// `hints.ready()` says whether a pose was found. Throws rig::RigError, Error as FpgaModelRun does.
 int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
                            const std::vector<fpga::RegisterMap>& maps, const tracking::SphereFitConfig& fit,
                            tracking::TrackerConfig tracker, int64_t max_fields, tracking::MarkerHintSource& hints);
+
+/// One field's messages (`msgs`: device-ready time in µs, message) into the hint tracker in the order the device has
+/// them ready, each frame it gives into `hints`; `msgs` is left empty.
+void feed_hint_tracker(std::vector<std::pair<double, protocol::FieldMarkers>>& msgs, tracking::Tracker& tracker,
+                       tracking::TrackingFrame& frame, tracking::MarkerHintSource& hints);
 
 /// Fields prime_marker_hints() reads at most: a rig's tracker gives its first pose after two.
 inline constexpr int64_t kMaxPrimingFields = 8;
