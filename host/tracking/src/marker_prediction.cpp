@@ -112,6 +112,18 @@ bool view_frame(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm,
     return true;
 }
 
+// Whether the sphere (centre c, radius r) lies wholly behind the sphere (e, big_r) seen from o: its image inside
+// the other's and it further away. A marker at the eye's outline with part of it past the outline is seen.
+bool hidden_by_sphere(const Eigen::Vector3d& o, const Eigen::Vector3d& c, double r, const Eigen::Vector3d& e,
+                      double big_r) {
+    const Eigen::Vector3d to_c = c - o, to_e = e - o;
+    const double dc = to_c.norm(), de = to_e.norm();
+    if (!(dc > r) || !(de > big_r)) return false;
+    if (dc <= de) return false;  // nearer than the eye's centre: in front of its far half
+    const double cos_t = std::clamp(to_c.dot(to_e) / (dc * de), -1.0, 1.0);
+    return std::acos(cos_t) + std::asin(r / dc) <= std::asin(big_r / de);
+}
+
 // Whether the hint's occluders cover some of the marker's disc (points just inside its rim).
 bool disc_rim_covered(const MarkerHint& hint) {
     for (int k = 0; k < 32; ++k) {
@@ -350,7 +362,10 @@ bool MarkerHintSource::patch_mask(int camera, const BlobBox& blob, PatchMask& ou
         out.shafts[static_cast<std::size_t>(out.count++)] = fs;
     }
     // Other markers in the patch: their discs, but not one in front across the marker (the hint's occluder).
-    auto add_disc = [&](const Eigen::Vector3d& c, double r_mm) {
+    // The blob's box in frame px (v: frame rows; a field line spans two).
+    const double box_x0 = blob.x_min - 0.5, box_x1 = blob.x_max + 0.5;
+    const double box_v0 = 2.0 * blob.y_min + (blob.parity & 1) - 1.0, box_v1 = 2.0 * blob.y_max + (blob.parity & 1) + 1.0;
+    auto add_disc = [&](const Eigen::Vector3d& c, double r_mm, int colour_class) {
         if (out.disc_count >= PatchMask::kMaxDiscs || !(r_mm > 0)) return;
         ProjectedOutline o;
         if (!project_sphere_outline(cam, c, r_mm, o)) return;
@@ -358,12 +373,15 @@ bool MarkerHintSource::patch_mask(int camera, const BlobBox& blob, PatchMask& ou
         if (gap > kForeignReachPx) return;
         if (gap < 0 && (c - cam_c).dot(d) < marker_depth) return;  // in front, across it
         out.discs[static_cast<std::size_t>(out.disc_count++)] = {o.x_px, o.v_px, o.r_px + kForeignMarginPx};
+        // Its image reaching half a pixel into the blob's box, in the blob's colour: the pipeline joined the two.
+        const double ox = std::clamp(o.x_px, box_x0, box_x1) - o.x_px, ov = std::clamp(o.v_px, box_v0, box_v1) - o.v_px;
+        if (colour_class == blob.class_id && std::hypot(ox, ov) < o.r_px - 0.5) out.merged = true;
     };
     for_each_marker([&](int b, int k, const BodyMarker& bm, const Eigen::Vector3d& c) {
         if (b == own && k == m) return;
-        // An eye marker on the far side of the eye is hidden by it: only the near side's are seen.
-        if (b < 0 && (c - eye_.centre_rig_mm).dot(cam_c - c) <= 0) return;
-        add_disc(c, bm.radius_mm);
+        // An eye marker the eye hides whole is not in the image; one at its outline, partly seen, is.
+        if (b < 0 && hidden_by_sphere(cam_c, c, bm.radius_mm, eye_.centre_rig_mm, bodies_.eye.radius_mm)) return;
+        add_disc(c, bm.radius_mm, bm.colour_class);
     });
     return out.count > 0 || out.disc_count > 0;
 }

@@ -2016,9 +2016,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // The centre near where it started, or with a hint near the pose's prediction where another class's blob
     // overlaps this one (BlobBox::foreign_overlap): its chroma spoiled the moments the start came from.
     auto near = [&](double x, double v) { return std::fabs(t[kX0] - x) < 1.5 && std::fabs(t[kV0] - v) < 2.0; };
+    const bool merged = mask && mask->merged;
     const bool sane = t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 &&
                       std::hypot(t[kE1], t[kE2]) < 0.3 &&
-                      (near(x_start, v_start) || (hint && blob.foreign_overlap && near(hint->centre_x_px, hint->centre_v_px)));
+                      (near(x_start, v_start) || (hint && blob.foreign_overlap && near(hint->centre_x_px, hint->centre_v_px)) ||
+                       (merged && near(mask->keep_x_px, mask->keep_v_px)));
     if (!sane) return res;
     res.hinted = hint != nullptr;
     double visible = 1.0;  // the share of the marker's light the hint's occluders leave
@@ -2036,6 +2038,13 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // partly occluded marker's hidden half, a neighbour in the patch). A fit that left observations out has less
     // to stand on: it must agree more closely.
     res.refusal = FitRefusal::kShift;
+    // Two markers of one class joined into this blob: its centroid lies between them; the prediction anchors the gate.
+    if (merged) {
+        if (std::hypot(t[kX0] - mask->keep_x_px, 0.5 * (t[kV0] - mask->keep_v_px)) > kMergedMaxShiftPx) return res;
+        res.refusal = FitRefusal::kNone;
+        res.ok = true;
+        return res;
+    }
     // The pipeline's centroid of a marker mostly hidden is itself off by up to a few tenths of a pixel (few pixels,
     // their chroma spread across the occluder's edge): the gate widens as the visible share shrinks.
     const double gate = (hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px) *

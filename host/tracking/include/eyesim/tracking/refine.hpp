@@ -143,6 +143,11 @@ struct PatchMask {
     int disc_count = 0;
     std::array<ForeignDisc, kMaxDiscs> discs{};
     double keep_x_px = 0, keep_v_px = 0, keep_radius_px = 0;
+    /// A marker of the blob's own class lies in its box: the pipeline joined two markers into one blob (their
+    /// chroma blurred together, most on lossy video), so its centroid lies between them and no longer anchors the
+    /// fit's shift gate; the fitted centre is held to the marker's predicted one (keep_x_px, keep_v_px) instead,
+    /// within kMergedMaxShiftPx.
+    bool merged = false;
 };
 
 /// Whether a pixel box of half-sizes (hx, hv) about (x_px, v_px) (frame px) touches `shaft`'s strip.
@@ -155,6 +160,9 @@ bool hint_covers(const MarkerHint& hint, double qx, double qy);
 
 /// max_shift_px for a lossy source, whose pipeline centroid is itself ≈ 0.1 px off (the codec's chroma).
 inline constexpr double kLossyMaxShiftPx = 0.25;
+/// How far a joined blob's fitted centre may lie from the pose's prediction (PatchMask::merged), field px: as far as
+/// a lossy source's fit from the pipeline's centroid. The pose is a field or two old.
+inline constexpr double kMergedMaxShiftPx = kLossyMaxShiftPx;
 /// max_shift_hinted_px for a lossy source: a partly hidden marker's pipeline centroid is further off still.
 inline constexpr double kLossyMaxShiftHintedPx = 0.4;
 
