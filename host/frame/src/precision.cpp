@@ -125,7 +125,8 @@ void PatchRefiner::refine(const Camera& cam, proto::Marker& m, const transport::
     box.y_max = m.bbox_y1;
     box.cx_px = double(m.x_q16) / 65536.0;
     box.cy_px = double(m.y_q16) / 65536.0;
-    // Another class's marker of the field overlapping its box (tracking::BlobBox::foreign_overlap), among those
+    // Another class's marker of the field overlapping or touching its box (tracking::BlobBox::foreign_overlap,
+    // foreign_touch), among those
     // held here: a neighbour emitted later, or already released, is not seen.
     for (int i = 0; i < cam.count && !box.foreign_overlap; ++i) {
         const Held& h = cam.held[std::size_t((cam.head + i) % kMaxHeld)];
@@ -138,6 +139,7 @@ void PatchRefiner::refine(const Camera& cam, proto::Marker& m, const transport::
             ob.x_max = o.bbox_x1;
             ob.y_min = o.bbox_y0;
             ob.y_max = o.bbox_y1;
+            box.foreign_touch = box.foreign_touch || tracking::foreign_touch(ob, box);
             if (tracking::foreign_overlap(ob, box)) {
                 box.foreign_overlap = true;
                 break;

@@ -119,12 +119,11 @@ bool hint_covers(const MarkerHint& hint, double qx, double qy) {
 
 void mark_foreign_overlaps(std::span<BlobBox> boxes) {
     for (BlobBox& b : boxes) {
-        b.foreign_overlap = false;
-        for (const BlobBox& o : boxes)
-            if (foreign_overlap(o, b)) {
-                b.foreign_overlap = true;
-                break;
-            }
+        b.foreign_overlap = b.foreign_touch = false;
+        for (const BlobBox& o : boxes) {
+            b.foreign_overlap = b.foreign_overlap || foreign_overlap(o, b);
+            b.foreign_touch = b.foreign_touch || foreign_touch(o, b);
+        }
     }
 }
 
@@ -2048,7 +2047,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // The pipeline's centroid of a marker mostly hidden is itself off by up to a few tenths of a pixel (few pixels,
     // their chroma spread across the occluder's edge): the gate widens as the visible share shrinks.
     const double gate = (hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px) *
-                        (blob.foreign_overlap ? kForeignOverlapGateScale : 1.0);
+                        (blob.foreign_overlap || (blob.foreign_touch && !hint) ? kForeignOverlapGateScale : 1.0);
     const double max_shift = (res.outliers > 0 ? cfg.max_shift_outliers_px : gate) / std::max(0.3, visible);
     if (gate_distance(cfg, res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
     res.refusal = FitRefusal::kNone;
