@@ -126,8 +126,7 @@ void PatchRefiner::refine(const Camera& cam, proto::Marker& m, const transport::
     box.cx_px = double(m.x_q16) / 65536.0;
     box.cy_px = double(m.y_q16) / 65536.0;
     // Another class's marker of the field overlapping or touching its box (tracking::BlobBox::foreign_overlap,
-    // foreign_touch), among those
-    // held here: a neighbour emitted later, or already released, is not seen.
+    // foreign_touch), among those held here: a neighbour emitted later, or already released, is not seen.
     for (int i = 0; i < cam.count && !box.foreign_overlap; ++i) {
         const Held& h = cam.held[std::size_t((cam.head + i) % kMaxHeld)];
         if (h.part.field_counter != p.field_counter) continue;

@@ -260,17 +260,18 @@ BlobBox blob_box(const B& b) {
     return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px(), false, false};
 }
 
-/// Whether `a` and `b` are of different classes and their boxes overlap (BlobBox::foreign_overlap).
-inline bool foreign_overlap(const BlobBox& a, const BlobBox& b) {
-    return a.class_id != b.class_id && a.x_min <= b.x_max && b.x_min <= a.x_max && a.y_min <= b.y_max &&
-           b.y_min <= a.y_max;
+/// Whether the boxes of `a` and `b` come within `gap` columns and lines of each other (0: they overlap).
+inline bool boxes_within(const BlobBox& a, const BlobBox& b, int gap) {
+    return a.x_min <= b.x_max + gap && b.x_min <= a.x_max + gap && a.y_min <= b.y_max + gap && b.y_min <= a.y_max + gap;
 }
+
+/// Whether `a` and `b` are of different classes and their boxes overlap (BlobBox::foreign_overlap).
+inline bool foreign_overlap(const BlobBox& a, const BlobBox& b) { return a.class_id != b.class_id && boxes_within(a, b, 0); }
 
 /// Whether `a` and `b` are of different classes and their boxes touch without overlapping: no column or line
 /// between them (BlobBox::foreign_touch).
 inline bool foreign_touch(const BlobBox& a, const BlobBox& b) {
-    return a.class_id != b.class_id && !foreign_overlap(a, b) && a.x_min <= b.x_max + 1 && b.x_min <= a.x_max + 1 &&
-           a.y_min <= b.y_max + 1 && b.y_min <= a.y_max + 1;
+    return a.class_id != b.class_id && boxes_within(a, b, 1) && !boxes_within(a, b, 0);
 }
 
 /// Sets BlobBox::foreign_overlap and foreign_touch of each of `boxes` (one field's blobs): whether another class's
