@@ -147,6 +147,18 @@ bool predict_shaft_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre
     return true;
 }
 
+bool predict_shaft_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                            const Eigen::Vector3d& axis_rig, double shaft_radius_mm,
+                            const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out) {
+    if (!predict_shaft_hint(cam, centre_rig_mm, radius_mm, axis_rig, shaft_radius_mm, out)) return false;
+    Eigen::Vector3d ex, ey, d;
+    view_axes(cam, centre_rig_mm, ex, ey, d);
+    set_sphere_occluder(ex, ey, d, centre_rig_mm, radius_mm, eye_centre_rig_mm, eye_radius_mm, out);
+    MarkerHint eye_only = out;
+    eye_only.radius_ratio = 0;
+    return disc_rim_covered(eye_only);
+}
+
 bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
                       const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out) {
     Eigen::Vector3d ex, ey, d;

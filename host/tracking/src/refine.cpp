@@ -1527,6 +1527,29 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
     if (visible_fraction) *visible_fraction = whole > 0 ? si / whole : 0.0;
 }
 
+}  // namespace
+
+bool hinted_centroid_offset(const SphereFitConfig& cfg, const MarkerHint& hint, int parity, double& dx_px,
+                            double& dv_px, double& visible) {
+    dx_px = dv_px = visible = 0.0;
+    if (!(hint.radius_px > 0.25) || !std::isfinite(hint.centre_x_px) || !std::isfinite(hint.centre_v_px) ||
+        !(std::hypot(hint.e1, hint.e2) < 0.5))
+        return false;
+    Vec t{};
+    t[kX0] = hint.centre_x_px;
+    t[kV0] = hint.centre_v_px;
+    t[kR] = hint.radius_px;
+    t[kE1] = hint.e1;
+    t[kE2] = hint.e2;
+    double cx = 0, cy = 0;
+    visible_centroid(cfg, t, parity & 1, hint, cx, cy, &visible, 4);
+    dx_px = cx - t[kX0];
+    dv_px = 2.0 * cy + (parity & 1) - t[kV0];
+    return visible > 0 && std::isfinite(dx_px) && std::isfinite(dv_px);
+}
+
+namespace {
+
 // One pixel of the patch's border: position (frame px) and Y, Cb, Cr.
 struct BorderPx {
     double x, v, c[3];

@@ -1,5 +1,8 @@
 #include "eyesim/tracking/tracker.hpp"
 
+#include "eyesim/tracking/marker_prediction.hpp"
+
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -209,6 +212,7 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
         if (!v.present) continue;
         ++out.cameras_used;
         const CameraField& f = images[std::size_t(c)];
+        view_parity_[std::size_t(c)] = f.parity & 1;
         for (int i = 0; i < f.count && v.count < kMaxMarkersPerCamera; ++i) {
             const FieldImage& im = f.images[std::size_t(i)];
             if (!im.frame_px.allFinite()) {
@@ -237,7 +241,15 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
     fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
               std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
               std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
-    if (config_.shaft_occlusion_correction) correct_shaft_occlusion(out);
+    // Both corrections from the first fit's poses, then one refit with every corrected marker.
+    bool corrected = config_.eye_occlusion_correction && correct_eye_occlusion(out);
+    corrected = (config_.shaft_occlusion_correction && correct_shaft_occlusion(out)) || corrected;
+    if (corrected) {
+        for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
+        fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
+                  std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
+                  std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
+    }
     last_eye_ = out.eye;
     for (int b = 0; b < out.instrument_count; ++b) last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
     out.markers_unassigned = 0;
@@ -267,10 +279,123 @@ Tracker::MarkerView Tracker::marker_view(const TrackingFrame& frame, int k, int 
     return v;
 }
 
-void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
+namespace {
+
+// Whether the eye's outline, seen from `o`, passes across the image of the sphere (X, r): the angle between the two
+// centres within the eye's angular radius ± the sphere's. Elsewhere the eye hides all of it or none (the hint's
+// tests are the exact ones; this spares them for most markers).
+bool near_eye_outline(const Eigen::Vector3d& o, const Eigen::Vector3d& X, double r, const Eigen::Vector3d& E, double eye_r) {
+    const Eigen::Vector3d a = X - o, b = E - o;
+    const double da = a.norm(), db = b.norm();
+    if (!(da > r) || !(db > eye_r)) return true;  // the camera inside either: the exact tests decide
+    const double angle = std::acos(std::clamp(a.dot(b) / (da * db), -1.0, 1.0));
+    return std::fabs(angle - std::asin(eye_r / db)) <= 1.05 * std::asin(r / da);
+}
+
+// The views of `m` that have an image and are not among the `n` cameras of `used`.
+std::uint8_t views_left_out(const MatchedMarker& m, const std::array<int, kMaxCameras>& used, int n, int ncam) {
+    std::uint8_t out = 0;
+    for (int c = 0; c < ncam; ++c) {
+        bool in = false;
+        for (int v = 0; v < n; ++v) in = in || used[std::size_t(v)] == c;
+        if (m.image_index[std::size_t(c)] >= 0 && !in) out = std::uint8_t(out | (1u << c));
+    }
+    return out;
+}
+
+}  // namespace
+
+bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
+    const BodySet& bodies = config_.bodies;
+    if (!out.eye.measured() || !(bodies.eye.radius_mm > 0.0)) return false;
+    const Eigen::Matrix3d R = out.eye.rotation_eye_to_rig.toRotationMatrix();
+    const SphereFitConfig shading;  // the marker's shading model: ambient + diffuse·cos
+    bool changed = false;
+    std::array<Observation, kMaxCameras> obs;
+    std::array<int, kMaxCameras> obs_view{};
+    std::array<std::uint8_t, kMaxCameras> moved{};
+    // Eye markers the fit took; a marker judged occluded was left out of it and is taken as the eye marker of
+    // its class predicted nearest it, if the fit took none there.
+    std::array<bool, kMaxBodyMarkers> taken{};
+    for (int k = 0; k < out.markers.count; ++k) {
+        const int mi = out.assignment.marker[std::size_t(k)];
+        if (out.assignment.body[std::size_t(k)] == 0 && mi >= 0 && mi < bodies.eye.marker_count) taken[std::size_t(mi)] = true;
+    }
+    for (int k = 0; k < out.markers.count; ++k) {
+        MatchedMarker& m = out.markers.markers[std::size_t(k)];
+        int mi = out.assignment.body[std::size_t(k)] == 0 ? out.assignment.marker[std::size_t(k)] : -1;
+        if (out.assignment.body[std::size_t(k)] < 0 && m.occluded && m.point.usable()) {
+            double best = kOccludedEyeMarkerGateMm;
+            for (int i = 0; i < bodies.eye.marker_count; ++i) {
+                const BodyMarker& bm = bodies.eye.markers[std::size_t(i)];
+                if (taken[std::size_t(i)] || bm.colour_class != m.colour_class) continue;
+                const double d = (out.eye.centre_rig_mm + R * bm.pos_body_mm - m.point.X_rig_mm).norm();
+                if (d < best) {
+                    best = d;
+                    mi = i;
+                }
+            }
+        }
+        if (mi < 0 || mi >= bodies.eye.marker_count) continue;
+        const BodyMarker& bm = bodies.eye.markers[std::size_t(mi)];
+        const double radius_mm = bm.radius_mm > 0.0 ? bm.radius_mm : bodies.marker_radius_mm;
+        if (!(radius_mm > 0.0)) continue;
+        // Where the fitted pose puts the marker: its image's occlusion depends on the geometry, not on the
+        // biased point triangulated from the visible parts.
+        const Eigen::Vector3d X = out.eye.centre_rig_mm + R * bm.pos_body_mm;
+        int n = 0, hidden = 0;
+        for (int c = 0; c < int(cameras_.size()); ++c) {
+            const int i = m.image_index[std::size_t(c)];
+            if (i < 0) continue;
+            const CameraGeometry& g = cameras_[std::size_t(c)];
+            const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
+            MarkerHint hint;
+            double dx = 0, dv = 0, visible = 1.0;
+            const bool eye_hides = near_eye_outline(g.centre_rig_mm(), X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm) &&
+                                   predict_eye_hint(g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm, hint) &&
+                                   hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible);
+            // A view judged occluded that the eye does not hide has something else across it: it stays out. One
+            // the eye hides almost whole has too little left to place it.
+            if (eye_hides ? visible < kMinVisibleShare : (m.occluded_views & (1u << c)) != 0) continue;
+            Eigen::Vector2d xn = p.xn;
+            // The correction is as good as the eye's outline is placed: its error grows with the shift.
+            const double sigma_px = p.sigma_px + kEyeCorrectionRelError * std::hypot(dx, dv);
+            moved[std::size_t(n)] = eye_hides;
+            if (eye_hides) {
+                ++hidden;
+                const Undistorted u = undistort_pixel(g, p.px - Eigen::Vector2d(dx, dv), config_.undistort);
+                if (!u.converged) continue;
+                xn = u.xn;
+            }
+            const Eigen::Vector2d xd = distort_normalized(g, xn);
+            obs_view[std::size_t(n)] = c;
+            obs[std::size_t(n++)] =
+                Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), xn, sigma_px};
+        }
+        if (hidden == 0 || n < 2) continue;
+        const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
+                                                 config_.correspondence.triangulation);
+        if (!tp.usable()) continue;
+        m.point = tp;
+        m.occluded = false;
+        taken[std::size_t(mi)] = true;
+        m.occluded_views = views_left_out(m, obs_view, n, int(cameras_.size()));
+        for (int v = 0; v < n; ++v) {
+            if (!moved[std::size_t(v)]) continue;
+            const int c = obs_view[std::size_t(v)];
+            corrected_views_[std::size_t(k)] |= std::uint8_t(1u << c);
+            corrected_xn_[std::size_t(k)][std::size_t(c)] = obs[std::size_t(v)].xn;
+        }
+        changed = true;
+    }
+    return changed;
+}
+
+bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
     const BodySet& bodies = config_.bodies;
     const double R = bodies.marker_radius_mm;
-    if (!(R > 0.0)) return;
+    if (!(R > 0.0)) return false;
+    const SphereFitConfig shading;  // the marker's shading model, as correct_eye_occlusion
     bool changed = false;
     std::array<Observation, kMaxCameras> obs;
     std::array<int, kMaxCameras> obs_view{};
@@ -283,12 +408,38 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         MatchedMarker& m = out.markers.markers[std::size_t(k)];
         const Eigen::Vector3d X = m.point.X_rig_mm;
         const Eigen::Vector3d a = pose.axis_rig;
-        int n = 0;
+        const int mi = out.assignment.marker[std::size_t(k)];
+        // Where the pose puts the marker, for the eye's part in hiding it (as correct_eye_occlusion).
+        const bool eye_known = out.eye.measured() && bodies.eye.radius_mm > 0.0 && mi >= 0 && mi < model.marker_count;
+        const Eigen::Vector3d Xp =
+            eye_known ? Eigen::Vector3d(pose.tip_rig_mm + pose.rotation_body_to_rig *
+                                                              (model.markers[std::size_t(mi)].pos_body_mm - model.tip_body_mm))
+                      : X;
+        int n = 0, eye_views = 0;
         for (int c = 0; c < int(cameras_.size()); ++c) {
             const int i = m.image_index[std::size_t(c)];
-            if (i < 0 || (m.occluded_views & (1u << c))) continue;
+            if (i < 0) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
             const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
+            // The eye hides part of it in this view (a marker seen past the eye's outline): the shaded sphere less
+            // the eye and the shaft gives the shift, in a view judged occluded too.
+            MarkerHint hint;
+            double dx = 0, dv = 0, visible = 0;
+            if (eye_known && near_eye_outline(g.centre_rig_mm(), Xp, R, out.eye.centre_rig_mm, bodies.eye.radius_mm) &&
+                predict_shaft_eye_hint(g, Xp, R, a, model.shaft_radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
+                                       hint) &&
+                hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible)) {
+                if (visible < kMinVisibleShare) continue;
+                const Undistorted u = undistort_pixel(g, p.px - Eigen::Vector2d(dx, dv), config_.undistort);
+                if (!u.converged) continue;
+                const Eigen::Vector2d xd = distort_normalized(g, u.xn);
+                obs_view[std::size_t(n)] = c;
+                obs[std::size_t(n++)] = Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), u.xn,
+                                                    p.sigma_px + kEyeCorrectionRelError * std::hypot(dx, dv)};
+                ++eye_views;
+                continue;
+            }
+            if (m.occluded_views & (1u << c)) continue;
             const Eigen::Vector3d Xc = g.R_cam_rig * X + g.t_cam_rig_mm;
             const Eigen::Vector3d v = (g.centre_rig_mm() - X).normalized();  // towards the camera
             const Eigen::Vector3d e = a.dot(v) > 0.0 ? a : Eigen::Vector3d(-a);  // the half-shaft in front
@@ -314,6 +465,10 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         if (tp.usable()) {
             m.point = tp;
             changed = true;
+            if (eye_views > 0) {  // what hid it is modelled: no longer biased
+                m.occluded = false;
+                m.occluded_views = views_left_out(m, obs_view, n, int(cameras_.size()));
+            }
             for (int v = 0; v < n; ++v) {
                 const int c = obs_view[std::size_t(v)];
                 corrected_views_[std::size_t(k)] |= std::uint8_t(1u << c);
@@ -321,12 +476,7 @@ void Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             }
         }
     }
-    if (!changed) return;
-    // Refit every body with the corrected markers (same history as the first fit).
-    for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
-    fit_poses(bodies, out.markers, config_.pose, last_eye_,
-              std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
-              std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
+    return changed;
 }
 
 // ---------------------------------------------------------------------------------------------------------------

@@ -52,8 +52,6 @@ TEST_CASE("validate: the 3D RMS over all matched markers takes in the flagged on
         const nlohmann::json& c = j[chain];
         const nlohmann::json &all = c["marker3d_all_um"], &reliable = c["marker3d_um"],
                              &flagged = c["marker3d_flagged_occluded_um"];
-        // This sweep has markers behind the shafts: the case the figure is for.
-        REQUIRE(flagged["count"].get<long>() > 0);
         REQUIRE(reliable["count"].get<long>() > 0);
         REQUIRE(c["marker3d_all_rms_um"].is_number());
         const double a = c["marker3d_all_rms_um"].get<double>();
@@ -62,23 +60,46 @@ TEST_CASE("validate: the 3D RMS over all matched markers takes in the flagged on
         // Every matched marker is in exactly one of the two parts, so the squares add up.
         const long n = all["count"].get<long>(), nr = reliable["count"].get<long>(), nf = flagged["count"].get<long>();
         CHECK(n == nr + nf);
-        const double rr = reliable["rms"].get<double>(), rf = flagged["rms"].get<double>();
+        const double rr = reliable["rms"].get<double>();
+        if (nf == 0) {  // every marker the eye partly hid was corrected for it: nothing left flagged
+            CHECK(flagged["rms"].is_null());
+            CHECK(a == Approx(rr).epsilon(1e-12));
+            continue;
+        }
+        const double rf = flagged["rms"].get<double>();
         CHECK(a * a * double(n) == Approx(rr * rr * double(nr) + rf * rf * double(nf)).epsilon(1e-9));
         CHECK(all["max"].get<double>() == std::max(reliable["max"].get<double>(), flagged["max"].get<double>()));
-        // Flagged markers are the biased ones (up to a marker radius): with them the figure is larger.
-        CHECK(rf > rr);
-        CHECK(a > rr);
     }
     // The headline keys are the FPGA chain's.
     for (const char* k : {"marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "eye_rot_rms_deg", "exposure_to_pose_us"}) {
         INFO(k);
         CHECK(j[k] == j["fpga_chain"][k]);
     }
-    CHECK(j["marker3d_all_rms_um"].get<double>() >= j["marker3d_rms_um"].get<double>());
     CHECK(j["tip_rms_um"].get<double>() > 0.0);
     CHECK(j["tip_rms_um"].get<double>() < 1000.0);
     CHECK(j["eye_rot_rms_deg"].get<double>() > 0.0);
     CHECK(j["eye_rot_rms_deg"].get<double>() < 1.0);
+}
+
+TEST_CASE("validate: markers the eye partly hides are corrected for it, not left biased", "[host][validate]") {
+    // On this sweep the eye hides most of some eye markers in one or two cameras (at its outline) and part of
+    // instrument markers seen past it: their centroids are the visible parts', up to a marker radius off, and
+    // before the tracker modelled the eye they were flagged and triangulated 0.3 mm off (3D RMS over all matched
+    // markers 97 µm on the FPGA chain against 22 µm without them). Now each view the eye hides is corrected by the
+    // shaded sphere less the eye (hinted_centroid_offset) from the first pose fit.
+    const nlohmann::json j = validate_json("--recording " + sweep().string());
+    for (const char* chain : {"fpga_chain", "truth_centroids"}) {
+        INFO(chain);
+        const nlohmann::json& c = j[chain];
+        const long n = c["marker3d_all_um"]["count"].get<long>(), nf = c["marker3d_flagged_occluded_um"]["count"].get<long>();
+        REQUIRE(n > 300);  // 30 frames × the markers two cameras see: nothing was left out to score well
+        CHECK(nf * 50 < n);  // few left flagged (the truth chain: none)
+        const double all = c["marker3d_all_rms_um"].get<double>(), reliable = c["marker3d_rms_um"].get<double>();
+        CHECK(all < 25.0);
+        CHECK(all < 1.1 * reliable);
+        CHECK(c["marker3d_eye_um"]["rms"].get<double>() < 15.0);
+    }
+    CHECK(j["eye_rot_rms_deg"].get<double>() < 0.015);
 }
 
 TEST_CASE("validate: exposure mid to pose available as p50 and p99, in the JSON and the text", "[host][validate]") {

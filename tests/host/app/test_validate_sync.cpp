@@ -104,20 +104,22 @@ TEST_CASE("validate --sync async --emit blob: each blob fused as it arrives, the
     }
 }
 
-TEST_CASE("validate --sync async: the motion-model mixture holds the eye steadier than a three-view fit per frame",
+TEST_CASE("validate --sync async: the motion-model mixture holds the eye as steady as a three-view fit per frame",
           "[host][validate]") {
     // Each body's filter mixes a steady, a middle and an agile motion model: on a sweep (slow strokes, the eye
     // sprung) the steady one carries most of the weight and averages the centroid noise over many fields, where
-    // interpolation fits each frame on its own. Measured on this recording: eye 0.0131 deg against 0.0175 (one
-    // agile filter: 0.0305), 3D over all markers 22.5 against 91.2 um (interpolation triangulates the partly
-    // hidden markers it flags from fewer views), tip 31.4 against 30.8 um.
+    // interpolation fits each frame on its own from three views. Measured on this recording: eye 0.0136 deg
+    // against 0.0141 (one agile filter: 0.0305), 3D over all markers 22.4 against 21.0 um, tip 31.5 against 30.6
+    // um. (Before interpolation corrected the markers the eye partly hides, it was 0.0175 deg and 91.2 um there.)
     const nlohmann::json a = validate_json("async");
     const nlohmann::json i = validate_json("interpolate");
     INFO("async: eye " << a["eye_rot_rms_deg"] << " deg, 3D all " << a["marker3d_all_rms_um"] << " um, tip "
                        << a["tip_rms_um"] << " um; interpolate: " << i["eye_rot_rms_deg"] << ", "
                        << i["marker3d_all_rms_um"] << ", " << i["tip_rms_um"]);
-    CHECK(a["eye_rot_rms_deg"].get<double>() < 0.85 * i["eye_rot_rms_deg"].get<double>());
-    CHECK(a["marker3d_all_rms_um"].get<double>() < 0.5 * i["marker3d_all_rms_um"].get<double>());
+    CHECK(a["eye_rot_rms_deg"].get<double>() < 0.015);
+    CHECK(a["eye_rot_rms_deg"].get<double>() < 1.05 * i["eye_rot_rms_deg"].get<double>());
+    CHECK(a["marker3d_all_rms_um"].get<double>() < 1.3 * i["marker3d_all_rms_um"].get<double>());
+    CHECK(a["marker3d_all_rms_um"].get<double>() < 30.0);
     CHECK(a["tip_rms_um"].get<double>() < 1.2 * i["tip_rms_um"].get<double>());
 }
 

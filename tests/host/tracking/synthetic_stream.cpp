@@ -20,8 +20,9 @@ TrackerConfig SyntheticScene::tracker_config() const {
         cfg.timing.push_back(camera_timing(c));
     }
     cfg.bodies = set_;
-    // The synthetic stream carries exact projected centres (no shaft hides part of a marker): no correction.
+    // The synthetic stream carries exact projected centres (no shaft or eye hides part of a marker): no correction.
     cfg.shaft_occlusion_correction = false;
+    cfg.eye_occlusion_correction = false;
     return cfg;
 }
 

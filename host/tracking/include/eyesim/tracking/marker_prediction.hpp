@@ -36,6 +36,12 @@ bool predict_shaft_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre
 bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
                       const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out);
 
+/// predict_shaft_hint() with the eye's sphere as the occluder as well; false when the marker does not project or
+/// the eye hides none of it.
+bool predict_shaft_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                            const Eigen::Vector3d& axis_rig, double shaft_radius_mm,
+                            const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out);
+
 struct TrackingFrame;
 
 /// Hints for the refinement from the tracker's newest poses (eye and instruments): which marker a blob is (its

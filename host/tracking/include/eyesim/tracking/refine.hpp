@@ -158,6 +158,13 @@ bool shaft_touches(const ForeignShaft& shaft, double x_px, double v_px, double h
 /// marker's, or the marker is not there.
 bool hint_covers(const MarkerHint& hint, double qx, double qy);
 
+/// Where the pipeline's centroid of the marker `hint` predicts lies, less its centre (frame px, v: frame rows), on a
+/// field of `parity`: the visible part's intensity centroid (cfg's shading) with the hint's occluders, and that part's
+/// share of the marker's light. Needs no pixels: the tracker corrects a partly hidden marker's image by it. False
+/// without a usable outline (radius_px, centre) or with nothing visible.
+bool hinted_centroid_offset(const SphereFitConfig& cfg, const MarkerHint& hint, int parity, double& dx_px,
+                            double& dv_px, double& visible);
+
 /// max_shift_px for a lossy source, whose pipeline centroid is itself ≈ 0.1 px off (the codec's chroma).
 inline constexpr double kLossyMaxShiftPx = 0.25;
 /// How far a joined blob's fitted centre may lie from the pose's prediction (PatchMask::merged), field px: as far as

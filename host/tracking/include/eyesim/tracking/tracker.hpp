@@ -47,6 +47,11 @@ struct TrackerConfig {
     /// shaft (~0.5 px on the default rig). Modelled from the first pose fit (uniform disk minus the strip), then
     /// the markers are re-triangulated and the instruments refitted.
     bool shaft_occlusion_correction = true;
+    /// Correct eye-marker centroids for the eye itself: at the eye's outline it hides part of a marker, whose
+    /// centroid is then the visible part's (off its centre by up to a marker radius). Modelled from the first
+    /// eye fit (the marker's shaded sphere less the eye's, refine.hpp hinted_centroid_offset), every view the eye
+    /// hides corrected, the views judged occluded included, the marker re-triangulated and the bodies refitted.
+    bool eye_occlusion_correction = true;
 };
 
 /// Bit flags of a tracking frame.
@@ -143,7 +148,16 @@ public:
     int rejected_images() const;
 
 private:
-    void correct_shaft_occlusion(TrackingFrame& out);
+    /// Each corrects markers' views from the first fit's poses and returns whether it moved any (the caller
+    /// refits the bodies once).
+    bool correct_shaft_occlusion(TrackingFrame& out);
+    bool correct_eye_occlusion(TrackingFrame& out);
+    /// A view whose marker the eye hides beyond this share of its light is left out of the correction.
+    static constexpr double kMinVisibleShare = 0.05;
+    /// A marker judged occluded is taken for an eye marker predicted within this of its (biased) point.
+    static constexpr double kOccludedEyeMarkerGateMm = 1.5;
+    /// A corrected view's centroid σ grows by this share of the correction's shift.
+    static constexpr double kEyeCorrectionRelError = 0.2;
     bool pop_async(TrackingFrame& out, double now_host_us);
     /// Fuses images [first, f.count) of camera field `f` (a whole field, or the newest parts of an open one in
     /// low-latency mode); `last` when the field is complete. Returns the images a filter accepted.
@@ -164,6 +178,7 @@ private:
     // Per-frame scratch (kept as members: no allocation, no large stack frames).
     std::array<CameraField, kMaxCameras> aligned_{};
     std::array<CameraObservations, kMaxCameras> views_{};
+    std::array<int, kMaxCameras> view_parity_{};  // each view's field parity (0 top, 1 bottom)
     // Views the shaft-occlusion correction moved (bit c of marker k) and the normalised images it used.
     std::array<std::uint8_t, kMaxMarkersPerFrame> corrected_views_{};
     std::array<std::array<Eigen::Vector2d, kMaxCameras>, kMaxMarkersPerFrame> corrected_xn_{};
