@@ -305,6 +305,21 @@ std::uint8_t views_left_out(const MatchedMarker& m, const std::array<int, kMaxCa
 
 }  // namespace
 
+bool Tracker::shifted_observation(int c, const ImagePoint& p, double dx_px, double dv_px, Observation& o) const {
+    const CameraGeometry& g = cameras_[std::size_t(c)];
+    Eigen::Vector2d xn = p.xn;
+    if (dx_px != 0.0 || dv_px != 0.0) {
+        const Undistorted u = undistort_pixel(g, p.px - Eigen::Vector2d(dx_px, dv_px), config_.undistort);
+        if (!u.converged) return false;
+        xn = u.xn;
+    }
+    const Eigen::Vector2d xd = distort_normalized(g, xn);
+    // The correction is as good as the eye's outline is placed: its error grows with the shift.
+    o = Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), xn,
+                    p.sigma_px + kEyeCorrectionRelError * std::hypot(dx_px, dv_px)};
+    return true;
+}
+
 bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
     const BodySet& bodies = config_.bodies;
     if (!out.eye.measured() || !(bodies.eye.radius_mm > 0.0)) return false;
@@ -348,29 +363,19 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             const int i = m.image_index[std::size_t(c)];
             if (i < 0) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
-            const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
             MarkerHint hint;
             double dx = 0, dv = 0, visible = 1.0;
             const bool eye_hides = near_eye_outline(g.centre_rig_mm(), X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm) &&
                                    predict_eye_hint(g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm, hint) &&
                                    hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible);
+            const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
             // A view judged occluded that the eye does not hide has something else across it: it stays out. One
             // the eye hides almost whole has too little left to place it.
             if (eye_hides ? visible < kMinVisibleShare : (m.occluded_views & (1u << c)) != 0) continue;
-            Eigen::Vector2d xn = p.xn;
-            // The correction is as good as the eye's outline is placed: its error grows with the shift.
-            const double sigma_px = p.sigma_px + kEyeCorrectionRelError * std::hypot(dx, dv);
+            if (!shifted_observation(c, p, eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, obs[std::size_t(n)])) continue;
+            hidden += eye_hides;
             moved[std::size_t(n)] = eye_hides;
-            if (eye_hides) {
-                ++hidden;
-                const Undistorted u = undistort_pixel(g, p.px - Eigen::Vector2d(dx, dv), config_.undistort);
-                if (!u.converged) continue;
-                xn = u.xn;
-            }
-            const Eigen::Vector2d xd = distort_normalized(g, xn);
-            obs_view[std::size_t(n)] = c;
-            obs[std::size_t(n++)] =
-                Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), xn, sigma_px};
+            obs_view[std::size_t(n++)] = c;
         }
         if (hidden == 0 || n < 2) continue;
         const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
@@ -429,13 +434,8 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
                 predict_shaft_eye_hint(g, Xp, R, a, model.shaft_radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
                                        hint) &&
                 hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible)) {
-                if (visible < kMinVisibleShare) continue;
-                const Undistorted u = undistort_pixel(g, p.px - Eigen::Vector2d(dx, dv), config_.undistort);
-                if (!u.converged) continue;
-                const Eigen::Vector2d xd = distort_normalized(g, u.xn);
-                obs_view[std::size_t(n)] = c;
-                obs[std::size_t(n++)] = Observation{c, Eigen::Vector2d(g.fx * xd.x() + g.cx, g.fy * xd.y() + g.cy), u.xn,
-                                                    p.sigma_px + kEyeCorrectionRelError * std::hypot(dx, dv)};
+                if (visible < kMinVisibleShare || !shifted_observation(c, p, dx, dv, obs[std::size_t(n)])) continue;
+                obs_view[std::size_t(n++)] = c;
                 ++eye_views;
                 continue;
             }

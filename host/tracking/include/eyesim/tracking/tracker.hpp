@@ -152,6 +152,9 @@ private:
     /// refits the bodies once).
     bool correct_shaft_occlusion(TrackingFrame& out);
     bool correct_eye_occlusion(TrackingFrame& out);
+    /// Camera c's observation of image p with its centroid moved back by (dx_px, dv_px) (frame px, the share of the
+    /// marker something hides) and σ grown by kEyeCorrectionRelError of that; false when it does not undistort.
+    bool shifted_observation(int c, const ImagePoint& p, double dx_px, double dv_px, Observation& o) const;
     /// A view whose marker the eye hides beyond this share of its light is left out of the correction.
     static constexpr double kMinVisibleShare = 0.05;
     /// A marker judged occluded is taken for an eye marker predicted within this of its (biased) point.
