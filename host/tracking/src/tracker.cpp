@@ -237,19 +237,17 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
     correspondence_.solve(std::span<const CameraObservations>(views_.data(), cameras_.size()), out.markers);
     // Poses: the previous frame's are the hold values; the pedal sets the opening.
     out.instrument_count = config_.bodies.instrument_count;
-    for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
-    fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
-              std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
-              std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
-    // Both corrections from the first fit's poses, then one refit with every corrected marker.
-    bool corrected = config_.eye_occlusion_correction && correct_eye_occlusion(out);
-    corrected = (config_.shaft_occlusion_correction && correct_shaft_occlusion(out)) || corrected;
-    if (corrected) {
+    auto fit = [&] {
         for (int b = 0; b < out.instrument_count; ++b) out.instruments[std::size_t(b)].opening = opening_;
         fit_poses(config_.bodies, out.markers, config_.pose, last_eye_,
                   std::span<const InstrumentPose>(last_instruments_.data(), std::size_t(out.instrument_count)), out.eye,
                   std::span<InstrumentPose>(out.instruments.data(), std::size_t(out.instrument_count)), out.assignment);
-    }
+    };
+    fit();
+    // Both corrections from the first fit's poses, then one refit (same history) with every corrected marker.
+    bool corrected = config_.eye_occlusion_correction && correct_eye_occlusion(out);
+    corrected = (config_.shaft_occlusion_correction && correct_shaft_occlusion(out)) || corrected;
+    if (corrected) fit();
     last_eye_ = out.eye;
     for (int b = 0; b < out.instrument_count; ++b) last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
     out.markers_unassigned = 0;
@@ -415,7 +413,8 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         const Eigen::Vector3d a = pose.axis_rig;
         const int mi = out.assignment.marker[std::size_t(k)];
         // Where the pose puts the marker, for the eye's part in hiding it (as correct_eye_occlusion).
-        const bool eye_known = out.eye.measured() && bodies.eye.radius_mm > 0.0 && mi >= 0 && mi < model.marker_count;
+        const bool eye_known = config_.eye_occlusion_correction && out.eye.measured() && bodies.eye.radius_mm > 0.0 &&
+                               mi >= 0 && mi < model.marker_count;
         const Eigen::Vector3d Xp =
             eye_known ? Eigen::Vector3d(pose.tip_rig_mm + pose.rotation_body_to_rig *
                                                               (model.markers[std::size_t(mi)].pos_body_mm - model.tip_body_mm))

@@ -47,10 +47,12 @@ struct TrackerConfig {
     /// shaft (~0.5 px on the default rig). Modelled from the first pose fit (uniform disk minus the strip), then
     /// the markers are re-triangulated and the instruments refitted.
     bool shaft_occlusion_correction = true;
-    /// Correct eye-marker centroids for the eye itself: at the eye's outline it hides part of a marker, whose
-    /// centroid is then the visible part's (off its centre by up to a marker radius). Modelled from the first
-    /// eye fit (the marker's shaded sphere less the eye's, refine.hpp hinted_centroid_offset), every view the eye
-    /// hides corrected, the views judged occluded included, the marker re-triangulated and the bodies refitted.
+    /// Correct centroids for the eye in front: at its outline the eye hides part of a marker (its own markers at
+    /// the limb, instrument markers seen past it), whose centroid is then the visible part's (off its centre by up
+    /// to a marker radius). Modelled from the first fit's poses (the marker's shaded sphere less the eye, and its
+    /// shaft for an instrument marker: refine.hpp hinted_centroid_offset), every view the eye hides corrected, the
+    /// views judged occluded included, the marker re-triangulated and the bodies refitted. Instrument markers are
+    /// corrected within the shaft correction's pass (both on).
     bool eye_occlusion_correction = true;
 };
 
