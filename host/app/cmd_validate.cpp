@@ -94,6 +94,7 @@ struct RunStats {
     std::vector<double> marker_pos_err_um;
     long frames = 0, two_view_frames = 0, too_few_camera_frames = 0, ghosts = 0, images_dropped_sync = 0,
          images_unmatched = 0, markers_unassigned = 0, truth_visible2 = 0, eye_held = 0;
+    long eye_model_views = 0;  // views the eye's model corrected and the poses used (Tracker::eye_model_views)
     std::vector<long> tip_held;
 };
 
@@ -149,6 +150,7 @@ public:
     void finish(double now_us) {
         tracker_.finish();
         drain(now_us);
+        stats_.eye_model_views = long(tracker_.eye_model_views());
     }
 
     RunStats& stats() { return stats_; }
@@ -528,6 +530,7 @@ nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
     j["frames_two_view"] = s.two_view_frames;
     j["frames_too_few_cameras"] = s.too_few_camera_frames;
     j["eye_not_measured_frames"] = s.eye_held;
+    j["eye_model_views"] = s.eye_model_views;
     nlohmann::json held = nlohmann::json::object();
     for (int b = 0; b < bodies.instrument_count; ++b)
         held[bodies.instruments[std::size_t(b)].name] = s.tip_held[std::size_t(b)];
@@ -933,6 +936,7 @@ std::string html_chain(const nlohmann::json& f, long fields_with_drops, long par
     rows.push_back({"frames with two views at most", f["frames_two_view"].dump()});
     rows.push_back({"frames with too few cameras", f["frames_too_few_cameras"].dump()});
     rows.push_back({"frames the eye was not measured", f["eye_not_measured_frames"].dump()});
+    rows.push_back({"marker views the eye's model corrected", f["eye_model_views"].dump()});
     for (const auto& [k, v] : f["instrument_not_measured_frames"].items())
         rows.push_back({"frames " + k + " was not measured", v.dump()});
     rows.push_back({"fields with dropped blobs", std::to_string(fields_with_drops)});

@@ -383,6 +383,7 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
         m.occluded = false;
         taken[std::size_t(mi)] = true;
         m.occluded_views = views_left_out(m, obs_view, n, int(cameras_.size()));
+        eye_model_views_ += std::uint64_t(hidden);
         for (int v = 0; v < n; ++v) {
             if (!moved[std::size_t(v)]) continue;
             const int c = obs_view[std::size_t(v)];
@@ -464,6 +465,7 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         if (tp.usable()) {
             m.point = tp;
             changed = true;
+            eye_model_views_ += std::uint64_t(eye_views);
             if (eye_views > 0) {  // what hid it is modelled: no longer biased
                 m.occluded = false;
                 m.occluded_views = views_left_out(m, obs_view, n, int(cameras_.size()));
@@ -613,6 +615,9 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         }
     }
     const double Rm = bodies.marker_radius_mm;
+    const bool eye_model = config_.eye_occlusion_correction && bodies.eye.radius_mm > 0.0;
+    const Eigen::Vector3d& eye_centre = bodies.eye.centre_rig_mm;
+    const SphereFitConfig shading;  // the marker's shading model, as correct_eye_occlusion
     const double trocar_sigma_mm =
         config_.pose.trocar_sigma_mm * std::sqrt(double(cameras_.size()));  // applied once per camera field
     int accepted = 0;
@@ -633,14 +638,40 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             const FieldImage& im = f.images[std::size_t(i)];
             const Eigen::Vector3d X = flt.to_rig(ms[k].pos_body_mm);
             const double z = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
-            if (Rm > 0.0 && im.area_px > 0.0f && z > 0.0) {
-                // A partly hidden marker (eye edge, another instrument): its centroid is biased, leave it out.
+            // The eye's outline across the marker's image (an eye marker at the limb, an instrument marker seen past
+            // the eye): the visible part's centroid, off the centre by up to a radius, is moved back by the shaded
+            // sphere less the eye (and the shaft) at the predicted pose, as the sync chain's correct_eye_occlusion.
+            double ex_px = 0, ev_px = 0, visible = 1.0;
+            bool eye_hides = false;
+            if (eye_model) {
+                const double r_mm = ms[k].radius_mm > 0.0 ? ms[k].radius_mm : Rm;
+                MarkerHint hint;
+                const bool shaft = model && model->shaft_radius_mm > 0.0;
+                eye_hides = r_mm > 0.0 && near_eye_outline(g.centre_rig_mm(), X, r_mm, eye_centre, bodies.eye.radius_mm) &&
+                            (shaft ? predict_shaft_eye_hint(g, X, r_mm, flt.rotation() * model->axis_body.normalized(),
+                                                            model->shaft_radius_mm, eye_centre, bodies.eye.radius_mm, hint)
+                                   : predict_eye_hint(g, X, r_mm, eye_centre, bodies.eye.radius_mm, hint)) &&
+                            hinted_centroid_offset(shading, hint, f.parity & 1, ex_px, ev_px, visible);
+            }
+            if (eye_hides) {
+                if (visible < kMinVisibleShare) continue;  // too little left to place it
+            } else if (Rm > 0.0 && im.area_px > 0.0f && z > 0.0) {
+                // A partly hidden marker (another instrument): its centroid is biased, leave it out.
                 const double r = Rm / z;
                 const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
                 if (double(im.area_px) < ao.min_area_ratio * expected) continue;
             }
             bool ok = false;
-            if (!model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
+            if (eye_hides) {
+                // The correction is as good as the outline is placed: the image's σ grows with the shift.
+                const double grow_px = kEyeCorrectionRelError * std::hypot(ex_px, ev_px);
+                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px - Eigen::Vector2d(ex_px, ev_px),
+                                      ao.sigma_x_px + grow_px, ao.sigma_y_px + grow_px, ao.nis_gate,
+                                      [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
+                                          return Eigen::Vector2d::Zero().eval();
+                                      },
+                                      nullptr, age_us[std::size_t(b)]);
+            } else if (!model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
                 ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
                                       [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
                                           return Eigen::Vector2d::Zero().eval();
@@ -656,6 +687,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                                       nullptr, age_us[std::size_t(b)]);
             }
             if (!ok) continue;
+            eye_model_views_ += eye_hides;
             ++used;
             seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c)] = T;
         }

@@ -148,6 +148,10 @@ public:
     const TrackerConfig& config() const { return config_; }
     /// Images refused on input (bad class or coordinates).
     int rejected_images() const;
+    /// Marker views whose centroid the eye's model moved back (TrackerConfig::eye_occlusion_correction) and that the
+    /// poses then used: views re-triangulated in the sync modes, images fused in SyncMode::Async. How much of the
+    /// result rests on the model (the eye's outline in front of a marker), counted since construction.
+    std::uint64_t eye_model_views() const { return eye_model_views_; }
 
 private:
     /// Each corrects markers' views from the first fit's poses and returns whether it moved any (the caller
@@ -202,6 +206,7 @@ private:
     void enqueue(const CameraField& f, int first, bool last);
     std::array<QueuedField, kQueue> queue_{};
     int queue_head_ = 0, queue_count_ = 0;
+    std::uint64_t eye_model_views_ = 0;
     std::array<BodyFilter, kBodies> filters_{};
     std::array<double, kBodies> last_good_us_{};
     std::array<int, kBodies> used_last_field_{};
