@@ -145,8 +145,13 @@ bool FrameSync::ready() const {
 namespace {
 
 /// Pairs the images of two fields of one camera (same class, mutual nearest within the gate) and writes
-/// p0 + α·(p1 − p0) for each pair. Returns the number of images of the nearer field left unpaired.
-int blend(const CameraField& f0, const CameraField& f1, double alpha, double gate_px, CameraField& out) {
+/// p0 + α·(p1 − p0) for each pair. With `fp` and `fpp` (the two fields before f0) and `sigma_px` > 0, an image
+/// that pairs back through both gets the quadratic's term c·(T − t0)(T − t1) (SyncOptions::curvature): c the mean
+/// of the second divided differences over (fpp, fp, f0) and (fp, f0, f1), which cancels a bias that alternates
+/// with the field parity (a second difference of three fields amplifies it fourfold), shrunk by c²/(c² + var c).
+/// Returns the number of images of the nearer field left unpaired.
+int blend(const CameraField& f0, const CameraField& f1, double alpha, double gate_px, CameraField& out,
+          const CameraField* fp = nullptr, const CameraField* fpp = nullptr, double sigma_px = 0.0) {
     out.count = 0;
     std::array<int, kMaxMarkersPerCamera> best01{}, best10{};
     best01.fill(-1);
@@ -163,6 +168,22 @@ int blend(const CameraField& f0, const CameraField& f1, double alpha, double gat
     };
     for (int i = 0; i < f0.count; ++i) best01[std::size_t(i)] = nearest(f0, i, f1);
     for (int j = 0; j < f1.count; ++j) best10[std::size_t(j)] = nearest(f1, j, f0);
+    // c = w1·p1 + w0·p0 + wp·pp + wpp·ppp (px/s², times in s), its noise var σ²·Σw².
+    const double t1 = f1.sample_device_us * 1e-6, t0 = f0.sample_device_us * 1e-6;
+    const double tp = fp ? fp->sample_device_us * 1e-6 : 0.0, tpp = fpp ? fpp->sample_device_us * 1e-6 : 0.0;
+    const bool bend = fp && fpp && sigma_px > 0.0 && t1 - t0 > 1e-6 && t0 - tp > 1e-6 && tp - tpp > 1e-6;
+    double w1 = 0, w0 = 0, wp = 0, wpp = 0, var_c = 0;
+    if (bend) {
+        // f[a,b,c] = ((pc − pb)/(tc − tb) − (pb − pa)/(tb − ta))/(tc − ta); the mean of two, each weighted ½.
+        const double A = 0.5 / (t1 - tp), B = 0.5 / (t0 - tpp);
+        w1 = A / (t1 - t0);
+        w0 = -A / (t1 - t0) - A / (t0 - tp) + B / (t0 - tp);
+        wp = A / (t0 - tp) - B / (t0 - tp) - B / (tp - tpp);
+        wpp = B / (tp - tpp);
+        var_c = sigma_px * sigma_px * (w1 * w1 + w0 * w0 + wp * wp + wpp * wpp);
+    }
+    const double T = t0 + alpha * (t1 - t0);
+    const double basis_s2 = (T - t0) * (T - t1);
     int paired = 0;
     for (int i = 0; i < f0.count; ++i) {
         const int j = best01[std::size_t(i)];
@@ -172,8 +193,21 @@ int blend(const CameraField& f0, const CameraField& f1, double alpha, double gat
         o.flags |= f1.images[std::size_t(j)].flags;
         // Occlusion in either field biases the blend: keep the smaller area so it can be detected.
         o.area_px = std::min(o.area_px, f1.images[std::size_t(j)].area_px);
-        o.frame_px = f0.images[std::size_t(i)].frame_px +
-                     alpha * (f1.images[std::size_t(j)].frame_px - f0.images[std::size_t(i)].frame_px);
+        const Eigen::Vector2d& p0 = f0.images[std::size_t(i)].frame_px;
+        const Eigen::Vector2d& p1 = f1.images[std::size_t(j)].frame_px;
+        o.frame_px = p0 + alpha * (p1 - p0);
+        if (bend) {
+            const int k = nearest(f0, i, *fp);
+            const int m = k >= 0 && nearest(*fp, k, f0) == i ? nearest(*fp, k, *fpp) : -1;
+            if (m >= 0 && nearest(*fpp, m, *fp) == k) {
+                const Eigen::Vector2d c = w1 * p1 + w0 * p0 + wp * fp->images[std::size_t(k)].frame_px +
+                                          wpp * fpp->images[std::size_t(m)].frame_px;
+                for (int a = 0; a < 2; ++a) {
+                    const double c2 = c[a] * c[a];
+                    o.frame_px[a] += c[a] * (c2 / (c2 + var_c)) * basis_s2;
+                }
+            }
+        }
         ++paired;
     }
     const CameraField& nearer = (alpha < 0.5) ? f0 : f1;
@@ -189,6 +223,7 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
     out.camera = cam;
     const CameraField* a = nullptr;   // newest at or before T
     const CameraField* a0 = nullptr;  // the one before a
+    const CameraField* a1 = nullptr;  // the one before a0
     const CameraField* b = nullptr;   // oldest after T
     const Ring& r = rings_[std::size_t(cam)];
     for (int age = 0; age < r.count; ++age) {
@@ -199,6 +234,8 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
             a = f;
         } else if (!a0) {
             a0 = f;
+        } else if (!a1) {
+            a1 = f;
         }
     }
     auto use_direct = [&](const CameraField* f) {
@@ -209,9 +246,10 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
         end_us = std::max(end_us, f->field_end_device_us);
         recv_us = std::max(recv_us, f->received_host_us);
     };
-    auto use_pair = [&](const CameraField* f0, const CameraField* f1, CameraSyncState st) {
+    auto use_pair = [&](const CameraField* f0, const CameraField* f1, CameraSyncState st,
+                        const CameraField* fp = nullptr, const CameraField* fpp = nullptr) {
         const double alpha = (T - f0->sample_device_us) / (f1->sample_device_us - f0->sample_device_us);
-        ac.dropped_images = blend(*f0, *f1, alpha, opt_.pair_gate_px, out);
+        ac.dropped_images = blend(*f0, *f1, alpha, opt_.pair_gate_px, out, fp, fpp, opt_.curvature_sigma_px);
         out.camera = cam;
         out.parity = f1->parity;
         out.field_counter = f1->field_counter;
@@ -229,7 +267,8 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
     switch (opt_.mode) {
         case SyncMode::Interpolate:
             if (a && b && b->sample_device_us - a->sample_device_us <= opt_.max_gap_us) {
-                use_pair(a, b, CameraSyncState::Interpolated);
+                const bool bend = opt_.curvature && a0 && a1 && a->sample_device_us - a1->sample_device_us <= 2.0 * opt_.max_gap_us;
+                use_pair(a, b, CameraSyncState::Interpolated, bend ? a0 : nullptr, bend ? a1 : nullptr);
                 return;
             }
             break;

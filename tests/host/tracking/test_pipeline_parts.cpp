@@ -11,6 +11,8 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <utility>
+#include <vector>
 
 using namespace eyesim::tracking;
 namespace proto = eyesim::protocol;
@@ -280,4 +282,73 @@ TEST_CASE("a marker flagged partly hidden carries little weight in its instrumen
     const double full_um = (cur[0].tip_rig_mm - tip).norm() * 1e3;
     INFO("tip error: " << weighted_um << " um weighted, " << full_um << " um at full weight");
     CHECK(full_um > 100.0);
+}
+
+namespace {
+
+/// Interpolated x of camera 1's marker at each frame of camera 0 (fields 20 ms apart, camera 1 half a period later):
+/// x(t) = 100 + 200·t + ½·accel·(t − 0.12 s)² px plus a bias of ±`parity_bias_px` that alternates with the field.
+std::vector<std::pair<double, double>> interpolated_x(double accel_px_s2, double parity_bias_px, bool curvature) {
+    SyncOptions opt;
+    opt.curvature = curvature;
+    FrameSync sync(2, opt);
+    auto field = [](int cam, std::uint32_t k, double t_us, double x) {
+        CameraField f;
+        f.camera = cam;
+        f.field_counter = k;
+        f.parity = int(k & 1u);
+        f.sample_device_us = t_us;
+        f.field_end_device_us = t_us + 5000.0;
+        f.count = 1;
+        f.images[0].colour_class = 2;
+        f.images[0].frame_px = Eigen::Vector2d(x, 300.0);
+        f.images[0].area_px = 30.0f;
+        return f;
+    };
+    auto truth_x = [&](double t_us) {
+        const double t = t_us * 1e-6;  // within the pairing gate: ≤ 25 px a field
+        return 100.0 + 200.0 * t + 0.5 * accel_px_s2 * (t - 0.12) * (t - 0.12);
+    };
+    std::vector<std::pair<double, double>> out;  // (truth, interpolated) per frame
+    double T = 0, end = 0, recv = 0;
+    std::uint32_t ref = 0;
+    std::array<AlignedCamera, kMaxCameras> cams;
+    std::array<CameraField, kMaxCameras> images;
+    for (std::uint32_t k = 0; k < 12; ++k) {
+        const double t0 = 20000.0 * k, t1 = t0 + 10000.0;
+        sync.add(field(0, k, t0, 50.0));
+        sync.add(field(1, k, t1, truth_x(t1) + ((k & 1u) ? parity_bias_px : -parity_bias_px)));
+        while (sync.pop(T, ref, cams, images, end, recv))
+            if (cams[1].state == CameraSyncState::Interpolated && images[1].count == 1)
+                out.push_back({truth_x(T), images[1].images[0].frame_px.x()});
+    }
+    return out;
+}
+
+}  // namespace
+
+TEST_CASE("interpolation bends with the image's acceleration and keeps a parity bias out of it", "[tracking][sync]") {
+    // 5,000 px/s²: a straight line between fields 20 ms apart is 0.25 px off at their midpoint (c·h²/4).
+    const auto bent = interpolated_x(5000.0, 0.1, true);
+    const auto line = interpolated_x(5000.0, 0.1, false);
+    REQUIRE(bent.size() == line.size());
+    REQUIRE(bent.size() >= 8);
+    int with_history = 0;
+    for (std::size_t i = 0; i < bent.size(); ++i) {
+        INFO("frame " << i << ": truth " << bent[i].first << ", bent " << bent[i].second << ", line " << line[i].second);
+        CHECK(std::abs(line[i].second - line[i].first) == Approx(0.25).margin(1e-6));
+        // The first frames lack the two fields before the pair: the line stands.
+        if (std::abs(bent[i].second - line[i].second) < 1e-9) continue;
+        ++with_history;
+        CHECK(std::abs(bent[i].second - bent[i].first) < 1e-3);
+    }
+    CHECK(with_history >= int(bent.size()) - 3);
+    // Uniform motion with the alternating bias: the acceleration estimate is zero, the line is kept exactly.
+    const auto still_bent = interpolated_x(0.0, 0.1, true);
+    const auto still_line = interpolated_x(0.0, 0.1, false);
+    REQUIRE(still_bent.size() == still_line.size());
+    for (std::size_t i = 0; i < still_bent.size(); ++i) {
+        CHECK(still_bent[i].second == Approx(still_line[i].second).margin(1e-9));
+        CHECK(still_bent[i].second == Approx(still_bent[i].first).margin(1e-9));  // the bias cancels at the midpoint
+    }
 }
