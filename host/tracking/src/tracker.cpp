@@ -290,6 +290,20 @@ bool near_eye_outline(const Eigen::Vector3d& o, const Eigen::Vector3d& X, double
     return std::fabs(angle - std::asin(eye_r / db)) <= 1.05 * std::asin(r / da);
 }
 
+// The eye's part in hiding the sphere (X, r_mm) from camera g, the eye's sphere (E, eye_r) in front: where the
+// pipeline's centroid of what is left lies, less the sphere's centre (frame px, on a field of `parity`), and that
+// part's share of the light (hinted_centroid_offset with the shaded sphere less the eye and, with shaft_radius_mm
+// > 0, the shaft along axis_rig the marker is threaded on). False where the eye's outline does not cross the image.
+bool eye_hidden_offset(const SphereFitConfig& shading, const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm,
+                       const Eigen::Vector3d& E, double eye_r, const Eigen::Vector3d& axis_rig, double shaft_radius_mm,
+                       int parity, double& dx_px, double& dv_px, double& visible) {
+    MarkerHint hint;
+    return near_eye_outline(g.centre_rig_mm(), X, r_mm, E, eye_r) &&
+           (shaft_radius_mm > 0.0 ? predict_shaft_eye_hint(g, X, r_mm, axis_rig, shaft_radius_mm, E, eye_r, hint)
+                                  : predict_eye_hint(g, X, r_mm, E, eye_r, hint)) &&
+           hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible);
+}
+
 // The views of `m` that have an image and are not among the `n` cameras of `used`.
 std::uint8_t views_left_out(const MatchedMarker& m, const std::array<int, kMaxCameras>& used, int n, int ncam) {
     std::uint8_t out = 0;
@@ -361,11 +375,10 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             const int i = m.image_index[std::size_t(c)];
             if (i < 0) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
-            MarkerHint hint;
             double dx = 0, dv = 0, visible = 1.0;
-            const bool eye_hides = near_eye_outline(g.centre_rig_mm(), X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm) &&
-                                   predict_eye_hint(g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm, hint) &&
-                                   hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible);
+            const bool eye_hides = eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
+                                                     Eigen::Vector3d::Zero(), 0.0, view_parity_[std::size_t(c)], dx, dv,
+                                                     visible);
             const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
             // A view judged occluded that the eye does not hide has something else across it: it stays out. One
             // the eye hides almost whole has too little left to place it.
@@ -428,12 +441,9 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(i)];
             // The eye hides part of it in this view (a marker seen past the eye's outline): the shaded sphere less
             // the eye and the shaft gives the shift, in a view judged occluded too.
-            MarkerHint hint;
             double dx = 0, dv = 0, visible = 0;
-            if (eye_known && near_eye_outline(g.centre_rig_mm(), Xp, R, out.eye.centre_rig_mm, bodies.eye.radius_mm) &&
-                predict_shaft_eye_hint(g, Xp, R, a, model.shaft_radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
-                                       hint) &&
-                hinted_centroid_offset(shading, hint, view_parity_[std::size_t(c)], dx, dv, visible)) {
+            if (eye_known && eye_hidden_offset(shading, g, Xp, R, out.eye.centre_rig_mm, bodies.eye.radius_mm, a,
+                                               model.shaft_radius_mm, view_parity_[std::size_t(c)], dx, dv, visible)) {
                 if (visible < kMinVisibleShare || !shifted_observation(c, p, dx, dv, obs[std::size_t(n)])) continue;
                 obs_view[std::size_t(n++)] = c;
                 ++eye_views;
@@ -645,13 +655,12 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             bool eye_hides = false;
             if (eye_model) {
                 const double r_mm = ms[k].radius_mm > 0.0 ? ms[k].radius_mm : Rm;
-                MarkerHint hint;
                 const bool shaft = model && model->shaft_radius_mm > 0.0;
-                eye_hides = r_mm > 0.0 && near_eye_outline(g.centre_rig_mm(), X, r_mm, eye_centre, bodies.eye.radius_mm) &&
-                            (shaft ? predict_shaft_eye_hint(g, X, r_mm, flt.rotation() * model->axis_body.normalized(),
-                                                            model->shaft_radius_mm, eye_centre, bodies.eye.radius_mm, hint)
-                                   : predict_eye_hint(g, X, r_mm, eye_centre, bodies.eye.radius_mm, hint)) &&
-                            hinted_centroid_offset(shading, hint, f.parity & 1, ex_px, ev_px, visible);
+                eye_hides = r_mm > 0.0 &&
+                            eye_hidden_offset(shading, g, X, r_mm, eye_centre, bodies.eye.radius_mm,
+                                              shaft ? Eigen::Vector3d(flt.rotation() * model->axis_body.normalized())
+                                                    : Eigen::Vector3d::Zero(),
+                                              shaft ? model->shaft_radius_mm : 0.0, f.parity & 1, ex_px, ev_px, visible);
             }
             if (eye_hides) {
                 if (visible < kMinVisibleShare) continue;  // too little left to place it
@@ -661,18 +670,13 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
                 const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
                 if (double(im.area_px) < ao.min_area_ratio * expected) continue;
             }
+            // Moved back by the eye's model, the image's σ grows with the shift: the correction is as good as the
+            // outline is placed. The eye's model holds the shaft too, so the strip shift below is not added again.
+            const Eigen::Vector2d px = eye_hides ? Eigen::Vector2d(im.frame_px - Eigen::Vector2d(ex_px, ev_px)) : im.frame_px;
+            const double grow_px = eye_hides ? kEyeCorrectionRelError * std::hypot(ex_px, ev_px) : 0.0;
             bool ok = false;
-            if (eye_hides) {
-                // The correction is as good as the outline is placed: the image's σ grows with the shift.
-                const double grow_px = kEyeCorrectionRelError * std::hypot(ex_px, ev_px);
-                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px - Eigen::Vector2d(ex_px, ev_px),
-                                      ao.sigma_x_px + grow_px, ao.sigma_y_px + grow_px, ao.nis_gate,
-                                      [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
-                                          return Eigen::Vector2d::Zero().eval();
-                                      },
-                                      nullptr, age_us[std::size_t(b)]);
-            } else if (!model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
-                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
+            if (eye_hides || !model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
+                ok = flt.update_point(g, ms[k].pos_body_mm, px, ao.sigma_x_px + grow_px, ao.sigma_y_px + grow_px, ao.nis_gate,
                                       [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
                                           return Eigen::Vector2d::Zero().eval();
                                       },
