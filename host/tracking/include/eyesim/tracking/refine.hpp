@@ -52,6 +52,11 @@ struct SphereFitConfig {
     double outlier_sigma = 4.0;            ///< residual (in σ) beyond which an observation is left out
     double max_shift_outliers_px = 0.06;   ///< max_shift_px for a fit that left observations out
     double max_shift_hinted_px = 0.0;      ///< when > 0: max_shift_px for a fit with a MarkerHint
+    /// A hinted fit that leaves less than this share of the marker's light visible (a sliver) is anchored by the
+    /// pose: its centre may lie near the hint's predicted centre instead of near where the pipeline's centroid
+    /// started it, and its centroid must lie within the shift gate, not widened by the hidden share, of the
+    /// visible centroid the pose predicts as well as within the widened gate of the pipeline's. 0: never.
+    double prediction_gate_visible = 0.5;
     /// The shift gate's reach in x and in y as multiples of max_shift_px: the pipeline's chroma-only centroid is
     /// that much less certain along a direction in which the source's chroma is coarser than the camera's 4:2:2
     /// (4:1:1: 2 in x; 4:2:0, a chroma line for two field lines: 2 in y).
