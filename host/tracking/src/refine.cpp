@@ -43,6 +43,11 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     // occluder's edge; DV: 0.31 px at the 99th percentile against 0.23 for clear markers), and a hinted fit has
     // the occluders modelled: its gate is wider again.
     if (!lossless) config.max_shift_hinted_px = std::max(config.max_shift_hinted_px, kLossyMaxShiftHintedPx);
+    // There a sliver's pipeline centroid (a marker mostly hidden) can be a pixel off, and the pose, a field old,
+    // is the better anchor for its fit. Not on the camera's own fields: their sliver centroids are within tenths,
+    // and the pose's anchor refused good fits (bench_refine, sweep seeds 21–30, σ = 1: partly hidden 6–10 px
+    // markers 0.0316 → 0.0358 px with it).
+    if (!lossless) config.prediction_gate_visible = std::max(config.prediction_gate_visible, kLossyPredictionGateVisible);
     // Chroma coarser than 4:2:2 along a direction (4:1:1: one sample in four columns; 4:2:0: one line in two)
     // leaves the pipeline's chroma-only centroid about twice as uncertain along it.
     if (c == "4:1:1") config.shift_x_scale = 2.0;

@@ -55,8 +55,9 @@ struct SphereFitConfig {
     /// A hinted fit that leaves less than this share of the marker's light visible (a sliver) is anchored by the
     /// pose: its centre may lie near the hint's predicted centre instead of near where the pipeline's centroid
     /// started it, and its centroid must lie within the shift gate, not widened by the hidden share, of the
-    /// visible centroid the pose predicts as well as within the widened gate of the pipeline's. 0: never.
-    double prediction_gate_visible = 0.5;
+    /// visible centroid the pose predicts as well as within the widened gate of the pipeline's. 0: never (the
+    /// camera's own fields); sphere_fit_config_for_source sets it for lossy sources.
+    double prediction_gate_visible = 0.0;
     /// The shift gate's reach in x and in y as multiples of max_shift_px: the pipeline's chroma-only centroid is
     /// that much less certain along a direction in which the source's chroma is coarser than the camera's 4:2:2
     /// (4:1:1: 2 in x; 4:2:0, a chroma line for two field lines: 2 in y).
@@ -177,10 +178,12 @@ inline constexpr double kLossyMaxShiftPx = 0.25;
 inline constexpr double kMergedMaxShiftPx = kLossyMaxShiftPx;
 /// max_shift_hinted_px for a lossy source: a partly hidden marker's pipeline centroid is further off still.
 inline constexpr double kLossyMaxShiftHintedPx = 0.4;
+/// prediction_gate_visible for a lossy source.
+inline constexpr double kLossyPredictionGateVisible = 0.5;
 
 /// Chroma and luma σ, and the shift gate, of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1"
 /// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx and
-/// max_shift_hinted_px to kLossyMaxShiftHintedPx; subsampled chroma stretches the gate along its coarse
+/// max_shift_hinted_px to kLossyMaxShiftHintedPx, and anchors slivers by the pose: prediction_gate_visible; subsampled chroma stretches the gate along its coarse
 /// direction; either fits hints beside the eye's outline). Raw or lossless 4:2:2 leaves `config` unchanged.
 SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
