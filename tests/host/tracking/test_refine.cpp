@@ -241,6 +241,11 @@ TEST_CASE("sphere fit: a 4:2:0 video's markers from its luma, without the chroma
     const SphereFitConfig raw = sphere_fit_config_for_source(plain, "4:2:2", true);
     CHECK(raw.chroma_noise_dn == plain.chroma_noise_dn);  // raw or lossless 4:2:2: the camera's own fit
     CHECK(raw.luma_noise_floor_dn == plain.luma_noise_floor_dn);
+    // A sliver's fit is anchored by the pose on lossy video only (docs/tracking.md, "Slivers anchored by the pose").
+    CHECK(raw.prediction_gate_visible == 0.0);
+    CHECK(aware.prediction_gate_visible == 0.0);
+    CHECK(sphere_fit_config_for_source(plain, "4:2:0", false).prediction_gate_visible == kLossyPredictionGateVisible);
+    CHECK(sphere_fit_config_for_source(plain, "4:1:1", false).prediction_gate_visible == kLossyPredictionGateVisible);
 
     auto work = std::make_unique<SphereFitWorkspace>();
     Pipeline p{RegisterMap{}};
