@@ -265,19 +265,19 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
     Eigen::Vector3d ex, ey, d;
     view_axes(cam, centre, ex, ey, d);
     // Another marker nearer the camera with its image in the patch (markers along a shaft seen near its axis: it
-    // may hide part of this one, and its pixels are not the background): the nearest such one; `eye_markers`: the
-    // eye's markers count too.
+    // may hide part of this one, and its pixels are not the background): the nearest such one, the eye's markers
+    // included.
     const Eigen::Vector3d cam_c = cam.centre_rig_mm();
     const double depth = (centre - cam_c).norm();
     const Eigen::Vector2d px(out.centre_x_px, out.centre_v_px);  // the view frame's projection of the centre
     int occ_body = 0;
     Eigen::Vector3d occ_c;
     double occ_r_mm = 0;
-    auto nearest_in_front = [&](bool eye_markers) {
+    auto nearest_in_front = [&] {
         double best = HUGE_VAL;
         occ_r_mm = 0;
         for_each_marker([&](int ob, int om_i, const BodyMarker& bm, const Eigen::Vector3d& c) {
-            if ((ob < 0 && !eye_markers) || (ob == b && om_i == m)) return;
+            if (ob == b && om_i == m) return;
             const double sep = (c - centre).norm();
             Eigen::Vector2d opx;
             if (!(bm.radius_mm > 0) || !((c - cam_c).norm() < depth) || sep >= best || !project_point(cam, c, opx)) return;
@@ -306,7 +306,7 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
             out = with_eye;
             // A marker in front across it as well (an eye marker at the outline, where the eye hides the rest: sweep
             // seed 6): the second occluder, kept where the image has it when it is on another body.
-            nearest_in_front(true);
+            nearest_in_front();
             if (occ_r_mm > 0) {
                 set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out, true);
                 out.occluder2_fixed = occ_body != b;
@@ -315,9 +315,9 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
         }
     }
     // Else the nearest marker in front, an eye marker included (a light-pipe marker behind an eye marker: sweep
-    // seeds 40, 52, 57, camera 1); patch_mask leaves such a marker to the hint. One of another body stays where the
+    // seeds 52 and 57, camera 1); patch_mask leaves such a marker to the hint. One of another body stays where the
     // image has it.
-    nearest_in_front(true);
+    nearest_in_front();
     if (occ_r_mm > 0) {
         set_sphere_occluder(ex, ey, d, centre, radius_mm, occ_c, occ_r_mm, out);
         out.occluder_fixed = occ_body != b;

@@ -2045,16 +2045,16 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // the marker is mostly hidden (below).
     auto near = [&](double x, double v) { return std::fabs(t[kX0] - x) < 1.5 && std::fabs(t[kV0] - v) < 2.0; };
     const bool merged = mask && mask->merged;
+    if (!(t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 && std::hypot(t[kE1], t[kE2]) < 0.3)) return res;
     double visible = 1.0;  // the share of the marker's light the hint's occluders leave
     if (hint) visible_centroid(cfg, t, p.parity, *hint, res.cx_px, res.cy_px, &visible);
     // A marker mostly hidden: the pipeline's centroid of what is left, and so the start, can be a pixel off (its
     // chroma spread across the occluder's edge), and the pose anchors the fit instead (checked below).
     const bool sliver = hint && visible < cfg.prediction_gate_visible;
-    const bool sane = t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 &&
-                      std::hypot(t[kE1], t[kE2]) < 0.3 &&
-                      (near(x_start, v_start) || (hint && (blob.foreign_overlap || sliver) && near(hint->centre_x_px, hint->centre_v_px)) ||
-                       (merged && near(mask->keep_x_px, mask->keep_v_px)));
-    if (!sane) return res;
+    const bool anchored = near(x_start, v_start) ||
+                          (hint && (blob.foreign_overlap || sliver) && near(hint->centre_x_px, hint->centre_v_px)) ||
+                          (merged && near(mask->keep_x_px, mask->keep_v_px));
+    if (!anchored) return res;
     res.hinted = hint != nullptr;
     if (!hint && !f.centroid_from_render(t, res.cx_px, res.cy_px)) {  // with a hint: the visible part's, above
         if (cfg.model == SphereFitModel::kAnalytic)
