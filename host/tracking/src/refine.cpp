@@ -1481,8 +1481,10 @@ void intensity_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, do
 // intensity_centroid(): pixels clear of them or wholly behind them from their analytic integrals, the others from
 // n × n sub-samples, each in the sphere and not behind an occluder; `visible_fraction`: the share of the sphere's
 // light left.
+// frame_lines > 0: the image's height in frame lines (and 720 columns); the part of the marker beyond the image's
+// edge is not seen, as if hidden (the pipeline's centroid and the truth's are of the part in the image).
 void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, const MarkerHint& predicted, double& cx,
-                      double& cy, double* visible_fraction = nullptr, int n = 8) {
+                      double& cy, double* visible_fraction = nullptr, int n = 8, int frame_lines = 0) {
     const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2], ap = cfg.aperture_lines_px;
     const double reach = r / std::sqrt(1.0 - std::min(0.9, std::hypot(e1, e2))) + 1.5, inv_r2 = 1.0 / (r * r);
     const OutlineNorm nm(predicted, r, e1, e2);
@@ -1497,14 +1499,16 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
     const int ncols = std::min(hi_x - lo_x + 1, kMaxCoverCols - 1);
     for (int v = lo_v; v <= hi_v; v += 2) {
         line_cover(hint, nm, lo_x - x0, v - v0, ncols, 0.0, 0.5 * ap, state);
+        const bool off_line = frame_lines > 0 && (v < 0 || v >= frame_lines);
         for (int k = 0; k < ncols; ++k) {
             const int x = lo_x + k;
+            const bool off = off_line || (frame_lines > 0 && (x < 0 || x >= 720));
             double in = 0, whole_px = 0;
             if (state[k] != 1) {  // clear, or wholly covered: the analytic integral
                 if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi)) continue;
                 const double full = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
                 whole += full;
-                if (state[k] == 0) in = full;
+                if (state[k] == 0 && !off) in = full;
             } else {
                 for (int b = 0; b < n; ++b) {
                     const double dv = v + ap * (-0.5 + (b + 0.5) / n) - v0;
@@ -1516,7 +1520,7 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
                         nm(dx, dv, qx, qy);
                         const double shade = cfg.shade_ambient + cfg.shade_diffuse * std::sqrt(q);
                         whole_px += shade;
-                        if (!hint_covers(hint, qx, qy)) in += shade;
+                        if (!off && !hint_covers(hint, qx, qy)) in += shade;
                     }
                 }
                 in /= n * n;
@@ -1785,7 +1789,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     auto start_behind_occluders = [&] {
         for (int k = 0; hint && k < 2; ++k) {
             double vx, vy;
-            visible_centroid(cfg, t, p.parity, *hint, vx, vy, nullptr, 4);  // a start: 4 × 4 sub-samples do
+            visible_centroid(cfg, t, p.parity, *hint, vx, vy, nullptr, 4, 2 * height);  // a start: 4 × 4 sub-samples do
             t[kX0] += cx0 - vx;
             t[kV0] += 2.0 * (cy0 - vy);
         }
@@ -2047,7 +2051,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     const bool merged = mask && mask->merged;
     if (!(t[kR] > 0.5 && t[kR] < max_r && t[kA] > 0.2 && t[kA] < 5.0 && std::hypot(t[kE1], t[kE2]) < 0.3)) return res;
     double visible = 1.0;  // the share of the marker's light the hint's occluders leave
-    if (hint) visible_centroid(cfg, t, p.parity, *hint, res.cx_px, res.cy_px, &visible);
+    if (hint) visible_centroid(cfg, t, p.parity, *hint, res.cx_px, res.cy_px, &visible, 8, 2 * height);
     // A marker mostly hidden: the pipeline's centroid of what is left, and so the start, can be a pixel off (its
     // chroma spread across the occluder's edge), and the pose anchors the fit instead (checked below).
     const bool sliver = hint && visible < cfg.prediction_gate_visible;
@@ -2092,7 +2096,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         tp[kX0] = hint->centre_x_px;
         tp[kV0] = hint->centre_v_px;
         double px = 0, py = 0;
-        visible_centroid(cfg, tp, p.parity, *hint, px, py);
+        visible_centroid(cfg, tp, p.parity, *hint, px, py, nullptr, 8, 2 * height);
         if (gate_distance(cfg, res.cx_px - px, res.cy_px - py) > gate) return res;
     }
     res.refusal = FitRefusal::kNone;

@@ -1046,6 +1046,46 @@ TEST_CASE("an eye marker in front of part of an instrument marker is the hint's 
     CHECK(se_fit < 0.7 * se_without);
 }
 
+TEST_CASE("a marker the image's edge cuts: the hinted fit's centroid is of the part in the image",
+          "[tracking][rig][refine]") {
+    // Sweep seed 54, DV: camera 2's light-pipe marker 2 sits on the image's top edge for the first 40 fields, a
+    // quarter of it above line 0. The hinted fit took the visible centroid of the whole sphere less the occluders,
+    // beyond the edge too: 0.3 px (even fields) and 0.6 px (odd) above the truth, inside the wide gate of a
+    // partly hidden marker on lossy video. The pipeline's centroid, and the truth's, are of the part in the image.
+    RigRecording written("eyesim_image_edge_dv", "sweep", 0.8, 1.0, 54, "dv");
+    REQUIRE(written.truth.size() == 40);
+    const SphereFitConfig cfg = sphere_fit_config_for_source(rig_config(), "4:2:0", false);
+    MarkerHintSource source = hint_source_of(written);
+    auto work = std::make_unique<SphereFitWorkspace>();
+    Field f{rig::kFieldHeight};
+    int cut = 0, fitted = 0;
+    double se_pipe = 0, se_fit = 0, worst = 0;
+    for_each_matched_blob(
+        written, 40, source, f, [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible; },
+        [&](const rig::FieldTruth&, int cam, const Blob& b, const rig::MarkerMatch& m, const BlobBox& box) {
+            if (box.y_min > 0) return;
+            bool hinted = false;
+            const SphereFitResult r =
+                MarkerHintSource::fit(&source, f.bytes.data(), f.height, box, cam, cfg, *work, hinted);
+            if (!hinted) return;
+            ++cut;
+            const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
+            const Eigen::Vector2d now = r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe;
+            se_pipe += (pipe - t).squaredNorm();
+            se_fit += (now - t).squaredNorm();
+            worst = std::max(worst, (now - t).norm());
+            fitted += r.ok;
+        },
+        1);
+    INFO("hinted blobs on the image's top edge " << cut << ": fitted " << fitted << "; RMS pipeline "
+                                                 << std::sqrt(se_pipe / std::max(1, cut)) << " px, refined "
+                                                 << std::sqrt(se_fit / std::max(1, cut)) << ", worst " << worst);
+    REQUIRE(cut >= 20);
+    CHECK(fitted >= cut / 2);
+    CHECK(worst < 0.15);
+    CHECK(se_fit < 0.25 * se_pipe);
+}
+
 // The visible half's centroid on one field's pixels by brute force: pixel (x, v) of the field of `parity` spans
 // x ± 0.5 and v ± 0.5 (one frame row), weighted by the area of the disc left of nothing, right of the outline.
 static void half_disc_centroid_reference(double cx, double cv, double r, int parity, double& dx, double& dv,
