@@ -92,7 +92,9 @@ public:
     /// triples (every pair on its epipolar line) and pairs are ranked by summed epipolar distance; they are
     /// triangulated lazily in that order, triples first, and accepted when the reprojection RMS and the class
     /// region agree; an image is used at most once. An outlier image makes its triple fail, and the marker is
-    /// then kept from the remaining consistent pair.
+    /// then kept from the remaining consistent pair. With `marker_radius_mm`, a triple that fails only by one
+    /// view whose blob is small for its depth (mostly hidden) is kept from the other two, that view marked
+    /// occluded; and pairs whose poorer view's blob is small rank after pairs that see more of the marker.
     void solve(std::span<const CameraObservations> views, CorrespondenceResult& out) const;
 
     /// Symmetric epipolar distance (pixels) between image `xa` in camera a and `xb` in camera b.
@@ -103,6 +105,11 @@ public:
 
 private:
     void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
+    /// Camera c's blob area p over the area a marker at X would have there (−1: unknown).
+    double area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const;
+    /// The views of the images `idx` whose blob is small for a marker at X (partly hidden); `clean`: the others.
+    std::uint8_t occluded_views(std::span<const CameraObservations> views, const std::array<std::int8_t, kMaxCameras>& idx,
+                                const Eigen::Vector3d& X_rig_mm, int ncam, int& clean) const;
 
     std::span<const CameraGeometry> cams_;
     CorrespondenceOptions opt_;
