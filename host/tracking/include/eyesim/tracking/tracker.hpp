@@ -165,6 +165,10 @@ private:
     static constexpr double kMinVisibleShare = 0.05;
     /// A marker judged occluded is taken for an eye marker predicted within this of its (biased) point.
     static constexpr double kOccludedEyeMarkerGateMm = 1.5;
+    /// An image no marker took is taken as such a marker's view in a camera its match left out when it lies
+    /// within this of where the fitted eye pose puts the marker's visible part, and no other image of the class lies
+    /// within twice this (px).
+    static constexpr double kAdoptGatePx = 1.5;
     /// A corrected view's centroid σ grows by this share of the correction's shift.
     static constexpr double kEyeCorrectionRelError = 0.2;
     bool pop_async(TrackingFrame& out, double now_host_us);
