@@ -317,10 +317,14 @@ ImagesUsed images_used(const CorrespondenceResult& markers, int ncam) {
     return used;
 }
 
-// The one image of class `cls` in view v that no marker took within `gate_px` of `px` (full-frame px), none other
-// within twice that; −1 when there is none or more than one.
-int unused_image_near(const CameraObservations& v, const std::array<bool, kMaxMarkersPerCamera>& used, std::uint8_t cls,
-                      const Eigen::Vector2d& px, double gate_px) {
+// The one image of class `cls` in view v that no marker took within `gate_px` of where a marker at X shows its
+// visible part (its projection, moved by (dx, dv) full-frame px where the eye hides part of it), none other within
+// twice that; −1 when there is none or more than one.
+int unused_image_near(const CameraGeometry& g, const CameraObservations& v, const std::array<bool, kMaxMarkersPerCamera>& used,
+                      std::uint8_t cls, const Eigen::Vector3d& X, double dx, double dv, double gate_px) {
+    Eigen::Vector2d px;
+    if (!v.present || !project_point(g, X, px)) return -1;
+    px += Eigen::Vector2d(dx, dv);
     int near = 0, found = -1;
     for (int j = 0; j < v.count; ++j) {
         const ImagePoint& q = v.points[std::size_t(j)];
@@ -330,6 +334,16 @@ int unused_image_near(const CameraObservations& v, const std::array<bool, kMaxMa
         if (d < gate_px) found = j;
     }
     return near == 1 ? found : -1;
+}
+
+// The images `adopted` (−1: none) become m's views in their cameras, and taken.
+void take_adopted(MatchedMarker& m, const std::array<std::int8_t, kMaxCameras>& adopted, ImagesUsed& used, int ncam) {
+    for (int c = 0; c < ncam; ++c) {
+        const int i = adopted[std::size_t(c)];
+        if (i < 0) continue;
+        m.image_index[std::size_t(c)] = std::int8_t(i);
+        used[std::size_t(c)][std::size_t(i)] = true;
+    }
 }
 
 // The views of `m` that have an image and are not among the `n` cameras of `used`.
@@ -411,13 +425,9 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             const bool eye_hides = eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
                                                      Eigen::Vector3d::Zero(), 0.0, view_parity_[std::size_t(c)], dx, dv,
                                                      visible);
-            if (i < 0 && m.occluded) {
-                // The one unused image of the class where the fitted pose puts the marker's visible part.
-                Eigen::Vector2d px;
-                if (!views_[std::size_t(c)].present || !project_point(g, X, px)) continue;
-                if (eye_hides) px += Eigen::Vector2d(dx, dv);
-                i = unused_image_near(views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, px, kAdoptGatePx);
-                if (i < 0) continue;
+            if (i < 0 && m.occluded) {  // the unused image where the pose puts the marker's visible part
+                i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, X,
+                                      eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, kAdoptGatePx);
                 adopted[std::size_t(c)] = std::int8_t(i);
             }
             if (i < 0) continue;
@@ -434,12 +444,7 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
         const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
                                                  config_.correspondence.triangulation);
         if (!tp.usable()) continue;
-        for (int c = 0; c < int(cameras_.size()); ++c) {
-            const int i = adopted[std::size_t(c)];
-            if (i < 0) continue;
-            m.image_index[std::size_t(c)] = std::int8_t(i);
-            image_used[std::size_t(c)][std::size_t(i)] = true;
-        }
+        take_adopted(m, adopted, image_used, int(cameras_.size()));
         m.point = tp;
         m.occluded = false;
         taken[std::size_t(mi)] = true;
@@ -524,13 +529,9 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             const bool eye_hides = eye_known && eye_hidden_offset(shading, g, Xp, R, out.eye.centre_rig_mm,
                                                                   bodies.eye.radius_mm, a, model.shaft_radius_mm,
                                                                   view_parity_[std::size_t(c)], dx, dv, visible);
-            if (i < 0 && unassigned) {
-                // The one unused image of the class where the pose puts the marker's visible part.
-                Eigen::Vector2d px;
-                if (!views_[std::size_t(c)].present || !project_point(g, Xp, px)) continue;
-                if (eye_hides) px += Eigen::Vector2d(dx, dv);
-                i = unused_image_near(views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, px, kAdoptGatePx);
-                if (i < 0) continue;
+            if (i < 0 && unassigned) {  // the unused image where the pose puts the marker's visible part
+                i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, Xp,
+                                      eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, kAdoptGatePx);
                 adopted[std::size_t(c)] = std::int8_t(i);
             }
             if (i < 0) continue;
@@ -565,12 +566,7 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
                                                  config_.correspondence.triangulation);
         if (tp.usable()) {
-            for (int c = 0; c < ncam; ++c) {
-                const int i = adopted[std::size_t(c)];
-                if (i < 0) continue;
-                m.image_index[std::size_t(c)] = std::int8_t(i);
-                image_used[std::size_t(c)][std::size_t(i)] = true;
-            }
+            take_adopted(m, adopted, image_used, ncam);
             if (unassigned) taken[std::size_t(body)][std::size_t(mi)] = true;
             m.point = tp;
             changed = true;

@@ -35,6 +35,17 @@ fs::path sweep() {
     return d;
 }
 
+/// A recording of `scenario` for `seconds` at `seed`, written once.
+fs::path recording(const std::string& scenario, const std::string& seconds, int seed) {
+    const fs::path d = scratch() / (scenario + "_" + seconds + "s_" + std::to_string(seed));
+    if (fs::exists(d / "rig.yaml")) return d;
+    const Result r = run_eyesim("synth --scenario " + scenario + " --seconds " + seconds + " --seed " +
+                                std::to_string(seed) + " --out " + d.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    return d;
+}
+
 nlohmann::json validate_json(const std::string& args) {
     const Result r = run_eyesim("validate " + args + " --json");
     INFO("validate " << args << "\nstderr: " << r.err);
@@ -107,13 +118,7 @@ TEST_CASE("validate: a marker mostly hidden in one camera is placed from the two
     // small blob in camera 0 paired with camera 2 (the error along that pair's epipolar line does not show in the
     // epipolar distance) and the marker was placed 0.5-0.65 mm off: 3D RMS over all matched markers 47.8 µm on the
     // FPGA chain (max 642 µm), 31.5 µm on the truth centroids. Now from cameras 1 and 2: 20.4 µm (max 80 µm).
-    const fs::path d = scratch() / "surgery23";
-    if (!fs::exists(d / "rig.yaml")) {
-        const Result r = run_eyesim("synth --scenario surgery --seconds 1.4 --seed 23 --out " + d.string());
-        INFO(r.err);
-        REQUIRE(r.rc == 0);
-    }
-    const nlohmann::json j = validate_json("--recording " + d.string());
+    const nlohmann::json j = validate_json("--recording " + recording("surgery", "1.4", 23).string());
     for (const char* chain : {"fpga_chain", "truth_centroids"}) {
         INFO(chain);
         const nlohmann::json& c = j[chain];
@@ -134,13 +139,7 @@ TEST_CASE("validate: a marker mostly hidden in two cameras takes its clean view 
     // 57.1 µm on the FPGA chain (max 849 µm), 41.4 µm on the truth centroids. Now the fitted poses say where the
     // marker is, the unused image there is its third view and the hidden ones are moved back by the eye's model:
     // 22.1 µm (max 116 µm).
-    const fs::path d = scratch() / "sweep26";
-    if (!fs::exists(d / "rig.yaml")) {
-        const Result r = run_eyesim("synth --scenario sweep --seconds 4.2 --seed 26 --out " + d.string());
-        INFO(r.err);
-        REQUIRE(r.rc == 0);
-    }
-    const nlohmann::json j = validate_json("--recording " + d.string());
+    const nlohmann::json j = validate_json("--recording " + recording("sweep", "4.2", 26).string());
     for (const char* chain : {"fpga_chain", "truth_centroids"}) {
         INFO(chain);
         const nlohmann::json& c = j[chain];
