@@ -255,9 +255,10 @@ void Correspondence::solve(std::span<const CameraObservations> views, Correspond
                             const ImagePoint& pb = views[std::size_t(b)].points[std::size_t(jb)];
                             const std::array<Observation, 2> ob{Observation{a, pa.px, pa.xn, pa.sigma_px},
                                                                 Observation{b, pb.px, pb.xn, pb.sigma_px}};
-                            const TriangulatedPoint tp = triangulate(cams_, ob, opt_.triangulation);
-                            if (tp.X_rig_mm.allFinite()) {
-                                const double q = std::min(area_ratio(pa, a, tp.X_rig_mm), area_ratio(pb, b, tp.X_rig_mm));
+                            // The depth for the expected area: the linear point does (the area test is coarse).
+                            Eigen::Vector3d X;
+                            if (triangulate_dlt(cams_, ob, X) && X.allFinite()) {
+                                const double q = std::min(area_ratio(pa, a, X), area_ratio(pb, b, X));
                                 if (q >= 0.0) h.score += float(kHiddenPairPx * std::max(0.0, opt_.min_area_ratio - q));
                             }
                         }

@@ -420,6 +420,7 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
         adopted.fill(-1);
         for (int c = 0; c < int(cameras_.size()); ++c) {
             int i = m.image_index[std::size_t(c)];
+            if (i < 0 && !m.occluded) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
             double dx = 0, dv = 0, visible = 1.0;
             const bool eye_hides = eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
@@ -522,6 +523,7 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
         adopted.fill(-1);
         for (int c = 0; c < ncam; ++c) {
             int i = m.image_index[std::size_t(c)];
+            if (i < 0 && !unassigned) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
             // The eye hides part of it in this view (a marker seen past the eye's outline): the shaded sphere less
             // the eye and the shaft gives the shift, in a view judged occluded too.
