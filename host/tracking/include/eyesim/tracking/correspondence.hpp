@@ -103,10 +103,11 @@ public:
     /// The options in use.
     const CorrespondenceOptions& options() const { return opt_; }
 
-private:
-    void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
     /// Camera c's blob area p over the area a marker at X would have there (−1: unknown).
     double area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const;
+
+private:
+    void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
     /// The views of the images `idx` whose blob is small for a marker at X (partly hidden); `clean`: the others.
     std::uint8_t occluded_views(std::span<const CameraObservations> views, const std::array<std::int8_t, kMaxCameras>& idx,
                                 const Eigen::Vector3d& X_rig_mm, int ncam, int& clean) const;

@@ -161,6 +161,16 @@ private:
     /// Camera c's observation of image p with its centroid moved back by (dx_px, dv_px) (frame px, the share of the
     /// marker something hides) and σ grown by kEyeCorrectionRelError of that; false when it does not undistort.
     bool shifted_observation(int c, const ImagePoint& p, double dx_px, double dv_px, Observation& o) const;
+    /// The views (bit c) in which another marker of m's colour that the poses put in view lies so near the image of
+    /// m (radius r_mm, at X) that the two make one blob: m's image there is also the one nearest the other marker.
+    /// Its centroid lies between them and places neither unless moved back: shift_px[c] is where the poses put the
+    /// joined blob's centroid less m's visible part's (frame px; each marker weighted by its visible light). Eye
+    /// marker `eye_marker` (−1: none) is m itself.
+    std::uint8_t merged_views(const TrackingFrame& out, const MatchedMarker& m, const Eigen::Vector3d& X, double r_mm,
+                              int eye_marker, std::array<Eigen::Vector2d, kMaxCameras>& shift_px) const;
+    /// Two markers' images nearer than their radii and this (field px, along each axis) make one blob: the
+    /// pipeline's 8-connected runs join across a one-pixel gap, and the marker's colour blurs past its edge.
+    static constexpr double kMergeGapPx = 1.0;
     /// A view whose marker the eye hides beyond this share of its light is left out of the correction.
     static constexpr double kMinVisibleShare = 0.05;
     /// A marker judged occluded is taken for an eye marker predicted within this of its (biased) point.
