@@ -416,18 +416,27 @@ std::uint8_t Tracker::merged_views(const TrackingFrame& out, const MatchedMarker
             w = visible * r_px * r_px;
             return true;
         };
-        Eigen::Vector2d pa;
-        double wa = 0;
-        if (!seen(X, r_mm, pa, wa)) continue;
-        const double za = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
-        Eigen::Vector2d sum = Eigen::Vector2d::Zero();
-        double wsum = wa;
         // Another marker Y of radius rb joins this one's blob where the two discs (field px: a field line is two
-        // frame lines) come within kMergeGapPx and this view's image is also the one of the colour nearest Y.
+        // frame lines) come within kMergeGapPx and this view's image is also the one of the colour nearest Y. The
+        // cheap tests first: most markers have no other of their colour near.
+        Eigen::Vector2d pa;
+        const double za = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
+        if (!(za > 0.0) || !project_point(g, X, pa)) continue;
+        std::array<Eigen::Vector3d, kMaxJoined> near_mm;
+        std::array<double, kMaxJoined> near_r_mm{};
+        int n_near = 0;
+        const Eigen::Vector3d to_x = X - o;
+        const double dist_x = to_x.norm();
         auto join = [&](const Eigen::Vector3d& Y, double rb_mm) {
+            // Far apart as the camera sees them (the sine of the angle between the two lines of sight beyond the
+            // radii's and a few pixels'): no projection needed. Most pairs end here.
+            const Eigen::Vector3d to_y = Y - o;
+            const double dist_y = to_y.norm();
+            if (to_x.cross(to_y).norm() > dist_x * dist_y * (r_mm / dist_x + rb_mm / dist_y + 4.0 * kMergeGapPx / g.fx))
+                return;
             Eigen::Vector2d pb;
             const double zb = (g.R_cam_rig * Y + g.t_cam_rig_mm).z();
-            if (!(zb > 0.0) || !project_point(g, Y, pb)) return;
+            if (n_near == kMaxJoined || !(zb > 0.0) || !project_point(g, Y, pb)) return;
             const double rx = g.fx * (r_mm / za + rb_mm / zb) + kMergeGapPx;
             const double ry = 0.5 * g.fy * (r_mm / za + rb_mm / zb) + kMergeGapPx;
             const Eigen::Vector2d d = pa - pb;
@@ -442,12 +451,9 @@ std::uint8_t Tracker::merged_views(const TrackingFrame& out, const MatchedMarker
                     nearest = j;
                 }
             }
-            Eigen::Vector2d at;
-            double w = 0;
-            if (nearest != i || !seen(Y, rb_mm, at, w)) return;
-            sum += w * (at - pa);
-            wsum += w;
-            merged = std::uint8_t(merged | (1u << c));
+            if (nearest != i) return;
+            near_mm[std::size_t(n_near)] = Y;
+            near_r_mm[std::size_t(n_near++)] = rb_mm;
         };
         if (eye_known)
             for (int j = 0; j < bodies.eye.marker_count; ++j) {
@@ -465,6 +471,21 @@ std::uint8_t Tracker::merged_views(const TrackingFrame& out, const MatchedMarker
                     join(pose.tip_rig_mm + pose.rotation_body_to_rig * (bm.pos_body_mm - model.tip_body_mm),
                          bm.radius_mm > 0.0 ? bm.radius_mm : bodies.marker_radius_mm);
             }
+        }
+        if (n_near == 0) continue;
+        // The joined ones the eye leaves in view; where they are, less this marker's visible part.
+        Eigen::Vector2d at_a;
+        double wa = 0;
+        if (!seen(X, r_mm, at_a, wa)) continue;
+        Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+        double wsum = wa;
+        for (int k = 0; k < n_near; ++k) {
+            Eigen::Vector2d at;
+            double w = 0;
+            if (!seen(near_mm[std::size_t(k)], near_r_mm[std::size_t(k)], at, w)) continue;
+            sum += w * (at - at_a);
+            wsum += w;
+            merged = std::uint8_t(merged | (1u << c));
         }
         shift_px[std::size_t(c)] = sum / wsum;  // the joined blob's centroid less this marker's visible part's
     }

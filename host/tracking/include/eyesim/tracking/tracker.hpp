@@ -171,6 +171,8 @@ private:
     /// Two markers' images nearer than their radii and this (field px, along each axis) make one blob: the
     /// pipeline's 8-connected runs join across a one-pixel gap, and the marker's colour blurs past its edge.
     static constexpr double kMergeGapPx = 1.0;
+    /// Other markers merged_views considers in one view's blob.
+    static constexpr int kMaxJoined = 4;
     /// A view whose marker the eye hides beyond this share of its light is left out of the correction.
     static constexpr double kMinVisibleShare = 0.05;
     /// A marker judged occluded is taken for an eye marker predicted within this of its (biased) point.
