@@ -38,6 +38,11 @@ double Correspondence::area_ratio(const ImagePoint& p, int c, const Eigen::Vecto
     return double(p.area_px) / expected;
 }
 
+double Correspondence::relative_area_threshold(double expected_area_px) const {
+    if (!(opt_.relative_area_noise > 0.0) || !(expected_area_px > 0.0)) return opt_.relative_area_ratio;
+    return std::min(opt_.relative_area_ratio, 1.0 - opt_.relative_area_noise / std::sqrt(expected_area_px));
+}
+
 std::uint8_t Correspondence::occluded_views(std::span<const CameraObservations> views,
                                             const std::array<std::int8_t, kMaxCameras>& idx,
                                             const Eigen::Vector3d& X_rig_mm, int ncam, int& clean) const {
@@ -55,7 +60,10 @@ std::uint8_t Correspondence::occluded_views(std::span<const CameraObservations> 
     for (int c = 0; c < ncam; ++c) {
         const double q = ratio[std::size_t(c)];
         if (idx[std::size_t(c)] < 0) continue;
-        if (best > 0.0 && q >= 0.0 && (q < opt_.min_area_ratio || q < opt_.relative_area_ratio * best))
+        const double rel =
+            q > 0.0 ? relative_area_threshold(double(views[std::size_t(c)].points[std::size_t(idx[std::size_t(c)])].area_px) / q)
+                    : opt_.relative_area_ratio;
+        if (best > 0.0 && q >= 0.0 && (q < opt_.min_area_ratio || q < rel * best))
             out = std::uint8_t(out | (1u << c));
         else
             ++clean;

@@ -553,8 +553,10 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             const CorrespondenceOptions& co = correspondence_.options();
             for (int c = 0; c < int(cameras_.size()); ++c) {
                 const double q = ratio[std::size_t(c)];
-                if ((m.occluded_views & (1u << c)) && q >= co.min_area_ratio && q >= co.relative_area_ratio * best)
-                    relieved = std::uint8_t(relieved | (1u << c));
+                const int i = m.image_index[std::size_t(c)];
+                if (!(m.occluded_views & (1u << c)) || !(q >= co.min_area_ratio)) continue;
+                const double expected = double(views_[std::size_t(c)].points[std::size_t(i)].area_px) / q;
+                if (q >= correspondence_.relative_area_threshold(expected) * best) relieved = std::uint8_t(relieved | (1u << c));
             }
         }
         int n = 0, hidden = 0;

@@ -77,6 +77,10 @@ struct CorrespondenceOptions {
     double marker_radius_mm = 0.0;
     double min_area_ratio = 0.6;       ///< absolute area ratio below which a view is occluded
     double relative_area_ratio = 0.85; ///< ratio to the best view below which a view is occluded
+    /// A small blob's area varies from view to view by its edge pixels (a 4-px marker: ±10 % between fields, three
+    /// views 25 % apart): the relative threshold is at most 1 − this/√(expected area, field px): 0.75 at 25 px,
+    /// 0.85 from 69 px. 0: off.
+    double relative_area_noise = 1.25;
 };
 
 /// Same-coloured images per camera the search considers (more are left unmatched and counted).
@@ -105,6 +109,9 @@ public:
 
     /// Camera c's blob area p over the area a marker at X would have there (−1: unknown).
     double area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const;
+    /// The share of the best view's area ratio below which a view whose sphere covers `expected_area_px` field
+    /// pixels is judged partly hidden: relative_area_ratio, lowered for small blobs by relative_area_noise.
+    double relative_area_threshold(double expected_area_px) const;
 
 private:
     void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
