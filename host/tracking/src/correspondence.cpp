@@ -29,12 +29,17 @@ Correspondence::Correspondence(std::span<const CameraGeometry> cams, const Corre
     }
 }
 
-double Correspondence::area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const {
+double Correspondence::expected_area_px(int c, const Eigen::Vector3d& X_rig_mm) const {
     const CameraGeometry& g = cams_[std::size_t(c)];
     const double z = (g.R_cam_rig * X_rig_mm + g.t_cam_rig_mm).z();
-    if (!(p.area_px > 0.0f) || !(z > 0.0)) return -1.0;
+    if (!(z > 0.0)) return -1.0;
     const double r = opt_.marker_radius_mm / z;
-    const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
+    return 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
+}
+
+double Correspondence::area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const {
+    const double expected = expected_area_px(c, X_rig_mm);
+    if (!(p.area_px > 0.0f) || !(expected > 0.0)) return -1.0;
     return double(p.area_px) / expected;
 }
 
@@ -60,9 +65,7 @@ std::uint8_t Correspondence::occluded_views(std::span<const CameraObservations> 
     for (int c = 0; c < ncam; ++c) {
         const double q = ratio[std::size_t(c)];
         if (idx[std::size_t(c)] < 0) continue;
-        const double rel =
-            q > 0.0 ? relative_area_threshold(double(views[std::size_t(c)].points[std::size_t(idx[std::size_t(c)])].area_px) / q)
-                    : opt_.relative_area_ratio;
+        const double rel = q > 0.0 ? relative_area_threshold(expected_area_px(c, X_rig_mm)) : opt_.relative_area_ratio;
         if (best > 0.0 && q >= 0.0 && (q < opt_.min_area_ratio || q < rel * best))
             out = std::uint8_t(out | (1u << c));
         else

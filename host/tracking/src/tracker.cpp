@@ -399,16 +399,19 @@ std::uint8_t Tracker::merged_views(const TrackingFrame& out, const MatchedMarker
         const CameraObservations& v = views_[std::size_t(c)];
         const CameraGeometry& g = cameras_[std::size_t(c)];
         const Eigen::Vector3d o = g.centre_rig_mm();
-        // Where a marker's visible part shows (frame px) and its weight in a joined blob (its light: the visible
-        // share of a disc of its image's radius); false where the eye hides it.
-        auto seen = [&](const Eigen::Vector3d& Y, double rb_mm, Eigen::Vector2d& at, double& w) {
+        // Where a marker's visible part shows (frame px; `off`: its shift from the projection where the eye hides
+        // part of it) and its weight in a joined blob (its light: the visible share of a disc of its image's
+        // radius); false where the eye hides it.
+        auto seen = [&](const Eigen::Vector3d& Y, double rb_mm, Eigen::Vector2d& at, Eigen::Vector2d& off, double& w) {
             const double z = (g.R_cam_rig * Y + g.t_cam_rig_mm).z();
             if (!(z > 0.0) || !project_point(g, Y, at)) return false;
             double ox = 0, ov = 0, visible = 1.0;
+            off.setZero();
             if (eye_known && eye_hidden_offset(shading, g, Y, rb_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
                                                Eigen::Vector3d::Zero(), 0.0, view_parity_[std::size_t(c)], ox, ov, visible)) {
                 if (visible < kMinVisibleShare) return false;
-                at += Eigen::Vector2d(ox, ov);
+                off = Eigen::Vector2d(ox, ov);
+                at += off;
             } else if (eye_known && behind_eye(o, Y, out.eye.centre_rig_mm, bodies.eye.radius_mm)) {
                 return false;
             }
@@ -474,20 +477,19 @@ std::uint8_t Tracker::merged_views(const TrackingFrame& out, const MatchedMarker
         }
         if (n_near == 0) continue;
         // The joined ones the eye leaves in view; where they are, less this marker's visible part.
-        Eigen::Vector2d at_a;
-        double wa = 0;
-        if (!seen(X, r_mm, at_a, wa)) continue;
+        Eigen::Vector2d at_a, off_a, at, off;
+        double wa = 0, w = 0;
+        if (!seen(X, r_mm, at_a, off_a, wa)) continue;
         Eigen::Vector2d sum = Eigen::Vector2d::Zero();
         double wsum = wa;
         for (int k = 0; k < n_near; ++k) {
-            Eigen::Vector2d at;
-            double w = 0;
-            if (!seen(near_mm[std::size_t(k)], near_r_mm[std::size_t(k)], at, w)) continue;
+            if (!seen(near_mm[std::size_t(k)], near_r_mm[std::size_t(k)], at, off, w)) continue;
             sum += w * (at - at_a);
             wsum += w;
             merged = std::uint8_t(merged | (1u << c));
         }
-        shift_px[std::size_t(c)] = sum / wsum;  // the joined blob's centroid less this marker's visible part's
+        // The joined blob's centroid less the marker's projection: its visible part's offset and the neighbours' pull.
+        shift_px[std::size_t(c)] = off_a + sum / wsum;
     }
     return merged;
 }
@@ -541,22 +543,18 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
         const std::uint8_t merged = merged_views(out, m, X, radius_mm, mi, merge_shift);
         std::uint8_t relieved = 0;
         if (merged != 0 && (m.occluded_views & ~merged) != 0) {
-            std::array<double, kMaxCameras> ratio{};
-            double best = 0.0;
+            std::array<std::int8_t, kMaxCameras> apart = m.image_index;
+            for (std::size_t c = 0; c < apart.size(); ++c)
+                if (merged & (1u << c)) apart[c] = -1;
+            int clean = 0;
+            const std::uint8_t still = correspondence_.occluded_views(
+                std::span<const CameraObservations>(views_.data(), cameras_.size()), apart, X, int(cameras_.size()), clean);
             for (int c = 0; c < int(cameras_.size()); ++c) {
-                const int i = m.image_index[std::size_t(c)];
-                ratio[std::size_t(c)] = i >= 0 && !(merged & (1u << c))
-                                            ? correspondence_.area_ratio(views_[std::size_t(c)].points[std::size_t(i)], c, X)
-                                            : -1.0;
-                best = std::max(best, ratio[std::size_t(c)]);
-            }
-            const CorrespondenceOptions& co = correspondence_.options();
-            for (int c = 0; c < int(cameras_.size()); ++c) {
-                const double q = ratio[std::size_t(c)];
-                const int i = m.image_index[std::size_t(c)];
-                if (!(m.occluded_views & (1u << c)) || !(q >= co.min_area_ratio)) continue;
-                const double expected = double(views_[std::size_t(c)].points[std::size_t(i)].area_px) / q;
-                if (q >= correspondence_.relative_area_threshold(expected) * best) relieved = std::uint8_t(relieved | (1u << c));
+                const int i = apart[std::size_t(c)];
+                // Judged again only where the blob's area is known (the judgement keeps the others as they were).
+                if (i >= 0 && (m.occluded_views & ~still & (1u << c)) &&
+                    correspondence_.area_ratio(views_[std::size_t(c)].points[std::size_t(i)], c, X) > 0.0)
+                    relieved = std::uint8_t(relieved | (1u << c));
             }
         }
         int n = 0, hidden = 0;
@@ -589,17 +587,10 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
         // Too few views apart from the joined ones: a joined view is moved back by its neighbours' predicted share
         // of the blob (sweep seed 44: an eye marker whole in camera 0, joined in camera 1, 95 % hidden in camera 2).
         for (int c = 0; c < int(cameras_.size()) && n < 2; ++c) {
-            const int i = m.image_index[std::size_t(c)];
-            if (!(merged & (1u << c)) || i < 0) continue;
-            const CameraGeometry& g = cameras_[std::size_t(c)];
-            double dx = 0, dv = 0, visible = 1.0;
-            if (eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
-                                  Eigen::Vector3d::Zero(), 0.0, view_parity_[std::size_t(c)], dx, dv, visible) &&
-                visible < kMinVisibleShare)
-                continue;
-            const Eigen::Vector2d shift = Eigen::Vector2d(dx, dv) + merge_shift[std::size_t(c)];
-            if (!shifted_observation(c, views_[std::size_t(c)].points[std::size_t(i)], shift.x(), shift.y(), obs[std::size_t(n)]))
-                continue;
+            if (!(merged & (1u << c))) continue;  // a joined view has an image, and the eye leaves enough of it
+            const Eigen::Vector2d& shift = merge_shift[std::size_t(c)];
+            const ImagePoint& p = views_[std::size_t(c)].points[std::size_t(m.image_index[std::size_t(c)])];
+            if (!shifted_observation(c, p, shift.x(), shift.y(), obs[std::size_t(n)])) continue;
             moved[std::size_t(n)] = 1;
             obs_view[std::size_t(n++)] = c;
         }

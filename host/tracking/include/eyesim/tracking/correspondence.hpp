@@ -109,15 +109,18 @@ public:
 
     /// Camera c's blob area p over the area a marker at X would have there (−1: unknown).
     double area_ratio(const ImagePoint& p, int c, const Eigen::Vector3d& X_rig_mm) const;
-    /// The share of the best view's area ratio below which a view whose sphere covers `expected_area_px` field
-    /// pixels is judged partly hidden: relative_area_ratio, lowered for small blobs by relative_area_noise.
-    double relative_area_threshold(double expected_area_px) const;
+    /// The views of the images `idx` (−1: none) whose blob is small for a marker at X (partly hidden); `clean`: the
+    /// others.
+    std::uint8_t occluded_views(std::span<const CameraObservations> views, const std::array<std::int8_t, kMaxCameras>& idx,
+                                const Eigen::Vector3d& X_rig_mm, int ncam, int& clean) const;
 
 private:
     void check_occlusion(std::span<const CameraObservations> views, MatchedMarker& m, int ncam) const;
-    /// The views of the images `idx` whose blob is small for a marker at X (partly hidden); `clean`: the others.
-    std::uint8_t occluded_views(std::span<const CameraObservations> views, const std::array<std::int8_t, kMaxCameras>& idx,
-                                const Eigen::Vector3d& X_rig_mm, int ncam, int& clean) const;
+    /// The field pixels a marker sphere at X covers in camera c (−1: behind it).
+    double expected_area_px(int c, const Eigen::Vector3d& X_rig_mm) const;
+    /// The share of the best view's area ratio below which a view whose sphere covers `expected_area_px` field
+    /// pixels is judged partly hidden: relative_area_ratio, lowered for small blobs by relative_area_noise.
+    double relative_area_threshold(double expected_area_px) const;
 
     std::span<const CameraGeometry> cams_;
     CorrespondenceOptions opt_;
