@@ -3,8 +3,9 @@
 // 3D error; OpenCV's two-view pipeline (undistortPoints + triangulatePoints, correspondences given) measured in
 // the same run on the same images as the peer. Median of repeated passes, thread CPU time (the machine is shared).
 //
-// The async chain's filters (one agile motion model per body, or the mixture of three) are timed per camera field on
-// the unsynchronised stream, with their errors, in a second table.
+// The async chain's filters (one agile motion model per body, the mixture of three constant-velocity models, or the
+// default: that mixture, the eye's with the acceleration model too) are timed per camera field on the
+// unsynchronised stream, with their errors, in a second table.
 //
 // Usage: bench_tracking [--frames N] [--repeats R] [--sigma PX]
 
@@ -252,12 +253,14 @@ void stage_breakdown(const Tracker& tracker, const std::vector<Frame>& frames, i
 /// The async chain (`--sync async`): the unsynchronised cameras' fields pushed one at a time into a Tracker, a
 /// frame per reference field. Time per camera field (push + pop: association and the filters' updates), and the
 /// frames' errors against the scene's truth at each frame's time.
-Result run_async(const test::SyntheticScene& scene, int fields, double sigma_px, int motion_models, int repeats) {
+Result run_async(const test::SyntheticScene& scene, int fields, double sigma_px, int motion_models, bool eye_accel,
+                 int repeats) {
     std::mt19937_64 rng(7);
     const auto stream = scene.stream(fields, sigma_px, rng, [](int, int) { return false; });
     TrackerConfig cfg = scene.tracker_config();
     cfg.sync.mode = SyncMode::Async;
     cfg.async.motion_models = motion_models;
+    cfg.async.eye_acceleration_model = eye_accel;
     std::vector<double> pass_us;
     Result r;
     for (int rep = 0; rep <= repeats; ++rep) {
@@ -362,8 +365,9 @@ int main(int argc, char** argv) {
         std::printf("| %d | ratio eyesim 2-view / OpenCV: time %.2fx, 3D error %.3fx | | | | | | |\n", markers,
                     ours2.us_per_frame / peer.us_per_frame, ours2.rms_um / peer.rms_um);
     }
-    // The async filters: one agile motion model per body against the mixture of three (AsyncOptions), on the
-    // unsynchronised stream (every camera field on its own, the eye turning at up to 0.3 Hz, instruments tilting).
+    // The async filters: one agile motion model per body, the mixture of three constant-velocity models, and the
+    // default (that mixture, the eye's also with the acceleration model; AsyncOptions), on the unsynchronised
+    // stream (every camera field on its own, the eye turning at up to 0.3 Hz, instruments tilting).
     const int async_fields = std::max(100, n_frames / 2);
     std::printf("\nasync filters (--sync async): %d fields per camera, unsynchronised, time per camera field (push +"
                 " pop), frames after the first 50\n\n",
@@ -371,10 +375,11 @@ int main(int argc, char** argv) {
     std::printf("| centroid σ px | filters | us/camera field | markers/frame | 3D RMS um | tip RMS um | eye RMS deg |\n");
     std::printf("|---|---|---|---|---|---|---|\n");
     for (double sg : {sigma, 2.0 * sigma}) {
-        for (int models : {1, 3}) {
-            const Result a = run_async(scene, async_fields, sg, models, repeats);
-            std::printf("| %.3f | %s | %.2f | %.1f | %.2f | %.2f | %.4f |\n", sg,
-                        models == 1 ? "one agile model" : "mixture of three (default)", a.us_per_frame,
+        for (int row = 0; row < 3; ++row) {
+            const Result a = run_async(scene, async_fields, sg, row == 0 ? 1 : 3, row == 2, repeats);
+            static const char* const kNames[3] = {"one agile model", "mixture of three constant-velocity models",
+                                                  "mixture, the eye's with the acceleration model (default)"};
+            std::printf("| %.3f | %s | %.2f | %.1f | %.2f | %.2f | %.4f |\n", sg, kNames[row], a.us_per_frame,
                         a.markers_per_frame, a.rms_um, a.tip_um, a.eye_deg);
         }
     }

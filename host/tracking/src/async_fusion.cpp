@@ -68,13 +68,34 @@ void RigidBodyFilter::configure_rotation(const Eigen::Vector3d& centre_rig_mm, d
     tracking_ = false;
 }
 
+void RigidBodyFilter::set_jerk(double ang_jerk_psd, double lin_jerk_psd, double sigma_alpha0, double sigma_acc0,
+                               double correlation_s) {
+    qj_ang_ = std::max(0.0, ang_jerk_psd);
+    qj_lin_ = rotation_only_ ? 0.0 : std::max(0.0, lin_jerk_psd);
+    ca_ = qj_ang_ > 0.0 || qj_lin_ > 0.0;
+    s_alpha0_ = ca_ ? std::max(0.0, sigma_alpha0) : 0.0;
+    s_acc0_ = ca_ && !rotation_only_ ? std::max(0.0, sigma_acc0) : 0.0;
+    tau_s_ = std::max(0.0, correlation_s);
+}
+
+void RigidBodyFilter::clear_acceleration() {
+    alpha_.setZero();
+    acc_.setZero();
+    P_.middleRows<6>(12).setZero();
+    P_.middleCols<6>(12).setZero();
+}
+
 void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen::Vector3d& t,
                            const Eigen::Vector3d& omega, const Eigen::Vector3d& v, double s_rot, double s_pos,
                            double s_omega, double s_v) {
     time_us_ = t_us;
     R_ = R.normalized();
     w_ = omega;
+    alpha_.setZero();
+    acc_.setZero();
     P_.setZero();
+    P_.block<3, 3>(12, 12).diagonal().setConstant(s_alpha0_ * s_alpha0_);
+    P_.block<3, 3>(15, 15).diagonal().setConstant(s_acc0_ * s_acc0_);
     P_.block<3, 3>(0, 0).diagonal().setConstant(s_rot * s_rot);
     P_.block<3, 3>(6, 6).diagonal().setConstant(s_omega * s_omega);
     if (!rotation_only_) {
@@ -91,8 +112,8 @@ void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen
 
 void RigidBodyFilter::pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
     const double dt = (t_us - time_us_) * 1e-6;
-    R = (detail::exp_rotation(w_ * dt) * R_).normalized();
-    t = t_ + v_ * dt;
+    R = (detail::exp_rotation(w_ * dt + (0.5 * dt * dt) * alpha_) * R_).normalized();
+    t = t_ + v_ * dt + (0.5 * dt * dt) * acc_;
 }
 
 void RigidBodyFilter::display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
@@ -103,22 +124,60 @@ void RigidBodyFilter::display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen:
     };
     const Eigen::Vector3d w = shrink(w_, std::max(0.0, P_.block<3, 3>(6, 6).trace()));
     const Eigen::Vector3d v = rotation_only_ ? v_ : shrink(v_, std::max(0.0, P_.block<3, 3>(9, 9).trace()));
-    R = (detail::exp_rotation(w * dt) * R_).normalized();
-    t = t_ + v * dt;
+    const Eigen::Vector3d al = shrink(alpha_, std::max(0.0, P_.block<3, 3>(12, 12).trace()));
+    const Eigen::Vector3d ac = rotation_only_ ? acc_ : shrink(acc_, std::max(0.0, P_.block<3, 3>(15, 15).trace()));
+    R = (detail::exp_rotation(w * dt + (0.5 * dt * dt) * al) * R_).normalized();
+    t = t_ + v * dt + (0.5 * dt * dt) * ac;
 }
 
 void RigidBodyFilter::predict_to(double t_us) {
     const double dt = (t_us - time_us_) * 1e-6;
     if (dt == 0.0) return;
     pose_at(t_us, R_, t_);
+    w_ += dt * alpha_;
+    v_ += dt * acc_;
     time_us_ = t_us;
-    // δθ' = δθ + dt·δω, δt' = δt + dt·δv; white acceleration noise (its magnitude whichever way time runs).
-    // P ← F·P·Fᵀ with F = I + dt·(ω → θ, v → t): rows then columns, each a block addition.
-    P_.middleRows<3>(0) += dt * P_.middleRows<3>(6);
-    if (!rotation_only_) P_.middleRows<3>(3) += dt * P_.middleRows<3>(9);
-    P_.middleCols<3>(0) += dt * P_.middleCols<3>(6);
-    if (!rotation_only_) P_.middleCols<3>(3) += dt * P_.middleCols<3>(9);
+    // δθ' = δθ + dt·δω (+ ½dt²·δα), δω' = δω + dt·δα, the same for δt, δv, δa; white acceleration noise, and
+    // white jerk in a constant-acceleration model (their magnitude whichever way time runs).
+    // P ← F·P·Fᵀ: rows then columns, each a block addition (the pose's rows first: they read the rates' old rows).
+    const double h = 0.5 * dt * dt;
+    if (ca_) {
+        P_.middleRows<3>(0) += dt * P_.middleRows<3>(6) + h * P_.middleRows<3>(12);
+        if (!rotation_only_) P_.middleRows<3>(3) += dt * P_.middleRows<3>(9) + h * P_.middleRows<3>(15);
+        P_.middleRows<3>(6) += dt * P_.middleRows<3>(12);
+        if (!rotation_only_) P_.middleRows<3>(9) += dt * P_.middleRows<3>(15);
+        P_.middleCols<3>(0) += dt * P_.middleCols<3>(6) + h * P_.middleCols<3>(12);
+        if (!rotation_only_) P_.middleCols<3>(3) += dt * P_.middleCols<3>(9) + h * P_.middleCols<3>(15);
+        P_.middleCols<3>(6) += dt * P_.middleCols<3>(12);
+        if (!rotation_only_) P_.middleCols<3>(9) += dt * P_.middleCols<3>(15);
+    } else {  // the accelerations' rows and columns are zero: the leading 12 × 12 block alone
+        P_.block<3, 12>(0, 0) += dt * P_.block<3, 12>(6, 0);
+        if (!rotation_only_) P_.block<3, 12>(3, 0) += dt * P_.block<3, 12>(9, 0);
+        P_.block<12, 3>(0, 0) += dt * P_.block<12, 3>(0, 6);
+        if (!rotation_only_) P_.block<12, 3>(0, 3) += dt * P_.block<12, 3>(0, 9);
+    }
     const double a = std::abs(dt);
+    if (ca_ && tau_s_ > 0.0) {
+        // A Singer model: the acceleration fades with its correlation time, so that a body that goes unseen (or
+        // is seen by one camera alone) coasts at its velocity instead of bending away on an old acceleration.
+        const double k = std::exp(-a / tau_s_);
+        alpha_ *= k;
+        acc_ *= k;
+        P_.middleRows<6>(12) *= k;
+        P_.middleCols<6>(12) *= k;
+    }
+    if (ca_) {
+        // White jerk: per axis over (pose, rate, acceleration) q·[a⁵/20 a⁴/8 a³/6; a⁴/8 a³/3 a²/2; a³/6 a²/2 a].
+        const double a2 = a * a, a3 = a2 * a;
+        const double j[3][3] = {{a3 * a2 / 20.0, a3 * a / 8.0, a3 / 6.0}, {a3 * a / 8.0, a3 / 3.0, a2 / 2.0},
+                                {a3 / 6.0, a2 / 2.0, a}};
+        for (int i = 0; i < 3; ++i)
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 3; ++c) {
+                    P_(6 * r + i, 6 * c + i) += qj_ang_ * j[r][c];
+                    if (!rotation_only_) P_(6 * r + 3 + i, 6 * c + 3 + i) += qj_lin_ * j[r][c];
+                }
+    }
     const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
     for (int i = 0; i < 3; ++i) {
         P_(i, i) += q_ang_ * q11;
@@ -134,7 +193,7 @@ void RigidBodyFilter::predict_to(double t_us) {
     roll_pseudo_measurement();
 }
 
-bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Eigen::Matrix<double, 2, 12>& J,
+bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Jacobian& J,
                               const Eigen::Vector2d& px, double sx, double sy, double nis_gate, double* nis,
                               double age_us) {
     last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
@@ -151,32 +210,46 @@ bool RigidBodyFilter::correct(const Eigen::Vector2d& z0, const Eigen::Matrix<dou
         if (!rotation_only_) Qp.bottomRightCorner<3, 3>().diagonal().setConstant(q_lin_ * a * a * a / 3.0);
         Rn += J.leftCols<6>() * Qp * J.leftCols<6>().transpose();
     }
-    // Products of these fixed sizes (12 × 12 by 12 × 2) are below what a blocked GEMM pays off for: lazyProduct
-    // keeps them coefficient-wise.
-    const Eigen::Matrix<double, 12, 2> PHt = P_.lazyProduct(J.transpose());
-    const Eigen::Matrix2d S = J.lazyProduct(PHt) + Rn;
+    const bool ok = ca_ ? correct_block<kDim>(J, r, Rn, nis_gate, nis) : correct_block<12>(J, r, Rn, nis_gate, nis);
+    if (ok) roll_pseudo_measurement();
+    return ok;
+}
+
+template <int N>
+bool RigidBodyFilter::correct_block(const Jacobian& J, const Eigen::Vector2d& r, const Eigen::Matrix2d& Rn,
+                                    double nis_gate, double* nis) {
+    // N = 12 for a constant-velocity model: its accelerations' rows and columns of P are zero and stay so.
+    // Products of these fixed sizes (N × N by N × 2) are below what a blocked GEMM pays off for: lazyProduct keeps
+    // them coefficient-wise.
+    auto P = P_.topLeftCorner<N, N>();
+    const auto Jn = J.leftCols<N>();
+    const Eigen::Matrix<double, N, 2> PHt = P.lazyProduct(Jn.transpose());
+    const Eigen::Matrix2d S = Jn.lazyProduct(PHt) + Rn;
     const Eigen::Matrix2d Si = S.inverse();
     const double q = r.dot(Si * r);
     if (nis) *nis = q;
     const double det = S.determinant();
     if (std::isfinite(q) && det > 0.0) last_log_lik_ = -0.5 * (std::min(q, nis_gate) + std::log(det));
     if (!(q <= nis_gate) || !std::isfinite(q)) return false;
-    // With the optimal gain the Joseph form equals P − K·S·Kᵀ = P − PH·Kᵀ (a 12×2 product instead of two 12×12
+    // With the optimal gain the Joseph form equals P − K·S·Kᵀ = P − PH·Kᵀ (an N×2 product instead of two N×N
     // ones); symmetrised after.
-    const Eigen::Matrix<double, 12, 2> K = PHt * Si;
-    apply(K * r);
-    P_ -= K.lazyProduct(PHt.transpose());
-    P_ = 0.5 * (P_ + P_.transpose()).eval();
-    roll_pseudo_measurement();
+    const Eigen::Matrix<double, N, 2> K = PHt * Si;
+    State dx = State::Zero();
+    dx.head<N>() = K * r;
+    apply(dx);
+    P -= K.lazyProduct(PHt.transpose());
+    P = 0.5 * (P + P.transpose()).eval();
     return true;
 }
 
 void RigidBodyFilter::apply(const State& dx) {
     R_ = (detail::exp_rotation(dx.segment<3>(0)) * R_).normalized();
     w_ += dx.segment<3>(6);
+    alpha_ += dx.segment<3>(12);
     if (!rotation_only_) {
         t_ += dx.segment<3>(3);
         v_ += dx.segment<3>(9);
+        acc_ += dx.segment<3>(15);
     }
 }
 
@@ -186,15 +259,16 @@ void RigidBodyFilter::roll_pseudo_measurement() {
     if (roll_axis_body_.isZero()) return;
     const Eigen::Vector3d a = R_ * roll_axis_body_;
     constexpr double kSigma = 1e-3;
-    for (int block : {0, 6}) {
-        State H = State::Zero();
-        H.segment<3>(block) = a;
-        const Eigen::Matrix<double, 12, 1> PH = P_ * H;
-        const double s = H.dot(PH) + kSigma * kSigma;
-        const Eigen::Matrix<double, 12, 1> K = PH / s;
-        P_ -= K * PH.transpose();
+    // A constant-velocity model's accelerations' rows and columns are zero: its leading 12 × 12 block alone.
+    const int n = ca_ ? kDim : 12;
+    for (int block : {0, 6, 12}) {
+        if (block >= n) break;
+        // H = a on `block`: P·H and Hᵀ·P·H from P's three columns there.
+        const State PH = P_.middleCols<3>(block) * a;
+        const double s = a.dot(PH.segment<3>(block)) + kSigma * kSigma;
+        P_.topLeftCorner(n, n).noalias() -= (PH.head(n) / s) * PH.head(n).transpose();
     }
-    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    P_.topLeftCorner(n, n) = 0.5 * (P_.topLeftCorner(n, n) + P_.topLeftCorner(n, n).transpose()).eval();
 }
 
 void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen::Vector3d& axis_body,
@@ -224,8 +298,8 @@ void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen:
     const Eigen::Vector2d r = -z0;  // the line should pass through p: offset 0
     const Eigen::Matrix2d Rn = Eigen::Matrix2d::Identity() * (sigma_mm * sigma_mm);
     const Eigen::Matrix2d S = J * P_.topLeftCorner<6, 6>() * J.transpose() + Rn;
-    const Eigen::Matrix<double, 12, 2> PHt = P_.leftCols<6>() * J.transpose();
-    const Eigen::Matrix<double, 12, 2> K = PHt * S.inverse();
+    const Eigen::Matrix<double, kDim, 2> PHt = P_.leftCols<6>() * J.transpose();
+    const Eigen::Matrix<double, kDim, 2> K = PHt * S.inverse();
     apply(K * r);
     P_.noalias() -= K * PHt.transpose();  // = the Joseph form with the optimal gain (see correct)
     P_ = 0.5 * (P_ + P_.transpose()).eval();
@@ -259,6 +333,13 @@ void BodyFilter::configure_rotation(const Eigen::Vector3d& centre_rig_mm, const 
     dirty_ = true;
 }
 
+void BodyFilter::set_jerk(int model, double ang_jerk_psd, double lin_jerk_psd, double sigma_alpha0,
+                          double sigma_acc0, double correlation_s) {
+    if (model < 0 || model >= n_) return;
+    m_[std::size_t(model)].set_jerk(ang_jerk_psd, lin_jerk_psd, sigma_alpha0, sigma_acc0, correlation_s);
+    dirty_ = true;
+}
+
 void BodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen::Vector3d& t, const Eigen::Vector3d& w,
                       const Eigen::Vector3d& v, double s_rot, double s_pos, double s_w, double s_v) {
     // A body is acquired while it moves as often as at rest: no model preferred.
@@ -276,6 +357,8 @@ RigidBodyFilter::State BodyFilter::difference(const RigidBodyFilter& i, const Ri
     d.segment<3>(3) = i.t_ - j.t_;
     d.segment<3>(6) = i.w_ - j.w_;
     d.segment<3>(9) = i.v_ - j.v_;
+    d.segment<3>(12) = i.alpha_ - j.alpha_;
+    d.segment<3>(15) = i.acc_ - j.acc_;
     return d;
 }
 
@@ -299,7 +382,11 @@ void BodyFilter::predict_to(double t_us) {
                                                             : double(i == j);
             merge(w, j, mixed[std::size_t(j)]);
         }
-        for (int j = 0; j < n_; ++j) m_[std::size_t(j)] = mixed[std::size_t(j)];
+        for (int j = 0; j < n_; ++j) {
+            m_[std::size_t(j)] = mixed[std::size_t(j)];
+            // A constant-velocity model takes the mixture's pose and rates, not the acceleration it cannot carry.
+            if (!m_[std::size_t(j)].constant_acceleration()) m_[std::size_t(j)].clear_acceleration();
+        }
         if (sum_c > 0.0)
             for (int j = 0; j < n_; ++j) mu_[std::size_t(j)] = c[std::size_t(j)] / sum_c;
     }
@@ -323,10 +410,15 @@ void BodyFilter::merge(const std::array<double, kMaxModels>& w, int ref, RigidBo
         total += w[std::size_t(i)];
     }
     mean /= total;
+    // Without an acceleration model the accelerations' rows and columns are zero: the leading 12 × 12 block.
+    bool any_ca = false;
+    for (int i = 0; i < n_; ++i) any_ca = any_ca || m_[std::size_t(i)].constant_acceleration();
+    const int n = any_ca ? RigidBodyFilter::kDim : 12;
     RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
     for (int i = 0; i < n_; ++i) {
         const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
-        P += (w[std::size_t(i)] / total) * (m_[std::size_t(i)].P_ + e * e.transpose());
+        P.topLeftCorner(n, n) +=
+            (w[std::size_t(i)] / total) * (m_[std::size_t(i)].P_.topLeftCorner(n, n) + e.head(n) * e.head(n).transpose());
     }
     out = m_[std::size_t(ref)];
     out.apply(mean);

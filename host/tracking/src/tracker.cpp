@@ -72,7 +72,7 @@ Tracker::Tracker(TrackerConfig config)
     // correspondence_ holds a span over cameras_, which is never resized after construction.
     const AsyncOptions& ao = config_.async;
     // Motion models steadiest first: (steady, agile) or (steady, geometric mean, agile); one: the agile alone.
-    const int nm = std::clamp(ao.motion_models, 1, BodyFilter::kMaxModels);
+    const int nm = std::clamp(ao.motion_models, 1, 3);  // constant-velocity models; the acceleration model after
     auto ladder = [nm](double steady, double agile, double* out) {
         if (nm == 1) out[0] = agile;
         else if (nm == 2) out[0] = steady, out[1] = agile;
@@ -82,12 +82,27 @@ Tracker::Tracker(TrackerConfig config)
     ladder(ao.eye_steady_ang_accel_psd_rad2_s3, ao.eye_ang_accel_psd_rad2_s3, eye_psd);
     ladder(ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang_psd);
     ladder(ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin_psd);
-    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, eye_psd, nm, ao.model_switch_per_s);
+    // The acceleration model last, its white acceleration the steady model's (the jerk carries the rest).
+    const bool eye_ca = ao.eye_acceleration_model, ca = ao.acceleration_model;
+    if (eye_ca) eye_psd[nm] = ao.eye_steady_ang_accel_psd_rad2_s3;
+    if (ca) {
+        ang_psd[nm] = ao.steady_ang_accel_psd_rad2_s3;
+        lin_psd[nm] = ao.steady_accel_psd_mm2_s3;
+    }
+    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, eye_psd, eye_ca ? nm + 1 : nm,
+                                   ao.model_switch_per_s);
+    if (eye_ca)
+        filters_[0].set_jerk(nm, ao.eye_ang_jerk_psd_rad2_s5, 0.0, ao.ang_accel0_sigma_rad_s2, 0.0,
+                             ao.accel_correlation_s);
+    const int n_models = ca ? nm + 1 : nm;
     for (int b = 0; b < config_.bodies.instrument_count; ++b) {
         const InstrumentModel& m = config_.bodies.instruments[std::size_t(b)];
-        filters_[std::size_t(1 + b)].configure_rigid(m.markers_on_axis() ? Eigen::Vector3d(m.axis_body.normalized())
-                                                                         : Eigen::Vector3d::Zero(),
-                                                     ang_psd, lin_psd, nm, ao.model_switch_per_s);
+        BodyFilter& f = filters_[std::size_t(1 + b)];
+        f.configure_rigid(m.markers_on_axis() ? Eigen::Vector3d(m.axis_body.normalized()) : Eigen::Vector3d::Zero(),
+                          ang_psd, lin_psd, n_models, ao.model_switch_per_s);
+        if (ca)
+            f.set_jerk(nm, ao.ang_jerk_psd_rad2_s5, ao.jerk_psd_mm2_s5, ao.ang_accel0_sigma_rad_s2, ao.accel0_sigma_mm_s2,
+                       ao.accel_correlation_s);
     }
 }
 

@@ -1,12 +1,14 @@
 #pragma once
 /// \file
 /// Asynchronous fusion (SCAAT after Welch & Bishop): one extended Kalman filter per body, rigid pose and velocity
-/// under a constant-velocity model with white acceleration, updated on each camera field on its own at that
+/// under a constant-velocity model with white acceleration (or, as one model of a mixture, acceleration under
+/// white jerk), updated on each camera field on its own at that
 /// field's exposure mid-time. Nothing waits for the other cameras: every field corrects the pose as soon as it
 /// is assembled, and the pose can be read at the newest observation's time or predicted to any later time.
 ///
 /// State (error-state form, rig frame): orientation R (body→rig) with a rotation error δθ (R = exp(δθ)·R̂),
-/// translation t (X_rig = R·b + t; the instrument body origin is its tip), angular velocity ω and velocity v.
+/// translation t (X_rig = R·b + t; the instrument body origin is its tip), angular velocity ω and velocity v,
+/// angular acceleration α and acceleration a (zero in a constant-velocity model).
 /// The eye is a rotation about its fixed centre (t = centre, v = 0, no translation noise). Markers on one
 /// line (the instruments) leave the roll about that line unobservable: a pseudo-measurement keeps its variance
 /// bounded. Fixed-size Eigen throughout, no allocation.
@@ -61,21 +63,47 @@ struct AsyncOptions {
     double max_position_sigma_mm = 1.0;  ///< √trace of the position covariance above this: lost
     double marker_recent_us = 30000.0;   ///< a marker seen by ≥ 2 cameras within this is reported in a frame
     double min_area_ratio = 0.6;      ///< an image whose blob area is below this share of the sphere's: occluded
+    /// One more motion model, acceleration under white jerk (a fast turn bends a body's path within the 7–13 ms
+    /// between a camera's field and the newest images of the others; a constant-velocity prediction misses by
+    /// ½·a·dt²): for the eye, and (off by default) the instruments; its jerk densities, the accelerations' 1σ
+    /// when a body is acquired, and their correlation time (a body unseen for a while coasts at its velocity).
+    /// Its white acceleration is the steady model's. The instruments' is off: on held-out `fast` recordings it
+    /// lowered the markers' error a little and made the tip diverge in some (docs/validation.md).
+    bool eye_acceleration_model = true;
+    bool acceleration_model = false;
+    double accel_correlation_s = 0.1;
+    double jerk_psd_mm2_s5 = 3.5e8;
+    double ang_jerk_psd_rad2_s5 = 4.0e5;
+    double eye_ang_jerk_psd_rad2_s5 = 1.0e3;
+    double accel0_sigma_mm_s2 = 2000.0;
+    double ang_accel0_sigma_rad_s2 = 60.0;
 };
 
 /// SCAAT filter of one rigid body (see the file comment).
 class RigidBodyFilter {
 public:
-    /// 12-dimensional error state: δθ, δt, δω, δv.
-    using State = Eigen::Matrix<double, 12, 1>;
+    /// Error state: δθ, δt, δω, δv, and the accelerations δα, δa of a constant-acceleration model (held at zero,
+    /// with no variance, in a constant-velocity one).
+    static constexpr int kDim = 18;
+    using State = Eigen::Matrix<double, kDim, 1>;
     /// Its covariance.
-    using Cov = Eigen::Matrix<double, 12, 12>;
+    using Cov = Eigen::Matrix<double, kDim, kDim>;
+    /// Jacobian of one image by the error state.
+    using Jacobian = Eigen::Matrix<double, 2, kDim>;
 
     /// An instrument-like rigid body (free rotation and translation). `roll_axis_body`: unit axis of a body whose
     /// markers are all on that line (roll unobservable), else zero.
     void configure_rigid(const Eigen::Vector3d& roll_axis_body, double ang_psd_rad2_s3, double lin_psd_mm2_s3);
     /// A body rotating about `centre_rig_mm`, fixed in the rig (the eye).
     void configure_rotation(const Eigen::Vector3d& centre_rig_mm, double ang_psd_rad2_s3);
+    /// Makes the motion model one of acceleration: white jerk of these spectral densities (rad²/s⁵, mm²/s⁵) on
+    /// top of the white acceleration configured; `sigma_*0`: the accelerations' 1σ when tracking starts;
+    /// `correlation_s` > 0: the acceleration fades by exp(−dt / correlation_s) (Singer), else it is held.
+    /// Call after configure_*. Densities 0: constant velocity (the default).
+    void set_jerk(double ang_jerk_psd_rad2_s5, double lin_jerk_psd_mm2_s5, double sigma_alpha0_rad_s2,
+                  double sigma_acc0_mm_s2, double correlation_s);
+    /// True for a constant-acceleration model (set_jerk).
+    bool constant_acceleration() const { return ca_; }
 
     /// Starts tracking at `t_us` (device clock) with this pose and velocity and 1σ uncertainties.
     void init(double t_us, const Eigen::Quaterniond& R_body_to_rig, const Eigen::Vector3d& t_mm,
@@ -86,11 +114,11 @@ public:
     /// True between init() and reset().
     bool tracking() const { return tracking_; }
 
-    /// Moves the state to `t_us` (constant velocity; the covariance grows with the acceleration noise). A time
+    /// Moves the state to `t_us` (x + v·dt + ½·a·dt²; the covariance grows with the process noise). A time
     /// before the current one is predicted back the same way (observations older than the state are better
     /// given to update_point with their age, which leaves the state where it is).
     void predict_to(double t_us);
-    /// Pose at `t_us` without changing the filter: the constant-velocity model itself.
+    /// Pose at `t_us` without changing the filter: the motion model itself.
     void pose_at(double t_us, Eigen::Quaterniond& R_body_to_rig, Eigen::Vector3d& t_mm) const;
     /// Display-time prediction: as pose_at, with each velocity shrunk by its own uncertainty (v·|v|²/(|v|² +
     /// tr Σ_v)), so that a velocity the filter barely knows is not extrapolated at full weight.
@@ -132,6 +160,9 @@ public:
     const Eigen::Vector3d& omega() const { return w_; }
     /// Velocity of the body origin (mm/s).
     const Eigen::Vector3d& velocity() const { return v_; }
+    /// Angular acceleration (rig frame, rad/s²) and the body origin's (mm/s²): zero in a constant-velocity model.
+    const Eigen::Vector3d& angular_acceleration() const { return alpha_; }
+    const Eigen::Vector3d& acceleration() const { return acc_; }
     /// Covariance of the error state.
     const Cov& covariance() const { return P_; }
     /// √trace of the position covariance (mm).
@@ -144,9 +175,9 @@ public:
                  const State& d, Eigen::Vector2d& px) const;
     template <typename Shift>
     bool linearise(const CameraGeometry& cam, const Eigen::Vector3d& b_body_mm, const Shift& shift, double age_us,
-                   Eigen::Vector2d& z0, Eigen::Matrix<double, 2, 12>& J) const;
+                   Eigen::Vector2d& z0, Jacobian& J) const;
     /// The Kalman update from a predicted pixel z0 and Jacobian J (update_point's second half).
-    bool correct(const Eigen::Vector2d& z0, const Eigen::Matrix<double, 2, 12>& J, const Eigen::Vector2d& px,
+    bool correct(const Eigen::Vector2d& z0, const Jacobian& J, const Eigen::Vector2d& px,
                  double sigma_x_px, double sigma_y_px, double nis_gate, double* nis, double age_us);
 
     /// Log-likelihood of the last update_point's innovation, −½(min(NIS, gate) + ln det S), or NaN where no
@@ -157,15 +188,25 @@ private:
     friend class BodyFilter;
     void apply(const State& dx);
     void roll_pseudo_measurement();
+    /// A constant-velocity model's accelerations back to zero with no variance (after the IMM's mixing).
+    void clear_acceleration();
+    /// correct()'s Kalman update over the leading N error states.
+    template <int N>
+    bool correct_block(const Jacobian& J, const Eigen::Vector2d& r, const Eigen::Matrix2d& Rn, double nis_gate,
+                       double* nis);
 
     double last_log_lik_ = 0.0;
     bool tracking_ = false;
     bool rotation_only_ = false;
     Eigen::Vector3d roll_axis_body_ = Eigen::Vector3d::Zero();
     double q_ang_ = 1.0, q_lin_ = 1.0;
+    bool ca_ = false;
+    double qj_ang_ = 0.0, qj_lin_ = 0.0, s_alpha0_ = 0.0, s_acc0_ = 0.0;
+    double tau_s_ = 0.0;
     double time_us_ = 0.0;
     Eigen::Quaterniond R_ = Eigen::Quaterniond::Identity();
     Eigen::Vector3d t_ = Eigen::Vector3d::Zero(), w_ = Eigen::Vector3d::Zero(), v_ = Eigen::Vector3d::Zero();
+    Eigen::Vector3d alpha_ = Eigen::Vector3d::Zero(), acc_ = Eigen::Vector3d::Zero();
     Cov P_ = Cov::Identity();
 };
 
@@ -179,12 +220,15 @@ private:
 /// so the steady model never drifts far from a body that moved. With one model it is that model's filter.
 class BodyFilter {
 public:
-    static constexpr int kMaxModels = 3;
+    static constexpr int kMaxModels = 4;
     /// `models` motion models (1..kMaxModels), model j with densities ang_psd[j] / lin_psd[j], steadiest first.
     void configure_rigid(const Eigen::Vector3d& roll_axis_body, const double* ang_psd_rad2_s3,
                          const double* lin_psd_mm2_s3, int models, double switch_per_s);
     void configure_rotation(const Eigen::Vector3d& centre_rig_mm, const double* ang_psd_rad2_s3, int models,
                             double switch_per_s);
+    /// Model j made constant-acceleration (RigidBodyFilter::set_jerk); call after configure_*.
+    void set_jerk(int model, double ang_jerk_psd_rad2_s5, double lin_jerk_psd_mm2_s5, double sigma_alpha0_rad_s2,
+                  double sigma_acc0_mm_s2, double correlation_s);
     void init(double t_us, const Eigen::Quaterniond& R_body_to_rig, const Eigen::Vector3d& t_mm,
               const Eigen::Vector3d& omega_rad_s, const Eigen::Vector3d& v_mm_s, double sigma_rot_rad,
               double sigma_pos_mm, double sigma_omega_rad_s, double sigma_v_mm_s);
@@ -241,7 +285,7 @@ private:
     int n_ = 1;
     double switch_per_s_ = 0.0;
     std::array<RigidBodyFilter, kMaxModels> m_{};
-    std::array<double, kMaxModels> mu_{1.0, 0.0, 0.0};
+    std::array<double, kMaxModels> mu_{1.0, 0.0, 0.0, 0.0};
     mutable RigidBodyFilter c_{};  // the mixture (n_ > 1), formed from the models when dirty_
     mutable bool dirty_ = true;
 };
@@ -272,11 +316,12 @@ bool RigidBodyFilter::project(const CameraGeometry& cam, const Eigen::Vector3d& 
     // h(δx): projected pixel (plus the occlusion shift) of the perturbed pose, carried back by the age (constant
     // velocity) for an aged image, so that its Jacobian reaches the velocities: δθ − age·δω, δt − age·δv to first
     // order. A current image does not depend on them (zero columns).
-    const double a = std::max(0.0, age_us) * 1e-6;
+    const double a = std::max(0.0, age_us) * 1e-6, h = 0.5 * a * a;
     const Eigen::Vector3d w = w_ + d.segment<3>(6);
-    const Eigen::Quaterniond R = detail::exp_rotation(-a * w) * (detail::exp_rotation(d.head<3>()) * R_);
+    const Eigen::Quaterniond R =
+        detail::exp_rotation(-a * w + h * (alpha_ + d.segment<3>(12))) * (detail::exp_rotation(d.head<3>()) * R_);
     Eigen::Vector3d t = t_;
-    if (!rotation_only_) t += d.segment<3>(3) - a * (v_ + d.segment<3>(9));
+    if (!rotation_only_) t += d.segment<3>(3) - a * (v_ + d.segment<3>(9)) + h * (acc_ + d.segment<3>(15));
     const Eigen::Vector3d X = R * b + t;
     const Eigen::Vector3d Xc = cam.R_cam_rig * X + cam.t_cam_rig_mm;
     if (!(Xc.z() > 1e-6)) return false;
@@ -288,14 +333,18 @@ bool RigidBodyFilter::project(const CameraGeometry& cam, const Eigen::Vector3d& 
 
 template <typename Shift>
 bool RigidBodyFilter::linearise(const CameraGeometry& cam, const Eigen::Vector3d& b, const Shift& shift,
-                                double age_us, Eigen::Vector2d& z0, Eigen::Matrix<double, 2, 12>& J) const {
+                                double age_us, Eigen::Vector2d& z0, Jacobian& J) const {
     State d = State::Zero();
     if (!project(cam, b, shift, age_us, d, z0)) return false;
     J.setZero();
-    for (int i = 0; i < 12; ++i) {  // central differences
-        if (rotation_only_ && ((i >= 3 && i < 6) || i >= 9)) continue;
-        if (!(age_us > 0.0) && i >= 6) break;
-        const double eps = (i < 3 || (i >= 6 && i < 9)) ? 1e-6 : 1e-4;
+    // Steps per block (δθ, δt, δω, δv, δα, δa): each moves the pixel by far more than rounding and far less than
+    // the projection bends over (the accelerations enter by half the age squared, at most ≈ 1e-4 s²).
+    constexpr double kEps[6] = {1e-6, 1e-4, 1e-6, 1e-4, 1e-2, 1.0};
+    for (int i = 0; i < kDim; ++i) {  // central differences
+        const int block = i / 3;
+        if (rotation_only_ && (block & 1)) continue;  // no translation
+        if (!(age_us > 0.0) && i >= 6) break;          // a current image does not see the rates
+        const double eps = kEps[block];
         Eigen::Vector2d zp, zm;
         d.setZero();
         d[i] = eps;
@@ -313,7 +362,7 @@ bool RigidBodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vecto
                                    double age_us) {
     last_log_lik_ = std::numeric_limits<double>::quiet_NaN();
     Eigen::Vector2d z0;
-    Eigen::Matrix<double, 2, 12> J;
+    RigidBodyFilter::Jacobian J;
     if (!linearise(cam, b, shift, age_us, z0, J)) return false;
     return correct(z0, J, px, sx, sy, nis_gate, nis, age_us);
 }
@@ -333,7 +382,7 @@ bool BodyFilter::update_point(const CameraGeometry& cam, const Eigen::Vector3d& 
     int best = 0;
     for (int j = 1; j < n_; ++j)
         if (mu_[std::size_t(j)] > mu_[std::size_t(best)]) best = j;
-    Eigen::Matrix<double, 2, 12> J;
+    RigidBodyFilter::Jacobian J;
     std::array<Eigen::Vector2d, kMaxModels> z;
     if (!m_[std::size_t(best)].linearise(cam, b, shift_fn, age_us, z[std::size_t(best)], J)) return false;
     for (int j = 0; j < n_; ++j)  // every model's pixel before any model changes: all take the image or none
