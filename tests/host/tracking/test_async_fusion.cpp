@@ -14,6 +14,7 @@
 #include <cmath>
 #include <random>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 using namespace eyesim::tracking;
@@ -499,18 +500,18 @@ TEST_CASE("async filter: the acceleration model predicts a fast swing between th
     };
     SECTION("an instrument-like body: 0.66 rad at 3 Hz about a pivot 30 mm away") {
         for (std::uint64_t seed : {41u, 42u, 43u}) {
+            // Prediction RMS without and with the acceleration model, on fresh filters.
+            auto both = [&](const SwingMotion& m, double from_us, double to_us) {
+                BodyFilter cv, ca;
+                filters(cv, ca);
+                return std::pair{prediction_rms_um(cv, m, from_us, to_us, seed), prediction_rms_um(ca, m, from_us, to_us, seed)};
+            };
             SwingMotion swing;
             swing.start_us = 300000.0;
-            BodyFilter cv, ca;
-            filters(cv, ca);
-            const double e_cv = prediction_rms_um(cv, swing, 600000.0, 2000000.0, seed);
-            const double e_ca = prediction_rms_um(ca, swing, 600000.0, 2000000.0, seed);
             SwingMotion rest;
             rest.amplitude_rad = 0.0;
-            BodyFilter cv_rest, ca_rest;
-            filters(cv_rest, ca_rest);
-            const double r_cv = prediction_rms_um(cv_rest, rest, 300000.0, 1500000.0, seed);
-            const double r_ca = prediction_rms_um(ca_rest, rest, 300000.0, 1500000.0, seed);
+            const auto [e_cv, e_ca] = both(swing, 600000.0, 2000000.0);
+            const auto [r_cv, r_ca] = both(rest, 300000.0, 1500000.0);
             INFO("seed " << seed << ": swing, prediction RMS um: constant velocity " << e_cv << ", with the acceleration model "
                          << e_ca << "; at rest " << r_cv << ", " << r_ca);
             // Measured (seeds 41-43): 200-225 um with the constant-velocity models alone (seed 42: they lose the body,
