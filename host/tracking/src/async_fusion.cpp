@@ -157,16 +157,16 @@ void RigidBodyFilter::predict_to(double t_us) {
         if (!rotation_only_) P_.block<12, 3>(0, 3) += dt * P_.block<12, 3>(0, 9);
     }
     const double a = std::abs(dt);
-    if (ca_ && tau_s_ > 0.0) {
-        // A Singer model: the acceleration fades with its correlation time, so that a body that goes unseen (or
-        // is seen by one camera alone) coasts at its velocity instead of bending away on an old acceleration.
-        const double k = std::exp(-a / tau_s_);
-        alpha_ *= k;
-        acc_ *= k;
-        P_.middleRows<6>(12) *= k;
-        P_.middleCols<6>(12) *= k;
-    }
     if (ca_) {
+        if (tau_s_ > 0.0) {
+            // A Singer model: the acceleration fades with its correlation time, so that a body that goes unseen
+            // (or is seen by one camera alone) coasts at its velocity instead of bending away on an old one.
+            const double k = std::exp(-a / tau_s_);
+            alpha_ *= k;
+            acc_ *= k;
+            P_.middleRows<6>(12) *= k;
+            P_.middleCols<6>(12) *= k;
+        }
         // White jerk: per axis over (pose, rate, acceleration) q·[a⁵/20 a⁴/8 a³/6; a⁴/8 a³/3 a²/2; a³/6 a²/2 a].
         const double a2 = a * a, a3 = a2 * a;
         const double j[3][3] = {{a3 * a2 / 20.0, a3 * a / 8.0, a3 / 6.0}, {a3 * a / 8.0, a3 / 3.0, a2 / 2.0},
