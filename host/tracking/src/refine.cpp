@@ -1790,7 +1790,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // The pipeline's centroid is the visible part's: with a shaft, start the centre where the model's visible
     // centroid meets it (the shaft's image moves with the centre; the eye's outline does not). A second step only
     // where the first moved the centre by more than kStartSecondStepPx: below it the fit ends where it would have
-    // (`eyesim fpga --refine`, sweep seed 1, raw and DV: every figure the same to 1e-5 px at 0.2–0.3 px, a third
+    // (`eyesim fpga --refine`, sweep seed 1, raw and DV: every figure within 2e-5 px at 0.2–0.3 px, a third
     // of the start steps saved; one step everywhere lost 7–11 %).
     auto start_behind_occluders = [&] {
         for (int k = 0; hint && k < 2; ++k) {
