@@ -301,8 +301,16 @@ void RigidBodyFilter::update_line_through(const Eigen::Vector3d& b, const Eigen:
     const Eigen::Matrix<double, kDim, 2> PHt = P_.leftCols<6>() * J.transpose();
     const Eigen::Matrix<double, kDim, 2> K = PHt * S.inverse();
     apply(K * r);
-    P_.noalias() -= K * PHt.transpose();  // = the Joseph form with the optimal gain (see correct)
-    P_ = 0.5 * (P_ + P_.transpose()).eval();
+    // = the Joseph form with the optimal gain (see correct); a constant-velocity model's accelerations' rows and
+    // columns are zero (so are K's and PHt's there): its leading 12 × 12 block alone.
+    if (ca_) {
+        P_.noalias() -= K * PHt.transpose();
+        P_ = 0.5 * (P_ + P_.transpose()).eval();
+    } else {
+        auto P = P_.topLeftCorner<12, 12>();
+        P.noalias() -= K.topRows<12>() * PHt.topRows<12>().transpose();
+        P = 0.5 * (P + P.transpose()).eval();
+    }
     roll_pseudo_measurement();
 }
 
