@@ -103,8 +103,18 @@ struct CameraStats {
     std::vector<double> field_latency_us;  // field: last blob after the last active line
 };
 
-// Matches blobs to the visible truth markers of one camera by class and nearest centroid (≤ 3 px).
-void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, int parity, CameraStats& st) {
+// The truth marker a blob was matched to, for the CSV: which marker, the blob's error and how hidden it was.
+struct BlobTruth {
+    const rig::MarkerTruth* marker = nullptr;  // null: not matched (or no truth)
+    Eigen::Vector2d error_px = Eigen::Vector2d::Zero();
+    double occluded_fraction = 0.0;
+};
+
+// Matches blobs to the visible truth markers of one camera by class and nearest centroid (≤ 3 px); `per_blob`
+// (one entry per blob) gets each matched blob's marker and error.
+void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, int cam, int parity, CameraStats& st,
+           std::vector<BlobTruth>& per_blob) {
+    per_blob.assign(blobs.size(), BlobTruth{});
     std::vector<rig::DetectedMarker> det;
     det.reserve(blobs.size());
     for (const fpga::Blob& b : blobs) det.push_back({b.class_id, Eigen::Vector2d(b.cx_px(), b.cy_px())});
@@ -120,6 +130,7 @@ void score(const std::vector<fpga::Blob>& blobs, const rig::FieldTruth& truth, i
             const Eigen::Vector2d d = det[static_cast<size_t>(m.detection)].centroid_px - m.view->centroid_px;
             st.err.add(d, parity);
             st.vis[m.view->occluded_fraction > 0.0 ? 1 : 0].add(d, parity);
+            per_blob[static_cast<size_t>(m.detection)] = {m.marker, d, m.view->occluded_fraction};
         },
         used);
     for (bool u : used) st.extra += !u;
@@ -180,7 +191,7 @@ int run(const FpgaOptions& opt) {
         csv.open(opt.csv);
         if (!csv) throw eyesim::app::Error(fmt::format("{}: cannot create CSV file", opt.csv));
         csv << "camera,field,parity,index,class,x_px,y_px,area_px,sum_w,bbox_x0,bbox_y0,bbox_x1,bbox_y1,flags,"
-               "complete_us,emit_us,latency_us\n";
+               "complete_us,emit_us,latency_us,refine,truth_body,truth_marker,error_x_px,error_y_px,occluded_fraction\n";
     }
 
     // One pipeline per camera with the reset register map, as the device powers up, plus any --reg writes.
@@ -188,6 +199,8 @@ int run(const FpgaOptions& opt) {
     eyesim::app::FpgaModelRun model(rec, cams, maps);
     std::vector<CameraStats> stats;
     for (int c : cams) stats.push_back(CameraStats{c});
+    std::vector<BlobTruth> blob_truth;  // per blob of the current field, reused
+    const std::vector<const char*> no_outcomes;
     std::array<uint8_t, proto::kMaxFrameBytes> frame{};
     // Receive times. There is no host on this path: the capture uses the device clock as the host clock (offset 0)
     // and stamps each record with the modelled time its frame has left the device (docs/protocol.md section 6):
@@ -277,14 +290,29 @@ int run(const FpgaOptions& opt) {
             st.overflows += fs.table_overflows;
             for (const fpga::Blob& b : blobs) st.latency_us.push_back(b.latency_us());
             st.field_latency_us.push_back(fpga::cycles_to_us(fs.last_blob_latency_cycles));
-            if (i < static_cast<int64_t>(truth.size())) score(blobs, truth[static_cast<size_t>(i)], f.camera, f.parity, st);
+            blob_truth.clear();
+            if (i < static_cast<int64_t>(truth.size()))
+                score(blobs, truth[static_cast<size_t>(i)], f.camera, f.parity, st, blob_truth);
 
             if (csv.is_open()) {
-                for (const fpga::Blob& b : blobs)
-                    csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}\n", f.camera, i,
+                for (size_t bi = 0; bi < blobs.size(); ++bi) {
+                    const fpga::Blob& b = blobs[bi];
+                    csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}", f.camera, i,
                                        f.parity, b.index, b.class_id, b.cx_px(), b.cy_px(), b.area_px, b.sum_w, b.x_min,
                                        b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(f.start_us, b.last_pixel_cycle),
                                        fpga::device_time_us(f.start_us, b.emit_cycle), b.latency_us());
+                    // The refinement's outcome (empty without --refine).
+                    const auto& outcomes = refiner ? refiner->last_outcomes() : no_outcomes;
+                    csv << ',' << (bi < outcomes.size() ? outcomes[bi] : "");
+                    // Truth columns: empty where the recording has no truth or the blob matched no marker.
+                    if (bi < blob_truth.size() && blob_truth[bi].marker) {
+                        const BlobTruth& t = blob_truth[bi];
+                        csv << fmt::format(",{},{},{:.6f},{:.6f},{:.4f}\n", t.marker->body, t.marker->id,
+                                           t.error_px.x(), t.error_px.y(), t.occluded_fraction);
+                    } else {
+                        csv << ",,,,,\n";
+                    }
+                }
             }
             if (!capture_on && !hint_tracker) return;
             // Ready once the last active pixel is in and the last blob has left the pipeline (as the device).

@@ -39,6 +39,7 @@ int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob
     boxes_.clear();
     for (const fpga::Blob& b : blobs) boxes_.push_back(tracking::blob_box(b));
     tracking::mark_foreign_overlaps(boxes_);
+    outcomes_.assign(blobs.size(), "kept");
     int refined = 0;
     for (std::size_t i = 0; i < blobs.size(); ++i) {
         fpga::Blob& b = blobs[i];
@@ -48,9 +49,11 @@ int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob
         hinted_fits_ += hinted;
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];
+            outcomes_[i] = tracking::to_string(r.refusal);
             continue;
         }
         if (r.cx_px < 0 || r.cy_px < 0) continue;  // the wire's unsigned Q16 cannot hold it: keep the pipeline's
+        outcomes_[i] = hinted ? "hinted" : "fitted";
         b.cx_q16 = static_cast<uint32_t>(std::llround(r.cx_px * 65536.0));
         b.cy_q16 = static_cast<uint32_t>(std::llround(r.cy_px * 65536.0));
         ++refined;

@@ -51,6 +51,27 @@ std::map<std::pair<int, int>, std::vector<rig::DetectedMarker>> read_blobs(const
     return out;
 }
 
+// The CSV as rows of named cells.
+std::vector<std::map<std::string, std::string>> read_rows(const fs::path& csv) {
+    std::ifstream in(csv);
+    std::string line, cell;
+    std::getline(in, line);
+    std::vector<std::string> names;
+    for (std::stringstream ss(line); std::getline(ss, cell, ',');) names.push_back(cell);
+    std::vector<std::map<std::string, std::string>> rows;
+    while (std::getline(in, line)) {
+        std::map<std::string, std::string> row;
+        std::stringstream ss(line);
+        for (const std::string& name : names) {
+            cell.clear();
+            std::getline(ss, cell, ',');
+            row[name] = cell;
+        }
+        rows.push_back(std::move(row));
+    }
+    return rows;
+}
+
 struct Sums {
     double se = 0;
     int n = 0;
@@ -105,4 +126,41 @@ TEST_CASE("fpga --refine: the first fields' partly hidden markers are fitted wit
     CHECK(later.rms() < 0.05);
     // Without the look ahead the first two fields were fitted plain: 0.139 px against 0.024 on this recording.
     CHECK(first.rms() < 1.5 * later.rms());
+
+    SECTION("the CSV names each blob's refinement outcome and, against the truth, its marker and error") {
+        const auto rows = read_rows(csv);
+        REQUIRE(rows.size() == j.at("blobs").get<size_t>());
+        std::map<std::string, int64_t> outcomes;
+        for (const auto& row : rows) ++outcomes[row.at("refine")];
+        CHECK(outcomes["fitted"] + outcomes["hinted"] == j.at("refined").get<int64_t>());
+        for (const auto& [why, n] : j.at("refused").items()) CHECK(outcomes[why] == n.get<int64_t>());
+        CHECK(outcomes["hinted"] > 0);
+        // Each matched blob's error, recomputed from the truth: the marker of its class whose rendered centroid
+        // the blob's is within 3 px of, and the error the CSV states.
+        int64_t matched = 0;
+        double se = 0;
+        for (const auto& row : rows) {
+            if (row.at("truth_body").empty()) continue;
+            ++matched;
+            const auto& ft = truth[static_cast<size_t>(std::stoi(row.at("field")))];
+            const int cam = std::stoi(row.at("camera")), id = std::stoi(row.at("truth_marker"));
+            const Eigen::Vector2d c(std::stod(row.at("x_px")), std::stod(row.at("y_px")));
+            const Eigen::Vector2d e(std::stod(row.at("error_x_px")), std::stod(row.at("error_y_px")));
+            bool found = false;
+            for (const rig::MarkerTruth& m : ft.markers)
+                if (m.body == row.at("truth_body") && m.id == id) {
+                    const rig::MarkerCameraTruth& v = m.cams[static_cast<size_t>(cam)];
+                    CHECK(m.colour_class == std::stoi(row.at("class")));
+                    CHECK((c - v.centroid_px - e).norm() < 3e-6);
+                    CHECK(std::fabs(v.occluded_fraction - std::stod(row.at("occluded_fraction"))) < 1e-4);
+                    found = true;
+                }
+            CHECK(found);
+            se += e.squaredNorm();
+        }
+        // Every matched blob is in the CSV with its error: their RMS is the summary's.
+        CHECK(matched == j.at("cameras")[0].at("matched").get<int64_t>() + j.at("cameras")[1].at("matched").get<int64_t>() +
+                             j.at("cameras")[2].at("matched").get<int64_t>());
+        CHECK(std::sqrt(se / static_cast<double>(matched)) == Approx(j.at("centroid_rms_px").get<double>()).epsilon(1e-4));
+    }
 }

@@ -51,6 +51,10 @@ public:
     /// {"chi2": n, "implausible": n, …}: the refusals by name.
     nlohmann::json refusals_json() const;
 
+    /// How refine() ended for each blob of the last field it was given: "fitted", "hinted" (fitted with a hint's
+    /// occluders left out), or the refusal's name (tracking::to_string), in the blobs' order.
+    const std::vector<const char*>& last_outcomes() const { return outcomes_; }
+
 private:
     tracking::SphereFitConfig config_;
     std::unique_ptr<tracking::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
@@ -58,6 +62,7 @@ private:
     const tracking::MarkerHintSource* hints_ = nullptr;
     int64_t hinted_fits_ = 0;
     std::vector<tracking::BlobBox> boxes_;  // the field's blobs as the fit takes them (reused)
+    std::vector<const char*> outcomes_;     // per blob of the last field (reused)
 };
 
 /// Hints for a recording's first fields, for the offline tools. A field's hints come from the poses of the fields
