@@ -418,19 +418,26 @@ void BodyFilter::merge(const std::array<double, kMaxModels>& w, int ref, RigidBo
         total += w[std::size_t(i)];
     }
     mean /= total;
-    // Without an acceleration model the accelerations' rows and columns are zero: the leading 12 × 12 block.
+    // Without an acceleration model the accelerations' rows and columns are zero: the leading 12 × 12 block
+    // (fixed-size blocks: the mixing runs for every model at every prediction).
     bool any_ca = false;
     for (int i = 0; i < n_; ++i) any_ca = any_ca || m_[std::size_t(i)].constant_acceleration();
-    const int n = any_ca ? RigidBodyFilter::kDim : 12;
-    RigidBodyFilter::Cov P = RigidBodyFilter::Cov::Zero();
-    for (int i = 0; i < n_; ++i) {
-        const RigidBodyFilter::State e = d[std::size_t(i)] - mean;
-        P.topLeftCorner(n, n) +=
-            (w[std::size_t(i)] / total) * (m_[std::size_t(i)].P_.topLeftCorner(n, n) + e.head(n) * e.head(n).transpose());
-    }
     out = m_[std::size_t(ref)];
     out.apply(mean);
-    out.P_ = 0.5 * (P + P.transpose());
+    auto spread = [&]<int N>() {
+        Eigen::Matrix<double, N, N> P = Eigen::Matrix<double, N, N>::Zero();
+        for (int i = 0; i < n_; ++i) {
+            const Eigen::Matrix<double, N, 1> e = (d[std::size_t(i)] - mean).template head<N>();
+            P += (w[std::size_t(i)] / total) *
+                 (m_[std::size_t(i)].P_.template topLeftCorner<N, N>() + e * e.transpose());
+        }
+        out.P_.setZero();
+        out.P_.template topLeftCorner<N, N>() = 0.5 * (P + P.transpose());
+    };
+    if (any_ca)
+        spread.template operator()<RigidBodyFilter::kDim>();
+    else
+        spread.template operator()<12>();
 }
 
 void BodyFilter::combine() const {
