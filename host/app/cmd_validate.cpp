@@ -95,6 +95,7 @@ struct RunStats {
     long frames = 0, two_view_frames = 0, too_few_camera_frames = 0, ghosts = 0, images_dropped_sync = 0,
          images_unmatched = 0, markers_unassigned = 0, truth_visible2 = 0, eye_held = 0;
     long eye_model_views = 0;  // views the eye's model corrected and the poses used (Tracker::eye_model_views)
+    long time_ordered_parts = 0;  // low-latency parts fused at their own time, before newer ones (per body)
     std::vector<long> tip_held;
 };
 
@@ -151,6 +152,7 @@ public:
         tracker_.finish();
         drain(now_us);
         stats_.eye_model_views = long(tracker_.eye_model_views());
+        stats_.time_ordered_parts = long(tracker_.time_ordered_parts());
     }
 
     RunStats& stats() { return stats_; }
@@ -531,6 +533,7 @@ nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
     j["frames_too_few_cameras"] = s.too_few_camera_frames;
     j["eye_not_measured_frames"] = s.eye_held;
     j["eye_model_views"] = s.eye_model_views;
+    j["time_ordered_parts"] = s.time_ordered_parts;
     nlohmann::json held = nlohmann::json::object();
     for (int b = 0; b < bodies.instrument_count; ++b)
         held[bodies.instruments[std::size_t(b)].name] = s.tip_held[std::size_t(b)];
@@ -937,6 +940,7 @@ std::string html_chain(const nlohmann::json& f, long fields_with_drops, long par
     rows.push_back({"frames with too few cameras", f["frames_too_few_cameras"].dump()});
     rows.push_back({"frames the eye was not measured", f["eye_not_measured_frames"].dump()});
     rows.push_back({"marker views the eye's model corrected", f["eye_model_views"].dump()});
+    rows.push_back({"low-latency parts fused before newer ones (per body)", f["time_ordered_parts"].dump()});
     for (const auto& [k, v] : f["instrument_not_measured_frames"].items())
         rows.push_back({"frames " + k + " was not measured", v.dump()});
     rows.push_back({"fields with dropped blobs", std::to_string(fields_with_drops)});

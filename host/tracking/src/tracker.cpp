@@ -3,6 +3,7 @@
 #include "eyesim/tracking/marker_prediction.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -104,6 +105,13 @@ Tracker::Tracker(TrackerConfig config)
             f.set_jerk(nm, ao.ang_jerk_psd_rad2_s5, ao.jerk_psd_mm2_s5, ao.ang_accel0_sigma_rad_s2, ao.accel0_sigma_mm_s2,
                        ao.accel_correlation_s);
     }
+    // Allocated once here (≈ 120 KB a body), never in the fusion.
+    if (config_.sync.mode == SyncMode::Async && ao.time_order_parts) {
+        replay_ = std::make_unique<ReplayHistory[]>(kBodies);
+        // Each snapshot configured as its body's filter (BodyFilter::assign_state copies only the state).
+        for (int b = 0; b < kBodies; ++b)
+            for (ReplayEpoch& e : replay_[std::size_t(b)].pool) e.before = filters_[std::size_t(b)];
+    }
 }
 
 void Tracker::restart() {
@@ -139,6 +147,9 @@ void Tracker::push(const protocol::FieldMarkers& msg, double received_host_us) {
         // Parts already fused while the field was open are not fused again.
         const bool was_open = open_queued_[c] > 0 && open_counter_[c] == f.field_counter;
         enqueue(f, was_open ? std::min(open_queued_[c], f.count) : 0, true);
+        // One time for all parts of a field: the one its first parts were fused at (predicted from the camera's
+        // last field, within microseconds of the field's own), so that the closing part is not an older observation.
+        if (was_open) queue_[std::size_t((queue_head_ + queue_count_ - 1) % kQueue)].fuse_us = open_sample_us_[c];
         if (open_counter_[c] == f.field_counter) open_queued_[c] = 0;
         if (!std::isfinite(f.field_end_device_us) || !(f.field_end_device_us > 0.0)) continue;
         if (have_done_[c]) {
@@ -168,6 +179,8 @@ void Tracker::push(const protocol::FieldMarkers& msg, double received_host_us) {
     q.field_end_device_us = done_end_us_[c] + double(gap) * period;
     q.sample_device_us = q.field_end_device_us - config_.timing[c].end_to_sample_us[std::size_t(b.parity & 1)];
     q.received_host_us = received_host_us;
+    queue_[std::size_t((queue_head_ + queue_count_ - 1) % kQueue)].fuse_us = q.sample_device_us;
+    open_sample_us_[c] = q.sample_device_us;
     open_queued_[c] = b.count;
 }
 
@@ -180,6 +193,7 @@ void Tracker::enqueue(const CameraField& f, int first, bool last) {
     q.field = f;
     q.first = first;
     q.last = last;
+    q.fuse_us = f.sample_device_us;
 }
 
 void Tracker::push(const protocol::PedalState& pedal, double /*received_host_us*/) {
@@ -788,7 +802,7 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         queue_head_ = (queue_head_ + 1) % kQueue;
         --queue_count_;
         const double t0 = steady_us();
-        const int accepted = fuse_field(f, q.first, q.last);
+        const int accepted = fuse_field(f, q.first, q.last, q.fuse_us);
         // Frames are reported at the reference camera's fields (where the rig's truth is sampled); every other
         // field has already corrected the filters in between. In low-latency mode each part of the reference
         // field that corrected a filter gives a frame at once (the pose at the field's time, as far as its
@@ -818,13 +832,12 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
     return false;
 }
 
-int Tracker::fuse_field(const CameraField& f, int first, bool last) {
+int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
     const int c = f.camera;
-    if (c < 0 || c >= int(cameras_.size()) || !std::isfinite(f.sample_device_us)) return 0;
+    if (c < 0 || c >= int(cameras_.size()) || !std::isfinite(T)) return 0;
     const CameraGeometry& g = cameras_[std::size_t(c)];
     const AsyncOptions& ao = config_.async;
     const BodySet& bodies = config_.bodies;
-    const double T = f.sample_device_us;
     last_field_us_[std::size_t(c)] = T;
     last_field_counter_[std::size_t(c)] = f.field_counter;
     const int nb = 1 + bodies.instrument_count;
@@ -851,11 +864,19 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         BodyFilter& flt = filters_[std::size_t(b)];
         // A filter that went without images for this long is not trusted to find them again: re-acquire.
         if (flt.tracking() && T - last_good_us_[std::size_t(b)] > ao.lost_after_us) flt.reset();
-        if (!flt.tracking()) continue;
+        if (replay_) replay_[std::size_t(b)].current = -1;
+        if (!flt.tracking()) {
+            if (replay_) replay_[std::size_t(b)].clear();
+            continue;
+        }
         // A field older than the filter's state (low-latency parts of cameras whose fields overlap arrive out
-        // of time order) is fused as an aged observation; the state never goes back.
+        // of time order) is fused at its own time (time_order_parts, below), or else as an aged observation.
+        // Its images are associated here against the pose carried back to its time.
         age_us[std::size_t(b)] = std::max(0.0, flt.time_us() - T);
-        if (age_us[std::size_t(b)] == 0.0) flt.predict_to(T);
+        if (age_us[std::size_t(b)] == 0.0) {
+            if (replay_) replay_begin(b, T);
+            flt.predict_to(T);
+        }
         const auto [ms, mc] = body_markers(b);
         for (int k = 0; k < mc; ++k) {
             Eigen::Vector2d px;
@@ -904,12 +925,18 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         const auto [ms, mc] = body_markers(b);
         const InstrumentModel* model = b > 0 ? &bodies.instruments[std::size_t(b - 1)] : nullptr;
         int used = 0;
+        bool rewound = false;
         for (int k = 0; k < mc; ++k) {
             const int i = cand[std::size_t(b)][std::size_t(k)];
             if (i < 0 || claim_by[std::size_t(i)] != b * kMaxBodyMarkers + k ||
                 claim_d2[std::size_t(i)] < float(ao.ambiguity_ratio) * claim_d[std::size_t(i)])
                 continue;
             tried |= 1u << i;
+            // An older part with an image for this body: the filter goes back to its time (once per part).
+            if (replay_ && age_us[std::size_t(b)] > 0.0 && !rewound) {
+                rewound = true;
+                if (replay_rewind(b, T)) age_us[std::size_t(b)] = 0.0;
+            }
             const FieldImage& im = f.images[std::size_t(i)];
             const Eigen::Vector3d X = flt.to_rig(ms[k].pos_body_mm);
             const double z = (g.R_cam_rig * X + g.t_cam_rig_mm).z();
@@ -939,22 +966,15 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             // outline is placed. The eye's model holds the shaft too, so the strip shift below is not added again.
             const Eigen::Vector2d px = eye_hides ? Eigen::Vector2d(im.frame_px - Eigen::Vector2d(ex_px, ev_px)) : im.frame_px;
             const double grow_px = eye_hides ? kEyeCorrectionRelError * std::hypot(ex_px, ev_px) : 0.0;
-            bool ok = false;
-            if (eye_hides || !model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0)) {
-                ok = flt.update_point(g, ms[k].pos_body_mm, px, ao.sigma_x_px + grow_px, ao.sigma_y_px + grow_px, ao.nis_gate,
-                                      [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
-                                          return Eigen::Vector2d::Zero().eval();
-                                      },
-                                      nullptr, age_us[std::size_t(b)]);
-            } else {
-                const Eigen::Vector3d axis_body = model->axis_body.normalized();
-                const double shaft_r = model->shaft_radius_mm;
-                ok = flt.update_point(g, ms[k].pos_body_mm, im.frame_px, ao.sigma_x_px, ao.sigma_y_px, ao.nis_gate,
-                                      [&](const Eigen::Quaterniond& R, const Eigen::Vector3d&, const Eigen::Vector3d& Xr) {
-                                          return shaft_occlusion_shift(g, Xr, R * axis_body, Rm, shaft_r);
-                                      },
-                                      nullptr, age_us[std::size_t(b)]);
-            }
+            ReplayObs o;
+            o.camera = std::int8_t(c);
+            o.marker = std::int8_t(k);
+            o.shaft = !(eye_hides || !model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0));
+            o.px = o.shaft ? im.frame_px : px;
+            o.sigma_x_px = ao.sigma_x_px + (o.shaft ? 0.0 : grow_px);
+            o.sigma_y_px = ao.sigma_y_px + (o.shaft ? 0.0 : grow_px);
+            const bool ok = apply_point(flt, b, o, age_us[std::size_t(b)]);
+            if (replay_) replay_record(b, o);
             if (!ok) continue;
             eye_model_views_ += eye_hides;
             ++used;
@@ -962,7 +982,13 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
         }
         accepted += used;
         field_used += used;
-        // The trocar prior once per field (at its last part), when the field gave the instrument an image.
+        // The newer parts again after an older one (the filter back at its newest time).
+        if (rewound && age_us[std::size_t(b)] == 0.0) replay_finish(b);
+        // The trocar prior once per field (at its last part), when the field gave the instrument an image. The
+        // instrument always passes through its trocar, so the line is applied to the newest state, not at the
+        // field's time (at the field's time, on held-out `surgery` and `fast` 2 s seeds 85-89, the tip was 7-13 %
+        // worse: the newer images then carry the state away from the line), and kept with that newest time's
+        // images for a replay.
         if (last && model && field_used > 0 && config_.pose.trocar_constraint && model->has_trocar &&
             filters_[0].tracking()) {
             const Eigen::Vector3d p = filters_[0].to_rig(model->trocar_eye_mm);
@@ -970,8 +996,15 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             const Eigen::Vector3d a = (flt.rotation() * model->axis_body).normalized();
             const Eigen::Vector3d d = p - tip;
             const double depth = d.dot(a);
-            if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm)
+            if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm) {
                 flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
+                if (replay_) {
+                    ReplayObs o;
+                    o.p_rig_mm = p;
+                    o.sigma_mm = trocar_sigma_mm;
+                    replay_record_newest(b, o);
+                }
+            }
         }
         used_last_field_[std::size_t(b)] = field_used;
         // One camera alone leaves an instrument's depth to the motion model: a filter fed only by it drifts (by
@@ -992,6 +1025,129 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last) {
             flt.reset();
     }
     return accepted;
+}
+
+bool Tracker::apply_point(BodyFilter& flt, int b, const ReplayObs& o, double age_us) {
+    const BodySet& bodies = config_.bodies;
+    const InstrumentModel* model = b > 0 ? &bodies.instruments[std::size_t(b - 1)] : nullptr;
+    if (o.marker < 0) {
+        if (!model) return false;
+        flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), o.p_rig_mm, o.sigma_mm);
+        return true;
+    }
+    const CameraGeometry& g = cameras_[std::size_t(o.camera)];
+    const Eigen::Vector3d& pos = model ? model->markers[std::size_t(o.marker)].pos_body_mm
+                                       : bodies.eye.markers[std::size_t(o.marker)].pos_body_mm;
+    const double nis_gate = config_.async.nis_gate;
+    if (!o.shaft || !model)
+        return flt.update_point(g, pos, o.px, o.sigma_x_px, o.sigma_y_px, nis_gate,
+                                [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
+                                    return Eigen::Vector2d::Zero().eval();
+                                },
+                                nullptr, age_us);
+    const Eigen::Vector3d axis_body = model->axis_body.normalized();
+    const double shaft_r = model->shaft_radius_mm, Rm = bodies.marker_radius_mm;
+    return flt.update_point(g, pos, o.px, o.sigma_x_px, o.sigma_y_px, nis_gate,
+                            [&](const Eigen::Quaterniond& R, const Eigen::Vector3d&, const Eigen::Vector3d& Xr) {
+                                return shaft_occlusion_shift(g, Xr, R * axis_body, Rm, shaft_r);
+                            },
+                            nullptr, age_us);
+}
+
+void Tracker::replay_begin(int b, double t_us) {
+    ReplayHistory& h = replay_[std::size_t(b)];
+    const BodyFilter& flt = filters_[std::size_t(b)];
+    if (h.count > 0) {
+        const int newest = h.order[std::size_t(h.count - 1)];
+        if (h.pool[std::size_t(newest)].t_us == t_us) {  // another part of the same field: the same time
+            h.current = newest;
+            return;
+        }
+    }
+    if (h.count == kReplayEpochs) {  // the oldest time leaves the history
+        h.free |= 1u << h.order[0];
+        std::copy(h.order.begin() + 1, h.order.begin() + h.count, h.order.begin());
+        --h.count;
+    }
+    const int slot = std::countr_zero(h.free);
+    h.free &= ~(1u << slot);
+    ReplayEpoch& e = h.pool[std::size_t(slot)];
+    e.t_us = t_us;
+    e.before.assign_state(flt);
+    e.n_obs = 0;
+    h.order[std::size_t(h.count++)] = std::uint8_t(slot);
+    h.current = slot;
+    h.replay_from = h.count;
+}
+
+bool Tracker::replay_rewind(int b, double t_us) {
+    ReplayHistory& h = replay_[std::size_t(b)];
+    BodyFilter& flt = filters_[std::size_t(b)];
+    // The first recorded time at or after the part's.
+    int pos = 0;
+    while (pos < h.count && h.pool[std::size_t(h.order[std::size_t(pos)])].t_us < t_us) ++pos;
+    if (pos == h.count) return false;
+    ReplayEpoch& at = h.pool[std::size_t(h.order[std::size_t(pos)])];
+    if (!at.before.tracking() || at.before.time_us() > t_us) return false;  // the history begins after it
+    const bool same_time = at.t_us == t_us;
+    if (!same_time && h.count == kReplayEpochs && pos == 0) return false;  // no room before the oldest
+    ++replayed_parts_;
+    flt.assign_state(at.before);
+    if (same_time) {
+        // A later part of a field already fused: that field's images first, then this part's after them.
+        flt.predict_to(t_us);
+        for (int k = 0; k < at.n_obs; ++k) apply_point(flt, b, at.obs[std::size_t(k)], 0.0);
+        h.current = h.order[std::size_t(pos)];
+        h.replay_from = pos + 1;
+        return true;
+    }
+    if (h.count == kReplayEpochs) {  // make room: the oldest time leaves (pos > 0, so it is older than this one)
+        h.free |= 1u << h.order[0];
+        std::copy(h.order.begin() + 1, h.order.begin() + h.count, h.order.begin());
+        --h.count;
+        --pos;
+    }
+    const int slot = std::countr_zero(h.free);
+    h.free &= ~(1u << slot);
+    ReplayEpoch& e = h.pool[std::size_t(slot)];
+    e.t_us = t_us;
+    e.before.assign_state(flt);
+    e.n_obs = 0;
+    std::copy_backward(h.order.begin() + pos, h.order.begin() + h.count, h.order.begin() + h.count + 1);
+    h.order[std::size_t(pos)] = std::uint8_t(slot);
+    ++h.count;
+    h.current = slot;
+    h.replay_from = pos + 1;
+    flt.predict_to(t_us);
+    return true;
+}
+
+void Tracker::replay_record(int b, const ReplayObs& o) {
+    ReplayHistory& h = replay_[std::size_t(b)];
+    if (h.current < 0) return;
+    ReplayEpoch& e = h.pool[std::size_t(h.current)];
+    if (e.n_obs == int(e.obs.size())) return;  // more than a field's images of one body: not held (never seen)
+    e.obs[std::size_t(e.n_obs++)] = o;
+}
+
+void Tracker::replay_record_newest(int b, const ReplayObs& o) {
+    ReplayHistory& h = replay_[std::size_t(b)];
+    if (h.count == 0 || filters_[std::size_t(b)].time_us() != h.pool[std::size_t(h.order[std::size_t(h.count - 1)])].t_us)
+        return;  // the filter is not at a time the history holds (an older part fused aged): not kept
+    h.current = h.order[std::size_t(h.count - 1)];
+    replay_record(b, o);
+}
+
+void Tracker::replay_finish(int b) {
+    ReplayHistory& h = replay_[std::size_t(b)];
+    BodyFilter& flt = filters_[std::size_t(b)];
+    for (int j = h.replay_from; j < h.count; ++j) {
+        ReplayEpoch& e = h.pool[std::size_t(h.order[std::size_t(j)])];
+        e.before.assign_state(flt);
+        flt.predict_to(e.t_us);
+        for (int k = 0; k < e.n_obs; ++k) apply_point(flt, b, e.obs[std::size_t(k)], 0.0);
+    }
+    h.current = -1;
 }
 
 void Tracker::acquire(const CameraField& f) {
@@ -1061,6 +1217,7 @@ void Tracker::acquire(const CameraField& f) {
             if (!roll_axis.isZero()) w -= w.dot(roll_axis) * roll_axis;  // no roll rate where roll is not seen
             const Eigen::Vector3d v = (t - acquire_t_mm_[std::size_t(b)]) / dt;
             flt.init(T, R, t, w, v, 2e-3, 0.05, 0.3, 10.0);
+            if (replay_) replay_[std::size_t(b)].clear();
             last_good_us_[std::size_t(b)] = T;
             for (auto& m : seen_us_[std::size_t(b)]) m.fill(kNever);
         }

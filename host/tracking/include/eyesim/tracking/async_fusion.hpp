@@ -68,9 +68,17 @@ struct AsyncOptions {
     /// ½·a·dt²): for the eye, and (off by default) the instruments; its jerk densities, the accelerations' 1σ
     /// when a body is acquired, and their correlation time (a body unseen for a while coasts at its velocity).
     /// Its white acceleration is the steady model's. The instruments' is off: on held-out `fast` recordings it
-    /// lowered the markers' error a little and made the tip diverge in some (docs/validation.md).
+    /// lowered the markers' error a little and made the tip diverge in some, with parts in time order too
+    /// (docs/validation.md).
     bool eye_acceleration_model = true;
     bool acceleration_model = false;
+    /// A low-latency part older than a filter's state (cameras whose fields overlap in time send their parts
+    /// interleaved) is fused at its own time: the filter goes back to its state before that time (a short history
+    /// per body, Tracker::kReplayEpochs update times) and the newer parts are applied again after it; the trocar
+    /// line, which always holds, goes to the newest state. Off (or a part older than the history): the part is
+    /// fused as an aged observation against the state carried back by the velocities. On held-out `fast`
+    /// recordings with parts it halves the 3D error (docs/validation.md, "Low-latency parts in time order").
+    bool time_order_parts = true;
     double accel_correlation_s = 0.1;
     double jerk_psd_mm2_s5 = 3.5e8;
     double ang_jerk_psd_rad2_s5 = 4.0e5;
@@ -237,6 +245,13 @@ public:
         dirty_ = true;
     }
     bool tracking() const { return m_[0].tracking(); }
+    /// The state (models in use and their probabilities) of `o`, a filter of the same body configured alike: a
+    /// snapshot or its restore without copying the unused models and the mixture.
+    void assign_state(const BodyFilter& o) {
+        for (int j = 0; j < n_; ++j) m_[std::size_t(j)] = o.m_[std::size_t(j)];
+        mu_ = o.mu_;
+        dirty_ = true;
+    }
     /// Mixes the models by the switching prior over the step, then predicts each (RigidBodyFilter::predict_to).
     void predict_to(double t_us);
     /// RigidBodyFilter::update_point on every model (one shared linearisation), then the model probabilities by

@@ -26,6 +26,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace eyesim::tracking {
@@ -152,6 +153,9 @@ public:
     /// poses then used: views re-triangulated in the sync modes, images fused in SyncMode::Async. How much of the
     /// result rests on the model (the eye's outline in front of a marker), counted since construction.
     std::uint64_t eye_model_views() const { return eye_model_views_; }
+    /// Low-latency parts fused at their own time, before newer ones (AsyncOptions::time_order_parts), per body
+    /// and part, counted since construction.
+    std::uint64_t time_ordered_parts() const { return replayed_parts_; }
 
 private:
     /// Each corrects markers' views from the first fit's poses and returns whether it moved any (the caller
@@ -186,7 +190,48 @@ private:
     bool pop_async(TrackingFrame& out, double now_host_us);
     /// Fuses images [first, f.count) of camera field `f` (a whole field, or the newest parts of an open one in
     /// low-latency mode); `last` when the field is complete. Returns the images a filter accepted.
-    int fuse_field(const CameraField& f, int first, bool last);
+    int fuse_field(const CameraField& f, int first, bool last, double t_us);  // at device time t_us
+    // Parts in time order (AsyncOptions::time_order_parts): per body, the filter as it was before each recent
+    // update time and the images (and trocar lines) applied at that time. A part older than the filter's state is
+    // fused at its own time from the state before it, and the newer times' images are applied again after it.
+    struct ReplayObs {
+        std::int8_t camera = 0;
+        std::int8_t marker = -1;  // −1: the trocar line
+        bool shaft = false;       // the shaft's occlusion shift is modelled
+        Eigen::Vector2d px = Eigen::Vector2d::Zero();
+        double sigma_x_px = 0, sigma_y_px = 0;
+        Eigen::Vector3d p_rig_mm = Eigen::Vector3d::Zero();  // the line's rig point
+        double sigma_mm = 0;
+    };
+    struct ReplayEpoch {
+        double t_us = 0;
+        BodyFilter before;  // the filter before it was moved to t_us
+        int n_obs = 0;
+        std::array<ReplayObs, 2 * kMaxBodyMarkers + 2> obs{};
+    };
+    static constexpr int kReplayEpochs = 8;  // three cameras: about three update times a field period
+    struct ReplayHistory {
+        std::array<ReplayEpoch, kReplayEpochs> pool{};
+        std::array<std::uint8_t, kReplayEpochs> order{};  // pool slots in time order, oldest first
+        std::uint32_t free = (1u << kReplayEpochs) - 1;     // bit s: pool slot s unused
+        int count = 0;
+        int current = -1;  // the slot this part's images go to (−1: none, nothing recorded)
+        int replay_from = 0;  // order index of the first newer time to apply again after this part
+        void clear() {
+            count = 0;
+            free = (1u << kReplayEpochs) - 1;
+            current = -1;
+        }
+    };
+    void replay_begin(int b, double t_us);                  // a part at the filter's time or later
+    bool replay_rewind(int b, double t_us);                 // an older one: false where the history is too short
+    void replay_record(int b, const ReplayObs& o);
+    // One image (or the trocar line, marker −1) into body b's filter: what fuse_field applies and a replay repeats.
+    bool apply_point(BodyFilter& flt, int b, const ReplayObs& o, double age_us);
+    void replay_record_newest(int b, const ReplayObs& o);   // at the filter's newest time
+    void replay_finish(int b);                              // the newer times' images again
+    std::unique_ptr<ReplayHistory[]> replay_;               // one per body, with time_order_parts
+    std::uint64_t replayed_parts_ = 0;
     void acquire(const CameraField& f);
     void build_async_frame(const CameraField& f, TrackingFrame& out);
 
@@ -218,6 +263,7 @@ private:
         CameraField field;
         int first = 0;
         bool last = true;
+        double fuse_us = 0;  // the time its images are fused at (device µs): the field's, or its first parts'
     };
     void enqueue(const CameraField& f, int first, bool last);
     std::array<QueuedField, kQueue> queue_{};
@@ -233,6 +279,7 @@ private:
     // field's end, counter and the field period measured between two (the times of an open field).
     std::array<std::uint32_t, kMaxCameras> open_counter_{};
     std::array<int, kMaxCameras> open_queued_{};
+    std::array<double, kMaxCameras> open_sample_us_{};  // the open field's time its parts were fused at
     std::array<double, kMaxCameras> done_end_us_{};
     std::array<std::uint32_t, kMaxCameras> done_counter_{};
     std::array<double, kMaxCameras> done_period_us_{};
