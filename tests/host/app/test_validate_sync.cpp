@@ -128,9 +128,9 @@ TEST_CASE("validate --sync async: images the eye partly hides are fused, moved b
     // At the eye's outline the eye hides part of a marker (its own markers at the limb, instrument markers seen past
     // it) and the centroid is the visible part's. The filters left such an image out by its blob area; now each one
     // the eye's outline crosses at the predicted pose is moved back by the shaded sphere less the eye (and the
-    // shaft), its sigma grown with the shift, and fused. Measured on this recording with per-blob parts: 246 images
-    // so corrected, eye 0.0137 deg, 3D over all markers 19.8 um, tip 29.2 um (parts in time order); left out by area, 0.0150 deg, 21.0 um,
-    // 29.6 um.
+    // shaft), its sigma grown with the shift, and fused. Measured on this recording with per-blob parts (in time
+    // order): 246 images so corrected, eye 0.0137 deg, 3D over all markers 19.8 um, tip 29.2 um; left out by area,
+    // 0.0150 deg, 21.0 um, 29.6 um.
     const nlohmann::json j = validate_json("async", " --emit blob");
     for (const char* chain : {"fpga_chain", "truth_centroids"}) {
         INFO(chain);
