@@ -1092,15 +1092,15 @@ bool Tracker::replay_rewind(int b, double t_us) {
     const bool same_time = at.t_us == t_us;
     if (!same_time && h.count == kReplayEpochs && pos == 0) return false;  // no room before the oldest
     ++replayed_parts_;
-    flt.assign_state(at.before);
     if (same_time) {
-        // A later part of a field already fused: that field's images first, then this part's after them.
-        flt.predict_to(t_us);
-        for (int k = 0; k < at.n_obs; ++k) apply_point(flt, b, at.obs[std::size_t(k)], 0.0);
+        // A later part of a field already fused: this part's images after that field's. The filter as it was
+        // after them is the next time's `before` (the field is not the newest time, or the part were not older).
+        flt.assign_state(h.pool[std::size_t(h.order[std::size_t(pos + 1)])].before);
         h.current = h.order[std::size_t(pos)];
         h.replay_from = pos + 1;
         return true;
     }
+    flt.assign_state(at.before);
     if (h.count == kReplayEpochs) {  // make room: the oldest time leaves (pos > 0, so it is older than this one)
         h.free |= 1u << h.order[0];
         std::copy(h.order.begin() + 1, h.order.begin() + h.count, h.order.begin());
