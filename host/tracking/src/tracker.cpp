@@ -1094,8 +1094,15 @@ bool Tracker::replay_rewind(int b, double t_us) {
     ++replayed_parts_;
     if (same_time) {
         // A later part of a field already fused: this part's images after that field's. The filter as it was
-        // after them is the next time's `before` (the field is not the newest time, or the part were not older).
-        flt.assign_state(h.pool[std::size_t(h.order[std::size_t(pos + 1)])].before);
+        // after them is the next time's `before` (there is one: else the field's time were the newest and the
+        // part not older); without it, that field's images are applied again.
+        if (pos + 1 < h.count) {
+            flt.assign_state(h.pool[std::size_t(h.order[std::size_t(pos + 1)])].before);
+        } else {
+            flt.assign_state(at.before);
+            flt.predict_to(t_us);
+            for (int k = 0; k < at.n_obs; ++k) apply_point(flt, b, at.obs[std::size_t(k)], 0.0);
+        }
         h.current = h.order[std::size_t(pos)];
         h.replay_from = pos + 1;
         return true;
