@@ -208,11 +208,20 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
     // close: left out always, it cost fits that had stood).
     const bool retry = !r.ok && (r.refusal == FitRefusal::kChi2 || r.refusal == FitRefusal::kOutliers ||
                                  r.refusal == FitRefusal::kShift || r.refusal == FitRefusal::kImplausible);
-    if (!retry || !source || !source->patch_mask(camera, blob, mask)) return r;
-    // The pipeline's centroid beside another shaft takes some of its chroma: the shift gate widens as on video.
-    SphereFitConfig wide = config;
-    wide.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
-    return fit_sphere(field, height, blob, wide, work, hinted ? &hint : nullptr, &mask);
+    SphereFitResult out = r;
+    if (retry && source && source->patch_mask(camera, blob, mask)) {
+        // The pipeline's centroid beside another shaft takes some of its chroma: the shift gate widens as on video.
+        SphereFitConfig wide = config;
+        wide.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
+        out = fit_sphere(field, height, blob, wide, work, hinted ? &hint : nullptr, &mask);
+    }
+    // On lossy video, once more from the pose's predicted centre (SphereFitConfig::restart_from_prediction).
+    if (config.restart_from_prediction && !out.ok && hinted &&
+        (out.refusal == FitRefusal::kChi2 || out.refusal == FitRefusal::kShift || out.refusal == FitRefusal::kImplausible)) {
+        const SphereFitResult again = fit_sphere(field, height, blob, config, work, &hint, nullptr, true);
+        if (again.ok) return again;
+    }
+    return out;
 }
 
 bool MarkerHintSource::ready() const {

@@ -48,6 +48,10 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     // and the pose's anchor refused good fits (bench_refine, sweep seeds 21–30, σ = 1: partly hidden 6–10 px
     // markers 0.0316 → 0.0358 px with it).
     if (!lossless) config.prediction_gate_visible = std::max(config.prediction_gate_visible, kLossyPredictionGateVisible);
+    // And there the start placed from that centroid can lead the fit into another minimum: a refused hinted fit is
+    // tried again from the pose's prediction (DVCPRO25 `sweep` seed 21, an eye marker 79 % behind the eye's outline,
+    // its pipeline centroid 1.6 px off: the fit ended 3 px from the prediction and was refused as implausible).
+    if (!lossless) config.restart_from_prediction = true;
     // Chroma coarser than 4:2:2 along a direction (4:1:1: one sample in four columns; 4:2:0: one line in two)
     // leaves the pipeline's chroma-only centroid about twice as uncertain along it.
     if (c == "4:1:1") config.shift_x_scale = 2.0;
@@ -1707,7 +1711,7 @@ void moment_start(const BlobBox& blob, const Patch& p, const SphereFitConfig& cf
 constexpr double kStartSecondStepPx = 0.25;
 
 SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& cfg,
-                           SphereFitWorkspace& w, const MarkerHint* hint, const PatchMask* mask) {
+                           SphereFitWorkspace& w, const MarkerHint* hint, const PatchMask* mask, bool start_at_hint) {
     SphereFitResult res;
     constexpr int kWidth = 720, kStride = 1440;
     if (blob.class_id < 1 || blob.class_id > 4 || blob.x_max < blob.x_min || blob.y_max < blob.y_min) return res;
@@ -1793,6 +1797,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // (`eyesim fpga --refine`, sweep seed 1, raw and DV: every figure within 2e-5 px at 0.2–0.3 px, a third
     // of the start steps saved; one step everywhere lost 7–11 %).
     auto start_behind_occluders = [&] {
+        if (hint && start_at_hint) {
+            t[kX0] = hint->centre_x_px;
+            t[kV0] = hint->centre_v_px;
+            return;
+        }
         for (int k = 0; hint && k < 2; ++k) {
             double vx, vy;
             visible_centroid(cfg, t, p.parity, *hint, vx, vy, nullptr, 4, 2 * height);  // a start: 4 × 4 sub-samples do

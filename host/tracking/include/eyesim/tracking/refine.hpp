@@ -58,6 +58,11 @@ struct SphereFitConfig {
     /// visible centroid the pose predicts as well as within the widened gate of the pipeline's. 0: never (the
     /// camera's own fields); sphere_fit_config_for_source sets it for lossy sources.
     double prediction_gate_visible = 0.0;
+    /// A hinted fit refused (χ², implausible, shift) is tried once more from the hint's predicted centre
+    /// (MarkerHintSource::fit): on lossy video a partly hidden marker's pipeline centroid can be a pixel or more
+    /// off and the fit started behind the occluders from it ends in another minimum. The retry passes the same
+    /// gates. sphere_fit_config_for_source sets it for lossy sources.
+    bool restart_from_prediction = false;
     /// The shift gate's reach in x and in y as multiples of max_shift_px: the pipeline's chroma-only centroid is
     /// that much less certain along a direction in which the source's chroma is coarser than the camera's 4:2:2
     /// (4:1:1: 2 in x; 4:2:0, a chroma line for two field lines: 2 in y).
@@ -183,7 +188,8 @@ inline constexpr double kLossyPredictionGateVisible = 0.5;
 
 /// Chroma and luma σ, and the shift gate, of a fit for a recorded stream: `chroma` "4:2:2", "4:2:0", "4:1:1"
 /// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx and
-/// max_shift_hinted_px to kLossyMaxShiftHintedPx, and anchors slivers by the pose: prediction_gate_visible; subsampled chroma stretches the gate along its coarse
+/// max_shift_hinted_px to kLossyMaxShiftHintedPx, anchors slivers by the pose: prediction_gate_visible, and retries a
+/// refused hinted fit from the pose: restart_from_prediction; subsampled chroma stretches the gate along its coarse
 /// direction; either fits hints beside the eye's outline). Raw or lossless 4:2:2 leaves `config` unchanged.
 SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
@@ -297,8 +303,11 @@ void mark_foreign_overlaps(std::span<BlobBox> boxes);
 /// `margin_lines` more either side where the image has them.
 /// With `shaft`, the shaft's pixels are left out and cx/cy_px are the centroid of the sphere's part the shaft leaves
 /// visible (the pipeline's centroid measures that part too). With `mask`, the pixels its foreign shafts touch are
-/// left out (from the observations and from the border's levels and outline search).
+/// left out (from the observations and from the border's levels and outline search). `start_at_hint` (with a
+/// hint): the fit starts at the hint's predicted centre instead of behind the occluders from the pipeline's centroid
+/// (its gates are the same).
 SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& config,
-                           SphereFitWorkspace& work, const MarkerHint* hint = nullptr, const PatchMask* mask = nullptr);
+                           SphereFitWorkspace& work, const MarkerHint* hint = nullptr, const PatchMask* mask = nullptr,
+                           bool start_at_hint = false);
 
 }  // namespace eyesim::tracking
