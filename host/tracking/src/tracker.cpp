@@ -1064,20 +1064,27 @@ void Tracker::replay_begin(int b, double t_us) {
             return;
         }
     }
-    if (h.count == kReplayEpochs) {  // the oldest time leaves the history
-        h.free |= 1u << h.order[0];
-        std::copy(h.order.begin() + 1, h.order.begin() + h.count, h.order.begin());
-        --h.count;
-    }
-    const int slot = std::countr_zero(h.free);
-    h.free &= ~(1u << slot);
-    ReplayEpoch& e = h.pool[std::size_t(slot)];
-    e.t_us = t_us;
-    e.before.assign_state(flt);
-    e.n_obs = 0;
-    h.order[std::size_t(h.count++)] = std::uint8_t(slot);
-    h.current = slot;
+    h.current = h.insert(h.count, t_us, flt);
     h.replay_from = h.count;
+}
+
+int Tracker::ReplayHistory::insert(int pos, double t_us, const BodyFilter& before) {
+    if (count == kReplayEpochs) {  // the oldest time leaves the history (pos > 0: it is older than the new one)
+        free |= 1u << order[0];
+        std::copy(order.begin() + 1, order.begin() + count, order.begin());
+        --count;
+        --pos;
+    }
+    const int slot = std::countr_zero(free);
+    free &= ~(1u << slot);
+    ReplayEpoch& e = pool[std::size_t(slot)];
+    e.t_us = t_us;
+    e.before.assign_state(before);
+    e.n_obs = 0;
+    std::copy_backward(order.begin() + pos, order.begin() + count, order.begin() + count + 1);
+    order[std::size_t(pos)] = std::uint8_t(slot);
+    ++count;
+    return slot;
 }
 
 bool Tracker::replay_rewind(int b, double t_us) {
@@ -1108,23 +1115,9 @@ bool Tracker::replay_rewind(int b, double t_us) {
         return true;
     }
     flt.assign_state(at.before);
-    if (h.count == kReplayEpochs) {  // make room: the oldest time leaves (pos > 0, so it is older than this one)
-        h.free |= 1u << h.order[0];
-        std::copy(h.order.begin() + 1, h.order.begin() + h.count, h.order.begin());
-        --h.count;
-        --pos;
-    }
-    const int slot = std::countr_zero(h.free);
-    h.free &= ~(1u << slot);
-    ReplayEpoch& e = h.pool[std::size_t(slot)];
-    e.t_us = t_us;
-    e.before.assign_state(flt);
-    e.n_obs = 0;
-    std::copy_backward(h.order.begin() + pos, h.order.begin() + h.count, h.order.begin() + h.count + 1);
-    h.order[std::size_t(pos)] = std::uint8_t(slot);
-    ++h.count;
-    h.current = slot;
-    h.replay_from = pos + 1;
+    const bool evicts = h.count == kReplayEpochs;
+    h.current = h.insert(pos, t_us, flt);
+    h.replay_from = (evicts ? pos - 1 : pos) + 1;
     flt.predict_to(t_us);
     return true;
 }

@@ -217,6 +217,8 @@ private:
         int count = 0;
         int current = -1;  // the slot this part's images go to (−1: none, nothing recorded)
         int replay_from = 0;  // order index of the first newer time to apply again after this part
+        /// A new time at order index `pos` with the filter `before` (the oldest time leaves when full); its slot.
+        int insert(int pos, double t_us, const BodyFilter& before);
         void clear() {
             count = 0;
             free = (1u << kReplayEpochs) - 1;
