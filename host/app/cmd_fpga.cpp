@@ -295,14 +295,14 @@ int run(const FpgaOptions& opt) {
                 score(blobs, truth[static_cast<size_t>(i)], f.camera, f.parity, st, blob_truth);
 
             if (csv.is_open()) {
+                // The refinement's outcome per blob (none without --refine).
+                const auto& outcomes = refiner ? refiner->last_outcomes() : no_outcomes;
                 for (size_t bi = 0; bi < blobs.size(); ++bi) {
                     const fpga::Blob& b = blobs[bi];
                     csv << fmt::format("{},{},{},{},{},{:.6f},{:.6f},{},{},{},{},{},{},{},{},{},{:.3f}", f.camera, i,
                                        f.parity, b.index, b.class_id, b.cx_px(), b.cy_px(), b.area_px, b.sum_w, b.x_min,
                                        b.y_min, b.x_max, b.y_max, b.flags, fpga::device_time_us(f.start_us, b.last_pixel_cycle),
                                        fpga::device_time_us(f.start_us, b.emit_cycle), b.latency_us());
-                    // The refinement's outcome (empty without --refine).
-                    const auto& outcomes = refiner ? refiner->last_outcomes() : no_outcomes;
                     csv << ',' << (bi < outcomes.size() ? outcomes[bi] : "");
                     // Truth columns: empty where the recording has no truth or the blob matched no marker.
                     if (bi < blob_truth.size() && blob_truth[bi].marker) {

@@ -52,7 +52,8 @@ public:
     nlohmann::json refusals_json() const;
 
     /// How refine() ended for each blob of the last field it was given: "fitted", "hinted" (fitted with a hint's
-    /// occluders left out), or the refusal's name (tracking::to_string), in the blobs' order.
+    /// occluders left out), the refusal's name (tracking::to_string), or "kept" (a fit the wire's unsigned
+    /// coordinates cannot hold), in the blobs' order.
     const std::vector<const char*>& last_outcomes() const { return outcomes_; }
 
 private:
