@@ -178,6 +178,15 @@ double loc_v_offset(AVChromaLocation loc) {
     return 0.5;  // left, center, unspecified: MPEG-2 / H.264 default
 }
 
+/// Field line (of field `parity`) at which chroma row 0 of component `comp` (1 Cb, 2 Cr) of interlaced 4:2:0 lies;
+/// row k lies 2k lines further.
+double field_chroma_phase(bool dv_line_alternate, AVChromaLocation loc, int parity, int comp) {
+    if (dv_line_alternate) return comp == 2 ? 0.0 : 1.0;
+    if (loc == AVCHROMA_LOC_TOPLEFT || loc == AVCHROMA_LOC_TOP) return 0.0;
+    if (loc == AVCHROMA_LOC_BOTTOMLEFT || loc == AVCHROMA_LOC_BOTTOM) return 1.0;
+    return parity == 0 ? 0.25 : 0.75;
+}
+
 /// Up to three taps with weights summing to 256.
 struct Taps {
     std::array<int, 3> at{0, 0, 0};
@@ -263,11 +272,7 @@ void extract_field_impl(const AVFrame* f, const PixelLayout& l, int parity, bool
                 vt.at = {v, 0, 0};
             } else if (interlaced) {
                 // Field p's chroma rows are plane rows 2j + p, at field line 2j + phase.
-                double phase;
-                if (l.dv_line_alternate) phase = comp == 2 ? 0.0 : 1.0;
-                else if (l.loc == AVCHROMA_LOC_TOPLEFT || l.loc == AVCHROMA_LOC_TOP) phase = 0.0;
-                else if (l.loc == AVCHROMA_LOC_BOTTOMLEFT || l.loc == AVCHROMA_LOC_BOTTOM) phase = 1.0;
-                else phase = parity == 0 ? 0.25 : 0.75;
+                const double phase = field_chroma_phase(l.dv_line_alternate, l.loc, parity, comp);
                 vt = linear_taps((y - phase) / 2.0, kFieldHeight / 2);
                 for (int t = 0; t < 2; ++t) vt.at[t] = 2 * vt.at[t] + parity;
             } else {
@@ -296,6 +301,13 @@ void extract_field_impl(const AVFrame* f, const PixelLayout& l, int parity, bool
 }
 
 }  // namespace
+
+double field_chroma_site(const VideoInfo& info, int parity, int component) {
+    const int loc = av_chroma_location_from_name(info.chroma_location.c_str());
+    return field_chroma_phase(info.codec == "dvvideo" && info.chroma == "4:2:0",
+                              loc < 0 ? AVCHROMA_LOC_UNSPECIFIED : static_cast<AVChromaLocation>(loc), parity & 1,
+                              component == 0 ? 1 : 2);
+}
 
 const char* to_string(FieldOrder order) {
     switch (order) {
@@ -530,27 +542,36 @@ struct VideoReader::Impl {
     }
 
     /// Frames of a timestamped stream from its first timestamp to the largest one in the file's last 4 MB (more
-    /// than a GOP at any MPEG-2 rate a camera records), demuxed, not decoded; 0 when it cannot tell.
+    /// than a GOP at any MPEG-2 rate a camera records), demuxed, not decoded; 0 when it cannot tell. Packets
+    /// without a timestamp after the one with the largest (a program stream's last packet may have none: sweep seed
+    /// 97's MPEG-2, a P frame after the last I frame and its B frames) are frames after it in display order too.
     int64_t tail_frames(int64_t start, AVRational time_base) {
         if (start == AV_NOPTS_VALUE) return 0;
         AVFormatContext* f = nullptr;
         if (avformat_open_input(&f, path.c_str(), nullptr, nullptr) < 0) return 0;
         constexpr int64_t kTailBytes = 4 << 20;
-        int64_t last = AV_NOPTS_VALUE;
+        int64_t last = AV_NOPTS_VALUE, untimed_after = 0;
         AVPacket* p = av_packet_alloc();
         const int64_t size = f->pb ? avio_size(f->pb) : -1;
         // (A program stream's streams appear as its packets are read: the index is the first open's.)
         if (p && (size <= kTailBytes ||
              avformat_seek_file(f, -1, INT64_MIN, size - kTailBytes, size - kTailBytes, AVSEEK_FLAG_BYTE) >= 0))
             while (av_read_frame(f, p) >= 0) {
-                if (p->stream_index == stream && p->pts != AV_NOPTS_VALUE && (last == AV_NOPTS_VALUE || p->pts > last))
-                    last = p->pts;
+                if (p->stream_index == stream) {
+                    if (p->pts == AV_NOPTS_VALUE) {
+                        ++untimed_after;
+                    } else if (last == AV_NOPTS_VALUE || p->pts > last) {
+                        last = p->pts;
+                        untimed_after = 0;
+                    }
+                }
                 av_packet_unref(p);
             }
         av_packet_free(&p);
         avformat_close_input(&f);
         if (last == AV_NOPTS_VALUE || last < start) return 0;
-        return std::llround(static_cast<double>(last - start) * av_q2d(time_base) * info.frame_rate_hz) + 1;
+        return std::llround(static_cast<double>(last - start) * av_q2d(time_base) * info.frame_rate_hz) + 1 +
+               untimed_after;
     }
 
     /// Frame count of a container that states neither count nor duration: its packets, demuxed (not decoded).

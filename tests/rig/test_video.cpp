@@ -517,3 +517,28 @@ TEST_CASE("an MPEG program stream of large frames counts its last frame (its len
     CHECK(vid.take_warnings().empty());
     fs::remove_all(d);
 }
+
+TEST_CASE("an MPEG program stream whose last packet has no timestamp counts its last frame",
+          "[rig][recording][video]") {
+    // The program stream muxer can leave the last packet without a PTS: in cam1 of this recording a P frame after
+    // the last I frame and its two B frames. Counted from the largest timestamp alone, that camera held 49 of its
+    // 50 frames and the manifest check refused the recording; packets without a timestamp after the largest are
+    // frames after it.
+    const std::string d = temp_dir("ps_untimed_tail");
+    SynthRequest req;
+    req.scenario = "sweep";
+    req.seconds = 2.0;
+    req.seed = 97;
+    req.out_dir = d;
+    req.format = "mpeg2";
+    write_recording(req);
+    Recording vid = Recording::open(d);  // throws on a count that disagrees with manifest.json
+    std::vector<uint8_t> f(kFieldBytes);
+    for (int cam = 0; cam < vid.camera_count(); ++cam) {
+        INFO("camera " << cam);
+        CHECK(vid.field_count(cam) == 100);
+        CHECK(vid.read_field(cam, 99, f.data()));
+    }
+    CHECK(vid.take_warnings().empty());
+    fs::remove_all(d);
+}

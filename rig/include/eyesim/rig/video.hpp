@@ -63,6 +63,13 @@ struct VideoInfo {
     std::string order_source;        ///< "codec", "container" or "none"
 };
 
+/// For interlaced 4:2:0 video as VideoReader splits it: the field line (of the field of `parity`, 0 top) at which
+/// chroma row 0 of `component` (0 Cb, 1 Cr) is sited; row k lies 2k lines further. VideoReader gives each field
+/// line the linear interpolation between the two rows about it. DV's line-alternate 4:2:0: Cr 0, Cb 1; chroma
+/// location top / topleft 0, bottom / bottomleft 1; else (MPEG-2, H.264: left, center, unspecified) 0.25 for the
+/// top field and 0.75 for the bottom (the frame's rows 2k + ½ split between the fields).
+double field_chroma_site(const VideoInfo& info, int parity, int component);
+
 /// Outcome of VideoReader::load_frame.
 enum class FrameStatus {
     kOk,       ///< the frame is current
