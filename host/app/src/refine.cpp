@@ -27,7 +27,17 @@ tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec)
     const rig::VideoInfo info = rig::VideoReader(rec.stream_path(0)).info();
     const bool lossless = info.codec == "ffv1" || info.codec == "rawvideo" || info.codec == "huffyuv" ||
                           info.codec == "ffvhuff" || info.codec == "utvideo";
-    return tracking::sphere_fit_config_for_source(cfg, info.chroma.c_str(), lossless);
+    cfg = tracking::sphere_fit_config_for_source(cfg, info.chroma.c_str(), lossless);
+    // 4:2:0: the chroma modelled as the reader gives it (tracking::chroma_chain_420), at the sensor's σ where the
+    // codec is lossless.
+    if (info.chroma == "4:2:0") {
+        double site[2][2];
+        for (int parity = 0; parity < 2; ++parity)
+            for (int c = 0; c < 2; ++c) site[parity][c] = rig::field_chroma_site(info, parity, c);
+        cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
+        tracking::chroma_chain_420(cfg, site);
+    }
+    return cfg;
 }
 
 BlobRefiner::BlobRefiner() : BlobRefiner(rig_sphere_fit_config()) {}

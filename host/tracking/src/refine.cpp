@@ -8,7 +8,7 @@
 namespace eyesim::tracking {
 
 // The documented storage of one fit (docs/fpga-pipeline.md): a fixed block a device CPU can hold.
-static_assert(sizeof(SphereFitWorkspace) <= 160 * 1024, "SphereFitWorkspace grew past 160 KiB");
+static_assert(sizeof(SphereFitWorkspace) <= 256 * 1024, "SphereFitWorkspace grew past 256 KiB");
 
 MarkerColour MarkerColour::from_rgb(double r, double g, double b) {
     const double l = 0.299 * r + 0.587 * g + 0.114 * b;
@@ -62,7 +62,55 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     return config;
 }
 
+void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]) {
+    constexpr int kL = kChromaChainLines;
+    for (int p = 0; p < 2; ++p)
+        for (int c = 0; c < 2; ++c)
+            for (int phase = 0; phase < 2; ++phase) {
+                double* out = config.chroma_v_taps[p][phase][c];
+                std::fill(out, out + 2 * kL + 1, 0.0);
+                const double site = site_lines[p][c];
+                const int y = 8 + phase;  // a line of this phase away from the field's edges
+                // The reader's interpolation between the rows about y, its weights in 1/256 as it takes them.
+                const double at = (y - site) / 2.0, row0 = std::floor(at);
+                const double w1 = std::round((at - row0) * 256.0) / 256.0;
+                for (int a = 0; a < 2; ++a) {
+                    const double wa = a == 0 ? 1.0 - w1 : w1;
+                    if (wa == 0.0) continue;
+                    // That row: the 2:1 decimation tent about its site (half-width two lines), normalised.
+                    const double centre = 2.0 * (row0 + a) + site;
+                    double tent[5], sum = 0;
+                    const int first = static_cast<int>(std::floor(centre)) - 1;
+                    for (int k = 0; k < 5; ++k) sum += tent[k] = std::max(0.0, 1.0 - std::fabs(first + k - centre) / 2.0);
+                    for (int k = 0; k < 5; ++k) {
+                        const int d = first + k - y;
+                        if (tent[k] > 0.0 && d >= -kL && d <= kL) out[d + kL] += wa * tent[k] / sum;
+                    }
+                }
+            }
+    config.chroma_chain = true;
+    if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
+}
+
 namespace {
+
+// Variance (field lines²) of the chain's taps about the observation's line, averaged over the line phases and
+// components of a field of `parity`: how far the chain spreads the marker's chroma down the lines.
+double chain_variance_lines(const SphereFitConfig& cfg, int parity) {
+    double var = 0;
+    for (int phase = 0; phase < 2; ++phase)
+        for (int c = 0; c < 2; ++c) {
+            const double* t = cfg.chroma_v_taps[parity & 1][phase][c];
+            double s = 0, m1 = 0, m2 = 0;
+            for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+                s += t[d + kChromaChainLines];
+                m1 += d * t[d + kChromaChainLines];
+                m2 += d * d * t[d + kChromaChainLines];
+            }
+            if (s > 0) var += m2 / s - (m1 / s) * (m1 / s);
+        }
+    return var / 4.0;
+}
 
 // Whether a box of half-sizes (hx, hv) whose centre is (dx, dv) from a point lies within r of it.
 bool box_within(double dx, double dv, double hx, double hv, double r) {
@@ -505,6 +553,12 @@ struct Patch {
     int cols = 0, lines = 0;  // model columns (x0 - 1 .. x1 + 1) and lines
     double xc = 0, vc = 0;    // reference point of the background slopes (frame px)
     bool outline = false;
+    // The vertical chroma chain is modelled (SphereFitConfig::chroma_chain): the model's lines reach
+    // kChromaChainLines beyond the observations' (lines core_j0 … core_j1 of the field), whose own
+    // observations are left out (foreign).
+    bool chain = false;
+    int core_j0 = 0, core_j1 = 0;
+    double chroma_sigma_dn = 1.0;  // the chroma observations' σ
     MarkerColour colour;
 };
 
@@ -732,7 +786,7 @@ public:
 
     // Σ (r/σ)² of the observations against model values `val`.
     double chi2(const double* val) const {
-        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const int nx = p_.x1 - p_.x0 + 1;
         const double wc = 1.0 / var_c();
         double sum = 0;
         for (int j = 0; j < p_.lines; ++j) {
@@ -746,9 +800,9 @@ public:
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
                 const int i = x - p_.x0 + 1, o = j * nx + s;
                 for (int ch = 1; ch <= 2; ++ch) {
-                    const double* vc = val + ch * n + j * p_.cols;
-                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(vc, i);
-                    sum += (ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o]) * r * r * wc;
+                    if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
+                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - chroma_at(val, ch, j, i);
+                    sum += r * r * wc;
                 }
             }
         }
@@ -771,6 +825,7 @@ public:
     // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise());
     // returns Σ (r/σ)² at t.
     double normal_equations(const Vec& t, Mat& a, Vec& g) const {
+        if (p_.chain) return normal_equations_chain(t, a, g);
         if (p_.outline) return normal_equations_outline(t, a, g);
         return normal_equations_marker(t, a, g);
     }
@@ -1212,10 +1267,7 @@ public:
     }
 
     int np() const { return p_.outline ? kMaxPar : kPhi; }
-    double var_c() const {
-        const double sc = cfg_.chroma_noise_dn > 0 ? cfg_.chroma_noise_dn : cfg_.noise_dn;
-        return sc * sc + 1.0 / 12.0;
-    }
+    double var_c() const { return p_.chroma_sigma_dn * p_.chroma_sigma_dn + 1.0 / 12.0; }
     // Observations still in the fit (counted when the kept set changes).
     int observations() const { return n_obs_; }
     int count_observations() const {
@@ -1268,6 +1320,10 @@ public:
         int covered = 0;
         changed = false;
         uint8_t touched[kMaxCoverCols];  // columns x0 − 1 … x1 + 1: a chroma sample spans three
+        // Per line and chroma sample: the occluder reaches its three filtered columns (the chain spreads it down
+        // the lines: a chroma observation is hidden where any line it takes is).
+        uint8_t ctouch[SphereFitWorkspace::kLines][SphereFitWorkspace::kSamples];
+        const int ns = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1;
         for (int j = 0; j < p_.lines; ++j) {
             const double dv = 2.0 * (p_.j0 + j) + p_.parity - t[kV0];
             line_cover(hint, nm, p_.x0 - 1 - t[kX0], dv, nx + 2, m, hv, touched);
@@ -1282,8 +1338,23 @@ public:
             }
             int sidx = 0;
             for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++sidx) {
-                const int o = j * nx + sidx, i = x - p_.x0 + 1;
-                const uint8_t c = (touched[i - 1] | touched[i] | touched[i + 1] | w_.foreign_c[o]) != 0;
+                const int i = x - p_.x0 + 1;
+                ctouch[j][sidx] = (touched[i - 1] | touched[i] | touched[i + 1]) != 0;
+            }
+        }
+        for (int j = 0; j < p_.lines; ++j) {
+            const double* tp = p_.chain ? chain_taps(j, 1) : nullptr;
+            const double* tp2 = p_.chain ? chain_taps(j, 2) : nullptr;
+            for (int sidx = 0; sidx < ns; ++sidx) {
+                const int o = j * nx + sidx;
+                uint8_t c = ctouch[j][sidx] | w_.foreign_c[o];
+                if (p_.chain)
+                    for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+                        const int l = j + d;
+                        if (l >= 0 && l < p_.lines && (tp[d + kChromaChainLines] != 0.0 || tp2[d + kChromaChainLines] != 0.0))
+                            c |= ctouch[l][sidx];
+                    }
+                c = c != 0;
                 changed |= c != w_.hidden_c[o];
                 w_.hidden_c[o] = c;
                 w_.keep_cb[o] = w_.keep_cr[o] = !c;
@@ -1297,7 +1368,7 @@ public:
     // Leaves out of the fit exactly the observations whose residual at t exceeds k σ; returns how many.
     int drop_outliers(const Vec& t, double k) {
         cost(t);
-        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const int nx = p_.x1 - p_.x0 + 1;
         const double* val = w_.val.data();
         const double k2 = k * k, wc = 1.0 / var_c();
         int dropped = 0;
@@ -1313,7 +1384,7 @@ public:
                 const int i = x - p_.x0 + 1, o = j * nx + s;
                 for (int ch = 1; ch <= 2; ++ch) {
                     uint8_t& keep = ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o];
-                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - filtered(val + ch * n + j * p_.cols, i);
+                    const double r = (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - chroma_at(val, ch, j, i);
                     keep = r * r * wc <= k2 && !w_.hidden_c[o];
                     dropped += !keep;
                 }
@@ -1338,6 +1409,92 @@ private:
 
     // The camera's [1 2 1] co-sited chroma filter at model column i.
     static double filtered(const double* line, int i) { return 0.25 * (line[i - 1] + line[i + 1]) + 0.5 * line[i]; }
+
+    // The vertical chain's taps for an observation on model line j of channel ch (1 Cb, 2 Cr), offsets
+    // −kChromaChainLines … kChromaChainLines.
+    const double* chain_taps(int j, int ch) const { return cfg_.chroma_v_taps[p_.parity][(p_.j0 + j) & 1][ch - 1]; }
+
+    // The model's chroma observation at model line j, column i of channel ch from model values `val`: the camera's
+    // filter, and with the chain the source's down the lines.
+    double chroma_at(const double* val, int ch, int j, int i) const {
+        const int n = p_.lines * p_.cols;
+        if (!p_.chain) return filtered(val + ch * n + j * p_.cols, i);
+        const double* tp = chain_taps(j, ch);
+        double sum = 0;
+        for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+            const double w = tp[d + kChromaChainLines];
+            if (w == 0.0) continue;
+            sum += w * filtered(val + ch * n + std::clamp(j + d, 0, p_.lines - 1) * p_.cols, i);
+        }
+        return sum;
+    }
+
+    // normal_equations with the vertical chroma chain: every kept observation's full row (a chroma observation's
+    // the chain's sum of its lines' [1 2 1] rows); no sparsity, for the few recorded sources that need it.
+    double normal_equations_chain(const Vec& t, Mat& a, Vec& g) const {
+        constexpr int R = kRow;
+        static_assert(R == SphereFitWorkspace::kChainRow);
+        const int n = p_.lines * p_.cols, nx = p_.x1 - p_.x0 + 1;
+        const int nr = p_.outline ? kRow : kRow - 5;
+        double* val = w_.val.data();
+        model(t, w_.cov.data(), w_.shade.data(), val);
+        const double wc = 1.0 / var_c();
+        double acc[3][R * R] = {}, acc_g[3][R] = {}, chi2 = 0;
+        auto add = [&](int ch, const double* row, double r, double wgt) {
+            chi2 += wgt * r * r;
+            for (int q = 0; q < nr; ++q) {
+                const double wq = wgt * row[q];
+                acc_g[ch][q] += wq * r;
+                for (int u = 0; u <= q; ++u) acc[ch][q * R + u] += wq * row[u];
+            }
+        };
+        double row[R + 1] = {};
+        for (int j = 0; j < p_.lines; ++j)
+            for (int x = 0; x < nx; ++x) {
+                const int o = j * nx + x;
+                if (!w_.keep_y[o]) continue;
+                pixel_row(t, 0, x + 1, j, row);
+                add(0, row, w_.obs_y[o] - val[j * p_.cols + x + 1], wy_[static_cast<size_t>(o)]);
+            }
+        // Each line's filtered rows and values per chroma sample, then the chain down the lines.
+        const int ns = (p_.x1 - (p_.x0 + (p_.x0 & 1))) / 2 + 1, ls = ns * R;
+        double* hrow = w_.chain_row.data();  // [channel][line][sample][R]
+        double* hval = w_.chain_val.data();  // [channel][line][sample]
+        double prow[SphereFitWorkspace::kCols][R + 1];
+        for (int ch = 1; ch <= 2; ++ch)
+            for (int j = 0; j < p_.lines; ++j) {
+                const int i_first = (p_.x0 & 1) + 1;  // model column of the first sample
+                for (int i = i_first - 1; i <= i_first + 2 * (ns - 1) + 1; ++i) pixel_row(t, ch, i, j, prow[i]);
+                int s = 0;
+                for (int x = p_.x0 + (p_.x0 & 1); x <= p_.x1; x += 2, ++s) {
+                    const int i = x - p_.x0 + 1;
+                    double* h = hrow + ((ch - 1) * p_.lines + j) * ls + s * R;
+                    for (int q = 0; q < nr; ++q) h[q] = 0.25 * (prow[i - 1][q] + prow[i + 1][q]) + 0.5 * prow[i][q];
+                    hval[((ch - 1) * p_.lines + j) * ns + s] = filtered(val + ch * n + j * p_.cols, i);
+                }
+            }
+        for (int ch = 1; ch <= 2; ++ch)
+            for (int j = 0; j < p_.lines; ++j) {
+                const double* tp = chain_taps(j, ch);
+                for (int s = 0; s < ns; ++s) {
+                    const int o = j * nx + s;
+                    if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
+                    double mod = 0;
+                    for (int q = 0; q < nr; ++q) row[q] = 0.0;
+                    for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+                        const double w = tp[d + kChromaChainLines];
+                        if (w == 0.0) continue;
+                        const int l = std::clamp(j + d, 0, p_.lines - 1);
+                        const double* h = hrow + ((ch - 1) * p_.lines + l) * ls + s * R;
+                        for (int q = 0; q < nr; ++q) row[q] += w * h[q];
+                        mod += w * hval[((ch - 1) * p_.lines + l) * ns + s];
+                    }
+                    add(ch, row, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
+                }
+            }
+        scatter(acc[0], R * R, R, acc_g[0], R, nr, a, g);
+        return chi2;
+    }
 
     // Per model pixel, for the outline term (a sphere's limb: the eye's, seen beside a marker): the weight of the
     // background inside it (1 everywhere without an outline); the limb profile P(s), √ of the depth s inside the
@@ -1696,7 +1853,9 @@ void moment_start(const BlobBox& blob, const Patch& p, const SphereFitConfig& cf
     // Ellipticity from the covariance k·r²·M⁻¹ (M⁻¹ ∝ [[1 − e1, −e2], [−e2, 1 + e1]]), less the [1 2 1] filter's
     // spread over the even columns (½ px²) and the pixel's (1/12 and ap²/12).
     const double mx = sx / s0, mv = sv / s0, ap = cfg.aperture_lines_px;
-    const double cxx = sxx / s0 - mx * mx - 0.5 - 1.0 / 12.0, cvv = svv / s0 - mv * mv - ap * ap / 12.0,
+    // With the source's chroma chain, less its spread down the lines too (a field line is 2 frame px).
+    const double chain = p.chain ? 4.0 * chain_variance_lines(cfg, p.parity) : 0.0;
+    const double cxx = sxx / s0 - mx * mx - 0.5 - 1.0 / 12.0, cvv = svv / s0 - mv * mv - ap * ap / 12.0 - chain,
                  cxv = sxv / s0 - mx * mv;
     if (!(cxx > 0 && cvv > 0)) return;
     const double e1 = (cvv - cxx) / (cvv + cxx), e2 = -2.0 * cxv / (cvv + cxx), e = std::hypot(e1, e2);
@@ -1723,6 +1882,19 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     p.parity = blob.parity & 1;
     p.cols = p.x1 - p.x0 + 3;
     p.lines = p.j1 - p.j0 + 1;
+    p.core_j0 = p.j0;
+    p.core_j1 = p.j1;
+    // The source's vertical chroma chain, where the field and the workspace have its lines beyond the patch's.
+    constexpr int kCL = kChromaChainLines;
+    if (cfg.chroma_chain && p.j0 - kCL >= 0 && p.j1 + kCL <= height - 1 && p.lines + 2 * kCL <= kFitMaxLines) {
+        p.chain = true;
+        p.j0 -= kCL;
+        p.j1 += kCL;
+        p.lines += 2 * kCL;
+    }
+    p.chroma_sigma_dn = p.chain ? cfg.chain_chroma_noise_dn : cfg.chroma_noise_dn > 0 ? cfg.chroma_noise_dn : cfg.noise_dn;
+    if (hint && hint->radius_ratio == 0 && hint->occluder_radius > 0)
+        p.chroma_sigma_dn = std::max(p.chroma_sigma_dn, cfg.eye_hidden_chroma_noise_dn);
     const double margin = cfg.occluder_margin_px;
     res.refusal = FitRefusal::kStorage;
     if (p.x1 - p.x0 + 1 > kFitMaxCols || p.lines > kFitMaxLines || p.x1 <= p.x0) return res;
@@ -1752,6 +1924,7 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     };
     std::fill(w.foreign_y.begin(), w.foreign_y.end(), uint8_t{0});
     std::fill(w.foreign_c.begin(), w.foreign_c.end(), uint8_t{0});
+    const int ns = (p.x1 - (p.x0 + (p.x0 & 1))) / 2 + 1;
     if (masked) {
         for (int j = 0; j < p.lines; ++j) {
             uint8_t col[kFitMaxCols + 2];  // columns x0 − 1 … x1 + 1: a chroma sample filters three
@@ -1763,11 +1936,33 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                 w.foreign_c[j * nx + s] = (col[i - 1] | col[i] | col[i + 1]) != 0;
             }
         }
+        if (p.chain) {  // the chain takes a foreign pixel's chroma into the observations of the lines about it
+            uint8_t line_c[kFitMaxLines][SphereFitWorkspace::kSamples];
+            for (int j = 0; j < p.lines; ++j)
+                for (int s = 0; s < ns; ++s) line_c[j][s] = w.foreign_c[j * nx + s];
+            for (int j = 0; j < p.lines; ++j) {
+                const double* t1 = cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][0];
+                const double* t2 = cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][1];
+                for (int s = 0; s < ns; ++s) {
+                    uint8_t c = 0;
+                    for (int d = -kCL; d <= kCL; ++d)
+                        if (j + d >= 0 && j + d < p.lines && (t1[d + kCL] != 0.0 || t2[d + kCL] != 0.0)) c |= line_c[j + d][s];
+                    w.foreign_c[j * nx + s] = c;
+                }
+            }
+        }
+    }
+    if (p.chain)  // the chain's own lines: modelled, not observed
+        for (int j = 0; j < p.lines; ++j) {
+            if (p.j0 + j >= p.core_j0 && p.j0 + j <= p.core_j1) continue;
+            for (int x = 0; x < nx; ++x) w.foreign_y[j * nx + x] = 1;
+            for (int s = 0; s < ns; ++s) w.foreign_c[j * nx + s] = 1;
+        }
+    if (masked || p.chain)
         for (int o = 0; o < SphereFitWorkspace::kPx; ++o) {
             w.keep_y[o] = !w.foreign_y[o];
             w.keep_cb[o] = w.keep_cr[o] = !w.foreign_c[o];
         }
-    }
     const double shot = cfg.shot_gain,
                  n2 = cfg.noise_dn * cfg.noise_dn + cfg.luma_noise_floor_dn * cfg.luma_noise_floor_dn;
     for (int j = 0; j < p.lines; ++j) {
@@ -1827,10 +2022,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         border[static_cast<size_t>(nb++)] = {double(x), 2.0 * j + p.parity,
                                              {double(line[2 * x + 1]), double(line[4 * (x >> 1)]), double(line[4 * (x >> 1) + 2])}};
     };
-    for (int x = p.x0; x < p.x1; ++x) push(x, p.j0);
-    for (int j = p.j0; j < p.j1; ++j) push(p.x1, j);
-    for (int x = p.x1; x > p.x0; --x) push(x, p.j1);
-    for (int j = p.j1; j > p.j0; --j) push(p.x0, j);
+    for (int x = p.x0; x < p.x1; ++x) push(x, p.core_j0);
+    for (int j = p.core_j0; j < p.core_j1; ++j) push(p.x1, j);
+    for (int x = p.x1; x > p.x0; --x) push(x, p.core_j1);
+    for (int j = p.core_j1; j > p.core_j0; --j) push(p.x0, j);
     double lo = 1e9, hi = -1e9, mean[3] = {0, 0, 0};
     for (int k = 0; k < nb; ++k) {
         lo = std::min(lo, border[k].c[0]);

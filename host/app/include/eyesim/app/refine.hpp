@@ -58,7 +58,7 @@ public:
 
 private:
     tracking::SphereFitConfig config_;
-    std::unique_ptr<tracking::SphereFitWorkspace> work_;  // ≈ 156 KiB, allocated once
+    std::unique_ptr<tracking::SphereFitWorkspace> work_;  // ≈ 250 KiB, allocated once
     std::array<int64_t, tracking::kFitRefusalCount> refusals_{};
     const tracking::MarkerHintSource* hints_ = nullptr;
     int64_t hinted_fits_ = 0;

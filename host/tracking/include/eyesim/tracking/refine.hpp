@@ -75,6 +75,18 @@ struct SphereFitConfig {
     double chroma_noise_dn = 0.0;
     /// Luma σ floor (DN) added in quadrature to the sensor's: a lossy codec's quantisation error.
     double luma_noise_floor_dn = 0.0;
+    /// The source's vertical chroma chain (4:2:0 video; chroma_chain_420): on and where the patch with
+    /// kChromaChainLines more lines each side fits, each chroma observation at field line y is modelled as
+    /// Σ_d chroma_v_taps[parity][y & 1][c][d + kChromaChainLines] · (the camera's 4:2:2 chroma at line y + d), c 0 Cb,
+    /// 1 Cr, with σ chain_chroma_noise_dn instead of chroma_noise_dn (which stays for the fits it does not fit).
+    bool chroma_chain = false;
+    double chroma_v_taps[2][2][2][7] = {};
+    double chain_chroma_noise_dn = 0.0;
+    /// Chroma σ (DN) floor of a hinted fit of a marker the eye alone hides part of (a marker on the eye at its
+    /// outline: a MarkerHint with an occluding sphere and no shaft): there the chroma misleads the fit more than it
+    /// informs it, and the luma decides. Measured, cause not established (docs/validation.md, "Chroma down-weighted
+    /// where the eye hides the marker"); 0: the fit's chroma σ as for any other.
+    double eye_hidden_chroma_noise_dn = 8.0;
     /// With a MarkerHint: pixels whose box, widened by this much, an occluder's image touches are left out (frame
     /// px). 0: the pixels it touches at all. A margin costs more than it saves: it takes the outline's arcs next to
     /// a shaft, the only ones that place the centre along it (sweep seed 1, instrument markers 5–15 % hidden:
@@ -232,7 +244,7 @@ struct SphereFitResult {
 inline constexpr int kFitMaxCols = 40;
 inline constexpr int kFitMaxLines = 18;
 
-/// Working storage for one fit (about 160 KiB; allocate once, reuse).
+/// Working storage for one fit (about 250 KiB; allocate once, reuse).
 struct SphereFitWorkspace {
     static constexpr int kCols = kFitMaxCols + 2, kLines = kFitMaxLines;
     static constexpr int kPx = kCols * kLines;
@@ -249,6 +261,11 @@ struct SphereFitWorkspace {
     std::array<uint8_t, kPx> foreign_y{}, foreign_c{};  // 1: a PatchMask's foreign shaft touches it
     std::array<double, kPx> obs_y{}, var_y{};
     std::array<double, kPx> obs_cb{}, obs_cr{};    // chroma samples (even columns)
+    // The vertical chroma chain (SphereFitConfig::chroma_chain): per chroma channel, line and sample the [1 2 1]
+    // filtered model value and its row of derivatives by the channel's 14 compact parameters.
+    static constexpr int kSamples = kCols / 2 + 1, kChainRow = 14;
+    std::array<double, 2 * kLines * kSamples * kChainRow> chain_row{};
+    std::array<double, 2 * kLines * kSamples> chain_val{};
 };
 
 /// What the fit needs of a pipeline blob: its class, field parity, box and centroid (field px).
@@ -280,6 +297,19 @@ template <class B>
 BlobBox blob_box(const B& b) {
     return {b.class_id, b.parity & 1, b.x_min, b.x_max, b.y_min, b.y_max, b.cx_px(), b.cy_px(), false, false};
 }
+
+/// chain_chroma_noise_dn for a lossy 4:2:0 source: the chain is modelled, the codec's quantisation of the chroma
+/// is not (`sweep` seeds 1–10, 2 s: DV, MPEG-2 and H.264 best at 3–4 DN; lossless FFV1 4:2:0 at the sensor's 1 DN).
+inline constexpr double kLossyChainChromaNoiseDn = 4.0;
+/// Field lines either side of an observation that the vertical chroma chain reaches (SphereFitConfig::chroma_chain).
+inline constexpr int kChromaChainLines = 3;
+
+/// Sets config's vertical chroma chain for interlaced 4:2:0 video: per field, chroma row k of component c (0 Cb,
+/// 1 Cr) is sited at field line 2k + site_lines[parity][c] and holds the 2:1 decimation tent (half-width two field
+/// lines) centred there; the reader gives field line y the linear interpolation between the two rows about it
+/// (rig/video.hpp field_chroma_site). MPEG-2 and H.264 sites: 0.25 (top field) and 0.75 (bottom); DV's
+/// line-alternate 4:2:0: Cr 0, Cb 1. Also sets chroma_chain and, where it was 0, chain_chroma_noise_dn to the sensor's.
+void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]);
 
 /// Whether the boxes of `a` and `b` come within `gap` columns and lines of each other (0: they overlap).
 inline bool boxes_within(const BlobBox& a, const BlobBox& b, int gap) {
