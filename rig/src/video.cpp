@@ -309,6 +309,12 @@ double field_chroma_site(const VideoInfo& info, int parity, int component) {
                               component == 0 ? 1 : 2);
 }
 
+double chroma_column_site(const VideoInfo& info) {
+    const int hsub = info.chroma == "4:1:1" || info.chroma == "4:1:0" ? 4 : info.chroma == "4:4:4" ? 1 : 2;
+    const int loc = av_chroma_location_from_name(info.chroma_location.c_str());
+    return loc >= 0 && loc_centred_h(static_cast<AVChromaLocation>(loc)) ? (hsub - 1) / 2.0 : 0.0;
+}
+
 const char* to_string(FieldOrder order) {
     switch (order) {
         case FieldOrder::kTopFirst: return "tff";

@@ -37,6 +37,11 @@ tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec)
         cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
         tracking::chroma_chain_420(cfg, site);
     }
+    // 4:1:1: the same across the columns (tracking::chroma_chain_411), for the fits without a hint.
+    if (info.chroma == "4:1:1") {
+        cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
+        tracking::chroma_chain_411(cfg, rig::chroma_column_site(info));
+    }
     return cfg;
 }
 

@@ -62,33 +62,46 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     return config;
 }
 
-void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]) {
+namespace {
+
+// The taps over fine samples (field lines, or 4:2:2 chroma samples) d = −kChromaChainLines … kChromaChainLines about
+// a fine sample of `phase` (0 even, 1 odd) of a chain whose coarse rows lie every two fine samples at 2k + site: each
+// coarse row the tent of half-width two fine samples about its site, the reader's linear interpolation between the
+// two rows about the fine sample (its weights in 1/256, as it takes them).
+void compose_chain(double site, int phase, double* out) {
     constexpr int kL = kChromaChainLines;
+    std::fill(out, out + 2 * kL + 1, 0.0);
+    const int y = 8 + phase;  // a fine sample of this phase away from the edges
+    const double at = (y - site) / 2.0, row0 = std::floor(at);
+    const double w1 = std::round((at - row0) * 256.0) / 256.0;
+    for (int a = 0; a < 2; ++a) {
+        const double wa = a == 0 ? 1.0 - w1 : w1;
+        if (wa == 0.0) continue;
+        const double centre = 2.0 * (row0 + a) + site;
+        double tent[5], sum = 0;
+        const int first = static_cast<int>(std::floor(centre)) - 1;
+        for (int k = 0; k < 5; ++k) sum += tent[k] = std::max(0.0, 1.0 - std::fabs(first + k - centre) / 2.0);
+        for (int k = 0; k < 5; ++k) {
+            const int d = first + k - y;
+            if (tent[k] > 0.0 && d >= -kL && d <= kL) out[d + kL] += wa * tent[k] / sum;
+        }
+    }
+}
+
+}  // namespace
+
+void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]) {
     for (int p = 0; p < 2; ++p)
         for (int c = 0; c < 2; ++c)
-            for (int phase = 0; phase < 2; ++phase) {
-                double* out = config.chroma_v_taps[p][phase][c];
-                std::fill(out, out + 2 * kL + 1, 0.0);
-                const double site = site_lines[p][c];
-                const int y = 8 + phase;  // a line of this phase away from the field's edges
-                // The reader's interpolation between the rows about y, its weights in 1/256 as it takes them.
-                const double at = (y - site) / 2.0, row0 = std::floor(at);
-                const double w1 = std::round((at - row0) * 256.0) / 256.0;
-                for (int a = 0; a < 2; ++a) {
-                    const double wa = a == 0 ? 1.0 - w1 : w1;
-                    if (wa == 0.0) continue;
-                    // That row: the 2:1 decimation tent about its site (half-width two lines), normalised.
-                    const double centre = 2.0 * (row0 + a) + site;
-                    double tent[5], sum = 0;
-                    const int first = static_cast<int>(std::floor(centre)) - 1;
-                    for (int k = 0; k < 5; ++k) sum += tent[k] = std::max(0.0, 1.0 - std::fabs(first + k - centre) / 2.0);
-                    for (int k = 0; k < 5; ++k) {
-                        const int d = first + k - y;
-                        if (tent[k] > 0.0 && d >= -kL && d <= kL) out[d + kL] += wa * tent[k] / sum;
-                    }
-                }
-            }
+            for (int phase = 0; phase < 2; ++phase) compose_chain(site_lines[p][c], phase, config.chroma_v_taps[p][phase][c]);
     config.chroma_chain = true;
+    if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
+}
+
+void chroma_chain_411(SphereFitConfig& config, double site_px) {
+    // In 4:2:2 samples (two luma columns each), 4:1:1 sample m lies at 2m + site_px / 2.
+    for (int phase = 0; phase < 2; ++phase) compose_chain(site_px / 2.0, phase, config.chroma_h_taps[phase]);
+    config.chroma_chain_h = true;
     if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
 }
 
@@ -111,6 +124,26 @@ double chain_variance_lines(const SphereFitConfig& cfg, int parity) {
         }
     return var / 4.0;
 }
+
+// The same for the horizontal chain, in 4:2:2 samples² (a sample is two columns).
+double chain_variance_samples(const SphereFitConfig& cfg) {
+    double var = 0;
+    for (int phase = 0; phase < 2; ++phase) {
+        const double* t = cfg.chroma_h_taps[phase];
+        double s = 0, m1 = 0, m2 = 0;
+        for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+            s += t[d + kChromaChainLines];
+            m1 += d * t[d + kChromaChainLines];
+            m2 += d * d * t[d + kChromaChainLines];
+        }
+        if (s > 0) var += m2 / s - (m1 / s) * (m1 / s);
+    }
+    return var / 2.0;
+}
+
+// The taps of no chain: the observation's own line or sample.
+constexpr double kIdentityTaps[2 * kChromaChainLines + 1] = {0, 0, 0, 1, 0, 0, 0};
+static_assert(kChromaChainLines == 3);
 
 // Whether a box of half-sizes (hx, hv) whose centre is (dx, dv) from a point lies within r of it.
 bool box_within(double dx, double dv, double hx, double hv, double r) {
@@ -556,8 +589,9 @@ struct Patch {
     // The vertical chroma chain is modelled (SphereFitConfig::chroma_chain): the model's lines reach
     // kChromaChainLines beyond the observations' (lines core_j0 … core_j1 of the field), whose own
     // observations are left out (foreign).
-    bool chain = false;
-    int core_j0 = 0, core_j1 = 0;
+    bool chain = false, hchain = false;  // the vertical (4:2:0) and horizontal (4:1:1) chains
+    int core_j0 = 0, core_j1 = 0, core_x0 = 0, core_x1 = 0;  // the observed lines and columns (hchain: x0 … x1 reach
+                                                             // 2·kChromaChainLines columns further)
     double chroma_sigma_dn = 1.0;  // the chroma observations' σ
     MarkerColour colour;
 };
@@ -825,7 +859,7 @@ public:
     // JᵀWJ (lower triangle) and JᵀWr at t, from the base render and derivatives in the workspace (linearise());
     // returns Σ (r/σ)² at t.
     double normal_equations(const Vec& t, Mat& a, Vec& g) const {
-        if (p_.chain) return normal_equations_chain(t, a, g);
+        if (p_.chain || p_.hchain) return normal_equations_chain(t, a, g);
         if (p_.outline) return normal_equations_outline(t, a, g);
         return normal_equations_marker(t, a, g);
     }
@@ -1342,18 +1376,22 @@ public:
                 ctouch[j][sidx] = (touched[i - 1] | touched[i] | touched[i + 1]) != 0;
             }
         }
+        constexpr int kL = kChromaChainLines;
         for (int j = 0; j < p_.lines; ++j) {
-            const double* tp = p_.chain ? chain_taps(j, 1) : nullptr;
-            const double* tp2 = p_.chain ? chain_taps(j, 2) : nullptr;
+            const double* tp = vtaps(j, 1);
+            const double* tp2 = vtaps(j, 2);
             for (int sidx = 0; sidx < ns; ++sidx) {
                 const int o = j * nx + sidx;
                 uint8_t c = ctouch[j][sidx] | w_.foreign_c[o];
-                if (p_.chain)
-                    for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
-                        const int l = j + d;
-                        if (l >= 0 && l < p_.lines && (tp[d + kChromaChainLines] != 0.0 || tp2[d + kChromaChainLines] != 0.0))
-                            c |= ctouch[l][sidx];
+                if (p_.chain || p_.hchain) {
+                    const double* th = htaps(sidx);
+                    for (int dv = -kL; dv <= kL; ++dv) {
+                        const int l = j + dv;
+                        if (l < 0 || l >= p_.lines || (tp[dv + kL] == 0.0 && tp2[dv + kL] == 0.0)) continue;
+                        for (int dh = -kL; dh <= kL; ++dh)
+                            if (th[dh + kL] != 0.0 && sidx + dh >= 0 && sidx + dh < ns) c |= ctouch[l][sidx + dh];
                     }
+                }
                 c = c != 0;
                 changed |= c != w_.hidden_c[o];
                 w_.hidden_c[o] = c;
@@ -1410,21 +1448,32 @@ private:
     // The camera's [1 2 1] co-sited chroma filter at model column i.
     static double filtered(const double* line, int i) { return 0.25 * (line[i - 1] + line[i + 1]) + 0.5 * line[i]; }
 
-    // The vertical chain's taps for an observation on model line j of channel ch (1 Cb, 2 Cr), offsets
-    // −kChromaChainLines … kChromaChainLines.
-    const double* chain_taps(int j, int ch) const { return cfg_.chroma_v_taps[p_.parity][(p_.j0 + j) & 1][ch - 1]; }
+    // The chains' taps for an observation on model line j of channel ch (1 Cb, 2 Cr) over the lines, and for one at
+    // chroma sample s of the patch over the samples; offsets −kChromaChainLines … kChromaChainLines; the identity
+    // where the source has no such chain.
+    const double* vtaps(int j, int ch) const {
+        return p_.chain ? cfg_.chroma_v_taps[p_.parity][(p_.j0 + j) & 1][ch - 1] : kIdentityTaps;
+    }
+    const double* htaps(int s) const {
+        return p_.hchain ? cfg_.chroma_h_taps[((p_.x0 + (p_.x0 & 1)) / 2 + s) & 1] : kIdentityTaps;
+    }
 
     // The model's chroma observation at model line j, column i of channel ch from model values `val`: the camera's
-    // filter, and with the chain the source's down the lines.
+    // filter, and with the chains the source's down the lines and across the columns.
     double chroma_at(const double* val, int ch, int j, int i) const {
         const int n = p_.lines * p_.cols;
-        if (!p_.chain) return filtered(val + ch * n + j * p_.cols, i);
-        const double* tp = chain_taps(j, ch);
+        if (!p_.chain && !p_.hchain) return filtered(val + ch * n + j * p_.cols, i);
+        constexpr int kL = kChromaChainLines;
+        const double* tv = vtaps(j, ch);
+        const double* th = htaps((i - 1 - (p_.x0 & 1)) / 2);
         double sum = 0;
-        for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
-            const double w = tp[d + kChromaChainLines];
-            if (w == 0.0) continue;
-            sum += w * filtered(val + ch * n + std::clamp(j + d, 0, p_.lines - 1) * p_.cols, i);
+        for (int dv = -kL; dv <= kL; ++dv) {
+            if (tv[dv + kL] == 0.0) continue;
+            const double* line = val + ch * n + std::clamp(j + dv, 0, p_.lines - 1) * p_.cols;
+            for (int dh = -kL; dh <= kL; ++dh) {
+                const double w = tv[dv + kL] * th[dh + kL];
+                if (w != 0.0) sum += w * filtered(line, std::clamp(i + 2 * dh, 1, p_.cols - 2));
+            }
         }
         return sum;
     }
@@ -1473,21 +1522,27 @@ private:
                     hval[((ch - 1) * p_.lines + j) * ns + s] = filtered(val + ch * n + j * p_.cols, i);
                 }
             }
+        constexpr int kL = kChromaChainLines;
         for (int ch = 1; ch <= 2; ++ch)
             for (int j = 0; j < p_.lines; ++j) {
-                const double* tp = chain_taps(j, ch);
+                const double* tv = vtaps(j, ch);
                 for (int s = 0; s < ns; ++s) {
                     const int o = j * nx + s;
                     if (!(ch == 1 ? w_.keep_cb[o] : w_.keep_cr[o])) continue;
+                    const double* th = htaps(s);
                     double mod = 0;
                     for (int q = 0; q < nr; ++q) row[q] = 0.0;
-                    for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
-                        const double w = tp[d + kChromaChainLines];
-                        if (w == 0.0) continue;
-                        const int l = std::clamp(j + d, 0, p_.lines - 1);
-                        const double* h = hrow + ((ch - 1) * p_.lines + l) * ls + s * R;
-                        for (int q = 0; q < nr; ++q) row[q] += w * h[q];
-                        mod += w * hval[((ch - 1) * p_.lines + l) * ns + s];
+                    for (int dv = -kL; dv <= kL; ++dv) {
+                        if (tv[dv + kL] == 0.0) continue;
+                        const int l = std::clamp(j + dv, 0, p_.lines - 1);
+                        for (int dh = -kL; dh <= kL; ++dh) {
+                            const double w = tv[dv + kL] * th[dh + kL];
+                            if (w == 0.0) continue;
+                            const int sh = std::clamp(s + dh, 0, ns - 1);
+                            const double* h = hrow + ((ch - 1) * p_.lines + l) * ls + sh * R;
+                            for (int q = 0; q < nr; ++q) row[q] += w * h[q];
+                            mod += w * hval[((ch - 1) * p_.lines + l) * ns + sh];
+                        }
                     }
                     add(ch, row, (ch == 1 ? w_.obs_cb[o] : w_.obs_cr[o]) - mod, wc);
                 }
@@ -1855,7 +1910,8 @@ void moment_start(const BlobBox& blob, const Patch& p, const SphereFitConfig& cf
     const double mx = sx / s0, mv = sv / s0, ap = cfg.aperture_lines_px;
     // With the source's chroma chain, less its spread down the lines too (a field line is 2 frame px).
     const double chain = p.chain ? 4.0 * chain_variance_lines(cfg, p.parity) : 0.0;
-    const double cxx = sxx / s0 - mx * mx - 0.5 - 1.0 / 12.0, cvv = svv / s0 - mv * mv - ap * ap / 12.0 - chain,
+    const double chain_x = p.hchain ? 4.0 * chain_variance_samples(cfg) : 0.0;
+    const double cxx = sxx / s0 - mx * mx - 0.5 - 1.0 / 12.0 - chain_x, cvv = svv / s0 - mv * mv - ap * ap / 12.0 - chain,
                  cxv = sxv / s0 - mx * mv;
     if (!(cxx > 0 && cvv > 0)) return;
     const double e1 = (cvv - cxx) / (cvv + cxx), e2 = -2.0 * cxv / (cvv + cxx), e = std::hypot(e1, e2);
@@ -1884,7 +1940,9 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     p.lines = p.j1 - p.j0 + 1;
     p.core_j0 = p.j0;
     p.core_j1 = p.j1;
-    // The source's vertical chroma chain, where the field and the workspace have its lines beyond the patch's.
+    p.core_x0 = p.x0;
+    p.core_x1 = p.x1;
+    // The source's chroma chains, where the field and the workspace have their lines and columns beyond the patch's.
     constexpr int kCL = kChromaChainLines;
     if (cfg.chroma_chain && p.j0 - kCL >= 0 && p.j1 + kCL <= height - 1 && p.lines + 2 * kCL <= kFitMaxLines) {
         p.chain = true;
@@ -1892,7 +1950,15 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         p.j1 += kCL;
         p.lines += 2 * kCL;
     }
-    p.chroma_sigma_dn = p.chain ? cfg.chain_chroma_noise_dn : cfg.chroma_noise_dn > 0 ? cfg.chroma_noise_dn : cfg.noise_dn;
+    if (cfg.chroma_chain_h && !hint && p.x0 - 2 * kCL >= 1 && p.x1 + 2 * kCL <= kWidth - 2 &&
+        p.x1 - p.x0 + 1 + 4 * kCL <= kFitMaxCols) {
+        p.hchain = true;
+        p.x0 -= 2 * kCL;
+        p.x1 += 2 * kCL;
+        p.cols += 4 * kCL;
+    }
+    p.chroma_sigma_dn = p.chain || p.hchain ? cfg.chain_chroma_noise_dn
+                                            : cfg.chroma_noise_dn > 0 ? cfg.chroma_noise_dn : cfg.noise_dn;
     if (hint && hint->radius_ratio == 0 && hint->occluder_radius > 0)
         p.chroma_sigma_dn = std::max(p.chroma_sigma_dn, cfg.eye_hidden_chroma_noise_dn);
     const double margin = cfg.occluder_margin_px;
@@ -1936,29 +2002,37 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                 w.foreign_c[j * nx + s] = (col[i - 1] | col[i] | col[i + 1]) != 0;
             }
         }
-        if (p.chain) {  // the chain takes a foreign pixel's chroma into the observations of the lines about it
+        if (p.chain || p.hchain) {  // the chains take a foreign pixel's chroma into the observations about it
             uint8_t line_c[kFitMaxLines][SphereFitWorkspace::kSamples];
             for (int j = 0; j < p.lines; ++j)
                 for (int s = 0; s < ns; ++s) line_c[j][s] = w.foreign_c[j * nx + s];
+            const int s0 = (p.x0 + (p.x0 & 1)) / 2;  // the patch's first chroma sample, in the line's
             for (int j = 0; j < p.lines; ++j) {
-                const double* t1 = cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][0];
-                const double* t2 = cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][1];
+                const double* t1 = p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][0] : kIdentityTaps;
+                const double* t2 = p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][1] : kIdentityTaps;
                 for (int s = 0; s < ns; ++s) {
+                    const double* th = p.hchain ? cfg.chroma_h_taps[(s0 + s) & 1] : kIdentityTaps;
                     uint8_t c = 0;
-                    for (int d = -kCL; d <= kCL; ++d)
-                        if (j + d >= 0 && j + d < p.lines && (t1[d + kCL] != 0.0 || t2[d + kCL] != 0.0)) c |= line_c[j + d][s];
+                    for (int dv = -kCL; dv <= kCL; ++dv) {
+                        if (j + dv < 0 || j + dv >= p.lines || (t1[dv + kCL] == 0.0 && t2[dv + kCL] == 0.0)) continue;
+                        for (int dh = -kCL; dh <= kCL; ++dh)
+                            if (th[dh + kCL] != 0.0 && s + dh >= 0 && s + dh < ns) c |= line_c[j + dv][s + dh];
+                    }
                     w.foreign_c[j * nx + s] = c;
                 }
             }
         }
     }
-    if (p.chain)  // the chain's own lines: modelled, not observed
+    if (p.chain || p.hchain)  // the chains' own lines and columns: modelled, not observed
         for (int j = 0; j < p.lines; ++j) {
-            if (p.j0 + j >= p.core_j0 && p.j0 + j <= p.core_j1) continue;
-            for (int x = 0; x < nx; ++x) w.foreign_y[j * nx + x] = 1;
-            for (int s = 0; s < ns; ++s) w.foreign_c[j * nx + s] = 1;
+            const bool line_out = p.j0 + j < p.core_j0 || p.j0 + j > p.core_j1;
+            for (int x = 0; x < nx; ++x)
+                if (line_out || p.x0 + x < p.core_x0 || p.x0 + x > p.core_x1) w.foreign_y[j * nx + x] = 1;
+            int s = 0;
+            for (int x = p.x0 + (p.x0 & 1); x <= p.x1; x += 2, ++s)
+                if (line_out || x < p.core_x0 || x > p.core_x1) w.foreign_c[j * nx + s] = 1;
         }
-    if (masked || p.chain)
+    if (masked || p.chain || p.hchain)
         for (int o = 0; o < SphereFitWorkspace::kPx; ++o) {
             w.keep_y[o] = !w.foreign_y[o];
             w.keep_cb[o] = w.keep_cr[o] = !w.foreign_c[o];
@@ -2022,10 +2096,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
         border[static_cast<size_t>(nb++)] = {double(x), 2.0 * j + p.parity,
                                              {double(line[2 * x + 1]), double(line[4 * (x >> 1)]), double(line[4 * (x >> 1) + 2])}};
     };
-    for (int x = p.x0; x < p.x1; ++x) push(x, p.core_j0);
-    for (int j = p.core_j0; j < p.core_j1; ++j) push(p.x1, j);
-    for (int x = p.x1; x > p.x0; --x) push(x, p.core_j1);
-    for (int j = p.core_j1; j > p.core_j0; --j) push(p.x0, j);
+    for (int x = p.core_x0; x < p.core_x1; ++x) push(x, p.core_j0);
+    for (int j = p.core_j0; j < p.core_j1; ++j) push(p.core_x1, j);
+    for (int x = p.core_x1; x > p.core_x0; --x) push(x, p.core_j1);
+    for (int j = p.core_j1; j > p.core_j0; --j) push(p.core_x0, j);
     double lo = 1e9, hi = -1e9, mean[3] = {0, 0, 0};
     for (int k = 0; k < nb; ++k) {
         lo = std::min(lo, border[k].c[0]);

@@ -60,20 +60,31 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
         w.close();
     }
     rig::VideoReader r(path);
-    REQUIRE(r.info().chroma == "4:2:0");
+    const bool across = r.info().chroma == "4:1:1";  // the chain across the columns, else down the lines
+    REQUIRE((across || r.info().chroma == "4:2:0"));
     tracking::SphereFitConfig cfg;
-    double site[2][2];
-    for (int p = 0; p < 2; ++p)
-        for (int c = 0; c < 2; ++c) site[p][c] = rig::field_chroma_site(r.info(), p, c);
-    tracking::chroma_chain_420(cfg, site);
-    REQUIRE(cfg.chroma_chain);
-    for (int p = 0; p < 2; ++p)
-        for (int ph = 0; ph < 2; ++ph)
-            for (int c = 0; c < 2; ++c) {
-                double sum = 0;
-                for (double t : cfg.chroma_v_taps[p][ph][c]) sum += t;
-                CHECK(sum == Approx(1.0).margin(1e-12));
-            }
+    if (across) {
+        tracking::chroma_chain_411(cfg, rig::chroma_column_site(r.info()));
+        REQUIRE(cfg.chroma_chain_h);
+        for (int ph = 0; ph < 2; ++ph) {
+            double sum = 0;
+            for (double t : cfg.chroma_h_taps[ph]) sum += t;
+            CHECK(sum == Approx(1.0).margin(1e-12));
+        }
+    } else {
+        double site[2][2];
+        for (int p = 0; p < 2; ++p)
+            for (int c = 0; c < 2; ++c) site[p][c] = rig::field_chroma_site(r.info(), p, c);
+        tracking::chroma_chain_420(cfg, site);
+        REQUIRE(cfg.chroma_chain);
+        for (int p = 0; p < 2; ++p)
+            for (int ph = 0; ph < 2; ++ph)
+                for (int c = 0; c < 2; ++c) {
+                    double sum = 0;
+                    for (double t : cfg.chroma_v_taps[p][ph][c]) sum += t;
+                    CHECK(sum == Approx(1.0).margin(1e-12));
+                }
+    }
     ChainError e;
     double se_chain = 0, se_none = 0;
     long n = 0;
@@ -86,19 +97,24 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
         r.extract_field(parity, true, out.data());
         const std::vector<uint8_t>& in = fields[i];
         for (int y = 8; y < rig::kFieldHeight - 8; ++y)
-            for (int x = 0; x < rig::kFieldWidth; x += 2)
+            for (int x = 16; x < rig::kFieldWidth - 16; x += 2)
                 for (int c = 0; c < 2; ++c) {
                     const int byte = c == 0 ? 0 : 2;
-                    auto at = [&](const std::vector<uint8_t>& f, int line) {
-                        return double(f[(static_cast<size_t>(line) * rig::kFieldWidth + x) * 2 + byte]);
+                    auto at = [&](const std::vector<uint8_t>& f, int line, int col) {
+                        return double(f[(static_cast<size_t>(line) * rig::kFieldWidth + col) * 2 + byte]);
                     };
-                    const double* taps = cfg.chroma_v_taps[parity][y & 1][c];
                     double pred = 0;
-                    for (int d = -kL; d <= kL; ++d) pred += taps[d + kL] * at(in, y + d);
-                    const double got = at(out, y), err = got - pred;
+                    if (across) {
+                        const double* taps = cfg.chroma_h_taps[(x / 2) & 1];
+                        for (int d = -kL; d <= kL; ++d) pred += taps[d + kL] * at(in, y, x + 2 * d);
+                    } else {
+                        const double* taps = cfg.chroma_v_taps[parity][y & 1][c];
+                        for (int d = -kL; d <= kL; ++d) pred += taps[d + kL] * at(in, y + d, x);
+                    }
+                    const double got = at(out, y, x), err = got - pred;
                     se_chain += err * err;
                     e.max_chain = std::max(e.max_chain, std::abs(err));
-                    se_none += (got - at(in, y)) * (got - at(in, y));
+                    se_none += (got - at(in, y, x)) * (got - at(in, y, x));
                     ++n;
                 }
     }
@@ -121,6 +137,40 @@ TEST_CASE("the fit's 4:2:0 chroma chain is the writer's decimation and the reade
     CHECK(lossless.rms_chain < 0.6);
     CHECK(lossless.max_chain <= 1.5);
     CHECK(lossless.rms_none > 20.0);  // random lines: the per-line (4:2:2) model is far off
+}
+
+TEST_CASE("the fit's 4:1:1 chroma chain is the writer's decimation and the reader's interpolation, sample by sample",
+          "[tracking][refine][video]") {
+    // FFV1 holding 4:1:1 planes (DVCPRO25's siting: co-sited with every fourth pixel), lossless; then DVCPRO25
+    // itself, whose quantisation stays on top of the chain.
+    const auto fields = random_chroma_fields(6, 12);
+    const ChainError lossless = chain_error(rig::VideoCodec::kFfv1, rig::VideoChroma::k411, fields);
+    INFO("FFV1 4:1:1: chain RMS " << lossless.rms_chain << " DN (max " << lossless.max_chain << "), per-sample model "
+                                   << lossless.rms_none << " DN");
+    CHECK(lossless.rms_chain < 0.6);
+    CHECK(lossless.max_chain <= 1.5);
+    CHECK(lossless.rms_none > 20.0);
+    // DVCPRO25: chroma random across the columns and the same down them (the codec's error in one direction only).
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<int> level(70, 186);
+    std::vector<std::vector<uint8_t>> columns(4, std::vector<uint8_t>(rig::kFieldBytes));
+    for (auto& f : columns) {
+        std::vector<uint8_t> cb(rig::kFieldWidth / 2), cr(rig::kFieldWidth / 2);
+        for (size_t k = 0; k < cb.size(); ++k) {
+            cb[k] = static_cast<uint8_t>(level(rng));
+            cr[k] = static_cast<uint8_t>(level(rng));
+        }
+        for (int y = 0; y < rig::kFieldHeight; ++y)
+            for (int x = 0; x < rig::kFieldWidth; x += 2) {
+                uint8_t* px = f.data() + (static_cast<size_t>(y) * rig::kFieldWidth + x) * 2;
+                px[0] = cb[static_cast<size_t>(x / 2)];
+                px[2] = cr[static_cast<size_t>(x / 2)];
+                px[1] = px[3] = 100;
+            }
+    }
+    const ChainError dv411 = chain_error(rig::VideoCodec::kDv411, rig::VideoChroma::kCodec, columns);
+    INFO("DVCPRO25: chain RMS " << dv411.rms_chain << " DN, per-sample model " << dv411.rms_none << " DN");
+    CHECK(dv411.rms_chain < 0.5 * dv411.rms_none);
 }
 
 TEST_CASE("DV's line-alternate 4:2:0 chain: Cr on the even field lines, Cb on the odd", "[tracking][refine][video]") {

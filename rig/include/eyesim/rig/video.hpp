@@ -70,6 +70,12 @@ struct VideoInfo {
 /// top field and 0.75 for the bottom (the frame's rows 2k + ½ split between the fields).
 double field_chroma_site(const VideoInfo& info, int parity, int component);
 
+/// The luma column at which chroma sample 0 of subsampled video is sited as VideoReader reads it (sample k lies
+/// hsub·k further: 4 for 4:1:1, 2 for 4:2:x): centred chroma locations (center, top, bottom) (hsub − 1) / 2,
+/// co-sited ones (left, topleft, bottomleft, unspecified) 0. VideoReader gives each 4:2:2 sample (luma column 2k)
+/// the linear interpolation between the two samples about it.
+double chroma_column_site(const VideoInfo& info);
+
 /// Outcome of VideoReader::load_frame.
 enum class FrameStatus {
     kOk,       ///< the frame is current

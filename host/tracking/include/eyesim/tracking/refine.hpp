@@ -81,6 +81,13 @@ struct SphereFitConfig {
     /// 1 Cr, with σ chain_chroma_noise_dn instead of chroma_noise_dn (which stays for the fits it does not fit).
     bool chroma_chain = false;
     double chroma_v_taps[2][2][2][7] = {};
+    /// The same across the columns (4:1:1 video; chroma_chain_411): each chroma observation at the 4:2:2 sample k
+    /// (luma column 2k) is Σ_d chroma_h_taps[k & 1][d + kChromaChainLines] · (the camera's chroma sample k + d),
+    /// on top of the vertical chain where there is one. The patch then reaches 2·kChromaChainLines columns further.
+    /// Fits without a MarkerHint only: an occluder then hides every chroma observation within two samples of it,
+    /// and partly hidden markers lost more than the chain gained (FFV1 4:1:1 sweep seed 2: 0.0327 → 0.0376 px).
+    bool chroma_chain_h = false;
+    double chroma_h_taps[2][7] = {};
     double chain_chroma_noise_dn = 0.0;
     /// Chroma σ (DN) floor of a hinted fit of a marker the eye alone hides part of (a marker on the eye at its
     /// outline: a MarkerHint with an occluding sphere and no shaft): there the chroma misleads the fit more than it
@@ -310,6 +317,12 @@ inline constexpr int kChromaChainLines = 3;
 /// (rig/video.hpp field_chroma_site). MPEG-2 and H.264 sites: 0.25 (top field) and 0.75 (bottom); DV's
 /// line-alternate 4:2:0: Cr 0, Cb 1. Also sets chroma_chain and, where it was 0, chain_chroma_noise_dn to the sensor's.
 void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]);
+
+/// Sets config's horizontal chroma chain for 4:1:1 video: 4:1:1 sample m is sited at luma column 4m + site_px and
+/// holds the [1 2 1]/4 decimation (the tent of half-width two 4:2:2 samples) about it; the reader gives each 4:2:2
+/// sample the linear interpolation between the two 4:1:1 samples about it (rig/video.hpp chroma_column_site). DV's
+/// (DVCPRO25) site: 0. Also sets chroma_chain_h and, where it was 0, chain_chroma_noise_dn to the sensor's.
+void chroma_chain_411(SphereFitConfig& config, double site_px);
 
 /// Whether the boxes of `a` and `b` come within `gap` columns and lines of each other (0: they overlap).
 inline bool boxes_within(const BlobBox& a, const BlobBox& b, int gap) {
