@@ -107,38 +107,29 @@ void chroma_chain_411(SphereFitConfig& config, double site_px) {
 
 namespace {
 
+// Variance of one set of chain taps about their observation (in their own steps: lines or samples).
+double taps_variance(const double* t) {
+    double s = 0, m1 = 0, m2 = 0;
+    for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
+        s += t[d + kChromaChainLines];
+        m1 += d * t[d + kChromaChainLines];
+        m2 += d * d * t[d + kChromaChainLines];
+    }
+    return s > 0 ? m2 / s - (m1 / s) * (m1 / s) : 0.0;
+}
+
 // Variance (field lines²) of the chain's taps about the observation's line, averaged over the line phases and
 // components of a field of `parity`: how far the chain spreads the marker's chroma down the lines.
 double chain_variance_lines(const SphereFitConfig& cfg, int parity) {
     double var = 0;
     for (int phase = 0; phase < 2; ++phase)
-        for (int c = 0; c < 2; ++c) {
-            const double* t = cfg.chroma_v_taps[parity & 1][phase][c];
-            double s = 0, m1 = 0, m2 = 0;
-            for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
-                s += t[d + kChromaChainLines];
-                m1 += d * t[d + kChromaChainLines];
-                m2 += d * d * t[d + kChromaChainLines];
-            }
-            if (s > 0) var += m2 / s - (m1 / s) * (m1 / s);
-        }
+        for (int c = 0; c < 2; ++c) var += taps_variance(cfg.chroma_v_taps[parity & 1][phase][c]);
     return var / 4.0;
 }
 
 // The same for the horizontal chain, in 4:2:2 samples² (a sample is two columns).
 double chain_variance_samples(const SphereFitConfig& cfg) {
-    double var = 0;
-    for (int phase = 0; phase < 2; ++phase) {
-        const double* t = cfg.chroma_h_taps[phase];
-        double s = 0, m1 = 0, m2 = 0;
-        for (int d = -kChromaChainLines; d <= kChromaChainLines; ++d) {
-            s += t[d + kChromaChainLines];
-            m1 += d * t[d + kChromaChainLines];
-            m2 += d * d * t[d + kChromaChainLines];
-        }
-        if (s > 0) var += m2 / s - (m1 / s) * (m1 / s);
-    }
-    return var / 2.0;
+    return 0.5 * (taps_variance(cfg.chroma_h_taps[0]) + taps_variance(cfg.chroma_h_taps[1]));
 }
 
 // The taps of no chain: the observation's own line or sample.

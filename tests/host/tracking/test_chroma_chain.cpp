@@ -126,30 +126,32 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
 
 }  // namespace
 
-TEST_CASE("the fit's 4:2:0 chroma chain is the writer's decimation and the reader's interpolation, line by line",
-          "[tracking][refine][video]") {
-    // FFV1 holding 4:2:0 planes (MPEG-2 / H.264 siting: a quarter line into each field), lossless: only the chain
-    // and its two roundings (the writer's to whole DN, the reader's weights in 1/256) remain.
-    const auto fields = random_chroma_fields(6, 11);
-    const ChainError lossless = chain_error(rig::VideoCodec::kFfv1, rig::VideoChroma::k420, fields);
-    INFO("FFV1 4:2:0: chain RMS " << lossless.rms_chain << " DN (max " << lossless.max_chain << "), per-line model "
-                                   << lossless.rms_none << " DN");
+namespace {
+
+// Random chroma through lossless FFV1 holding `chroma`'s planes: only the chain and its two roundings (the writer's
+// to whole DN, the reader's weights in 1/256) remain.
+void check_lossless_chain(rig::VideoChroma chroma, uint32_t seed, const char* what) {
+    const ChainError lossless = chain_error(rig::VideoCodec::kFfv1, chroma, random_chroma_fields(6, seed));
+    INFO(what << ": chain RMS " << lossless.rms_chain << " DN (max " << lossless.max_chain << "), without the chain "
+              << lossless.rms_none << " DN");
     CHECK(lossless.rms_chain < 0.6);
     CHECK(lossless.max_chain <= 1.5);
-    CHECK(lossless.rms_none > 20.0);  // random lines: the per-line (4:2:2) model is far off
+    CHECK(lossless.rms_none > 20.0);  // random chroma: the 4:2:2 model is far off
+}
+
+}  // namespace
+
+TEST_CASE("the fit's 4:2:0 chroma chain is the writer's decimation and the reader's interpolation, line by line",
+          "[tracking][refine][video]") {
+    // MPEG-2 / H.264 siting: a quarter line into each field.
+    check_lossless_chain(rig::VideoChroma::k420, 11, "FFV1 4:2:0");
 }
 
 TEST_CASE("the fit's 4:1:1 chroma chain is the writer's decimation and the reader's interpolation, sample by sample",
           "[tracking][refine][video]") {
-    // FFV1 holding 4:1:1 planes (DVCPRO25's siting: co-sited with every fourth pixel), lossless; then DVCPRO25
-    // itself, whose quantisation stays on top of the chain.
-    const auto fields = random_chroma_fields(6, 12);
-    const ChainError lossless = chain_error(rig::VideoCodec::kFfv1, rig::VideoChroma::k411, fields);
-    INFO("FFV1 4:1:1: chain RMS " << lossless.rms_chain << " DN (max " << lossless.max_chain << "), per-sample model "
-                                   << lossless.rms_none << " DN");
-    CHECK(lossless.rms_chain < 0.6);
-    CHECK(lossless.max_chain <= 1.5);
-    CHECK(lossless.rms_none > 20.0);
+    // DVCPRO25's siting (co-sited with every fourth pixel), lossless; then DVCPRO25 itself, whose quantisation stays
+    // on top of the chain.
+    check_lossless_chain(rig::VideoChroma::k411, 12, "FFV1 4:1:1");
     // DVCPRO25: chroma random across the columns and the same down them (the codec's error in one direction only).
     std::mt19937 rng(7);
     std::uniform_int_distribution<int> level(70, 186);
