@@ -20,6 +20,8 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 using namespace eyesim;
 namespace fs = std::filesystem;
 
@@ -51,7 +53,11 @@ struct ChainError {
 // Writes `fields` with `codec` (`chroma` for FFV1), reads each back, and compares every chroma sample of the
 // lines away from the field's edges with the chain's prediction from the fields written.
 ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std::vector<std::vector<uint8_t>>& fields) {
-    const std::string dir = (fs::temp_directory_path() / ("eyesim_chain_" + std::string(rig::to_string(codec)))).string();
+    // One directory per codec, chroma and process: ctest runs the test cases side by side.
+    const std::string dir = (fs::temp_directory_path() / ("eyesim_chain_" + std::string(rig::to_string(codec)) + "_" +
+                                                         std::to_string(static_cast<int>(chroma)) + "_" +
+                                                         std::to_string(::getpid())))
+                                .string();
     fs::create_directories(dir);
     const std::string path = dir + "/v" + rig::extension(codec);
     {
