@@ -187,6 +187,15 @@ double field_chroma_phase(bool dv_line_alternate, AVChromaLocation loc, int pari
     return parity == 0 ? 0.25 : 0.75;
 }
 
+/// Luma column at which chroma sample 0 lies for horizontal subsampling `hsub` (sample k lies hsub·k further).
+double chroma_column_offset(int hsub, AVChromaLocation loc) { return loc_centred_h(loc) ? (hsub - 1) / 2.0 : 0.0; }
+
+/// FFmpeg's chroma location named in VideoInfo::chroma_location (unspecified when it names none).
+AVChromaLocation chroma_location(const VideoInfo& info) {
+    const int loc = av_chroma_location_from_name(info.chroma_location.c_str());
+    return loc < 0 ? AVCHROMA_LOC_UNSPECIFIED : static_cast<AVChromaLocation>(loc);
+}
+
 /// Up to three taps with weights summing to 256.
 struct Taps {
     std::array<int, 3> at{0, 0, 0};
@@ -253,8 +262,7 @@ void extract_field_impl(const AVFrame* f, const PixelLayout& l, int parity, bool
             hx[k].at = {std::max(2 * k - 1, 0), 2 * k, 2 * k + 1};
             hx[k].w = {64, 128, 64};
         } else {
-            const double off = loc_centred_h(l.loc) ? (l.hsub - 1) / 2.0 : 0.0;
-            hx[k] = linear_taps((2.0 * k - off) / l.hsub, cw);
+            hx[k] = linear_taps((2.0 * k - chroma_column_offset(l.hsub, l.loc)) / l.hsub, cw);
         }
     }
     for (int y = 0; y < kFieldHeight; ++y) {
@@ -303,16 +311,13 @@ void extract_field_impl(const AVFrame* f, const PixelLayout& l, int parity, bool
 }  // namespace
 
 double field_chroma_site(const VideoInfo& info, int parity, int component) {
-    const int loc = av_chroma_location_from_name(info.chroma_location.c_str());
-    return field_chroma_phase(info.codec == "dvvideo" && info.chroma == "4:2:0",
-                              loc < 0 ? AVCHROMA_LOC_UNSPECIFIED : static_cast<AVChromaLocation>(loc), parity & 1,
+    return field_chroma_phase(info.codec == "dvvideo" && info.chroma == "4:2:0", chroma_location(info), parity & 1,
                               component == 0 ? 1 : 2);
 }
 
 double chroma_column_site(const VideoInfo& info) {
     const int hsub = info.chroma == "4:1:1" || info.chroma == "4:1:0" ? 4 : info.chroma == "4:4:4" ? 1 : 2;
-    const int loc = av_chroma_location_from_name(info.chroma_location.c_str());
-    return loc >= 0 && loc_centred_h(static_cast<AVChromaLocation>(loc)) ? (hsub - 1) / 2.0 : 0.0;
+    return chroma_column_offset(hsub, chroma_location(info));
 }
 
 const char* to_string(FieldOrder order) {

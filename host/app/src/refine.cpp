@@ -28,20 +28,16 @@ tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec)
     const bool lossless = info.codec == "ffv1" || info.codec == "rawvideo" || info.codec == "huffyuv" ||
                           info.codec == "ffvhuff" || info.codec == "utvideo";
     cfg = tracking::sphere_fit_config_for_source(cfg, info.chroma.c_str(), lossless);
-    // 4:2:0: the chroma modelled as the reader gives it (tracking::chroma_chain_420), at the sensor's σ where the
-    // codec is lossless.
+    // The chroma modelled as the reader gives it, at the sensor's σ where the codec is lossless: 4:2:0 down the
+    // lines (tracking::chroma_chain_420), 4:1:1 across the columns for the fits without a hint (chroma_chain_411).
+    cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
     if (info.chroma == "4:2:0") {
         double site[2][2];
         for (int parity = 0; parity < 2; ++parity)
             for (int c = 0; c < 2; ++c) site[parity][c] = rig::field_chroma_site(info, parity, c);
-        cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
         tracking::chroma_chain_420(cfg, site);
     }
-    // 4:1:1: the same across the columns (tracking::chroma_chain_411), for the fits without a hint.
-    if (info.chroma == "4:1:1") {
-        cfg.chain_chroma_noise_dn = lossless ? cfg.noise_dn : tracking::kLossyChainChromaNoiseDn;
-        tracking::chroma_chain_411(cfg, rig::chroma_column_site(info));
-    }
+    if (info.chroma == "4:1:1") tracking::chroma_chain_411(cfg, rig::chroma_column_site(info));
     return cfg;
 }
 

@@ -577,15 +577,40 @@ struct Patch {
     int cols = 0, lines = 0;  // model columns (x0 - 1 .. x1 + 1) and lines
     double xc = 0, vc = 0;    // reference point of the background slopes (frame px)
     bool outline = false;
-    // The vertical chroma chain is modelled (SphereFitConfig::chroma_chain): the model's lines reach
-    // kChromaChainLines beyond the observations' (lines core_j0 … core_j1 of the field), whose own
-    // observations are left out (foreign).
+    // The source's chroma chains are modelled (SphereFitConfig::chroma_chain, chroma_chain_h): the model's lines
+    // reach kChromaChainLines (vertical) and its columns 2·kChromaChainLines (horizontal) beyond the observed ones
+    // (lines core_j0 … core_j1, columns core_x0 … core_x1 of the field); what lies beyond is left out (foreign).
     bool chain = false, hchain = false;  // the vertical (4:2:0) and horizontal (4:1:1) chains
-    int core_j0 = 0, core_j1 = 0, core_x0 = 0, core_x1 = 0;  // the observed lines and columns (hchain: x0 … x1 reach
-                                                             // 2·kChromaChainLines columns further)
+    int core_j0 = 0, core_j1 = 0, core_x0 = 0, core_x1 = 0;
     double chroma_sigma_dn = 1.0;  // the chroma observations' σ
     MarkerColour colour;
 };
+
+// The chains' taps for a chroma observation on patch line j of channel ch (1 Cb, 2 Cr) over the lines, and for one
+// at the patch's chroma sample s over the samples; offsets −kChromaChainLines … kChromaChainLines; the identity where
+// the source has no such chain.
+const double* chain_vtaps(const SphereFitConfig& cfg, const Patch& p, int j, int ch) {
+    return p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][ch - 1] : kIdentityTaps;
+}
+const double* chain_htaps(const SphereFitConfig& cfg, const Patch& p, int s) {
+    return p.hchain ? cfg.chroma_h_taps[((p.x0 + (p.x0 & 1)) / 2 + s) & 1] : kIdentityTaps;
+}
+
+// Whether the chroma observation at patch line j, sample s (of ns a line) takes in anything `bits` marks per line
+// and sample: its own, and through the chains every line and sample either channel's taps reach.
+bool chain_reaches(const SphereFitConfig& cfg, const Patch& p, const uint8_t (*bits)[SphereFitWorkspace::kSamples],
+                   int ns, int j, int s) {
+    if (bits[j][s]) return true;
+    if (!p.chain && !p.hchain) return false;
+    constexpr int kL = kChromaChainLines;
+    const double *t1 = chain_vtaps(cfg, p, j, 1), *t2 = chain_vtaps(cfg, p, j, 2), *th = chain_htaps(cfg, p, s);
+    for (int dv = -kL; dv <= kL; ++dv) {
+        if (j + dv < 0 || j + dv >= p.lines || (t1[dv + kL] == 0.0 && t2[dv + kL] == 0.0)) continue;
+        for (int dh = -kL; dh <= kL; ++dh)
+            if (th[dh + kL] != 0.0 && s + dh >= 0 && s + dh < ns && bits[j + dv][s + dh]) return true;
+    }
+    return false;
+}
 
 class Fitter {
 public:
@@ -1367,28 +1392,14 @@ public:
                 ctouch[j][sidx] = (touched[i - 1] | touched[i] | touched[i + 1]) != 0;
             }
         }
-        constexpr int kL = kChromaChainLines;
-        for (int j = 0; j < p_.lines; ++j) {
-            const double* tp = vtaps(j, 1);
-            const double* tp2 = vtaps(j, 2);
+        for (int j = 0; j < p_.lines; ++j)
             for (int sidx = 0; sidx < ns; ++sidx) {
                 const int o = j * nx + sidx;
-                uint8_t c = ctouch[j][sidx] | w_.foreign_c[o];
-                if (p_.chain || p_.hchain) {
-                    const double* th = htaps(sidx);
-                    for (int dv = -kL; dv <= kL; ++dv) {
-                        const int l = j + dv;
-                        if (l < 0 || l >= p_.lines || (tp[dv + kL] == 0.0 && tp2[dv + kL] == 0.0)) continue;
-                        for (int dh = -kL; dh <= kL; ++dh)
-                            if (th[dh + kL] != 0.0 && sidx + dh >= 0 && sidx + dh < ns) c |= ctouch[l][sidx + dh];
-                    }
-                }
-                c = c != 0;
+                const uint8_t c = w_.foreign_c[o] || chain_reaches(cfg_, p_, ctouch, ns, j, sidx);
                 changed |= c != w_.hidden_c[o];
                 w_.hidden_c[o] = c;
                 w_.keep_cb[o] = w_.keep_cr[o] = !c;
             }
-        }
         background_moments();
         n_obs_ = count_observations();
         return covered;
@@ -1442,12 +1453,8 @@ private:
     // The chains' taps for an observation on model line j of channel ch (1 Cb, 2 Cr) over the lines, and for one at
     // chroma sample s of the patch over the samples; offsets −kChromaChainLines … kChromaChainLines; the identity
     // where the source has no such chain.
-    const double* vtaps(int j, int ch) const {
-        return p_.chain ? cfg_.chroma_v_taps[p_.parity][(p_.j0 + j) & 1][ch - 1] : kIdentityTaps;
-    }
-    const double* htaps(int s) const {
-        return p_.hchain ? cfg_.chroma_h_taps[((p_.x0 + (p_.x0 & 1)) / 2 + s) & 1] : kIdentityTaps;
-    }
+    const double* vtaps(int j, int ch) const { return chain_vtaps(cfg_, p_, j, ch); }
+    const double* htaps(int s) const { return chain_htaps(cfg_, p_, s); }
 
     // The model's chroma observation at model line j, column i of channel ch from model values `val`: the camera's
     // filter, and with the chains the source's down the lines and across the columns.
@@ -1997,21 +2004,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
             uint8_t line_c[kFitMaxLines][SphereFitWorkspace::kSamples];
             for (int j = 0; j < p.lines; ++j)
                 for (int s = 0; s < ns; ++s) line_c[j][s] = w.foreign_c[j * nx + s];
-            const int s0 = (p.x0 + (p.x0 & 1)) / 2;  // the patch's first chroma sample, in the line's
-            for (int j = 0; j < p.lines; ++j) {
-                const double* t1 = p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][0] : kIdentityTaps;
-                const double* t2 = p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][1] : kIdentityTaps;
-                for (int s = 0; s < ns; ++s) {
-                    const double* th = p.hchain ? cfg.chroma_h_taps[(s0 + s) & 1] : kIdentityTaps;
-                    uint8_t c = 0;
-                    for (int dv = -kCL; dv <= kCL; ++dv) {
-                        if (j + dv < 0 || j + dv >= p.lines || (t1[dv + kCL] == 0.0 && t2[dv + kCL] == 0.0)) continue;
-                        for (int dh = -kCL; dh <= kCL; ++dh)
-                            if (th[dh + kCL] != 0.0 && s + dh >= 0 && s + dh < ns) c |= line_c[j + dv][s + dh];
-                    }
-                    w.foreign_c[j * nx + s] = c;
-                }
-            }
+            for (int j = 0; j < p.lines; ++j)
+                for (int s = 0; s < ns; ++s) w.foreign_c[j * nx + s] = chain_reaches(cfg, p, line_c, ns, j, s);
         }
     }
     if (p.chain || p.hchain)  // the chains' own lines and columns: modelled, not observed
