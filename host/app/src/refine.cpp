@@ -35,7 +35,7 @@ tracking::SphereFitConfig recording_sphere_fit_config(const rig::Recording& rec)
         double site[2][2];
         for (int parity = 0; parity < 2; ++parity)
             for (int c = 0; c < 2; ++c) site[parity][c] = rig::field_chroma_site(info, parity, c);
-        tracking::chroma_chain_420(cfg, site);
+        tracking::chroma_chain_420(cfg, site, rig::kFieldHeight);
     }
     if (info.chroma == "4:1:1") tracking::chroma_chain_411(cfg, rig::chroma_column_site(info));
     return cfg;

@@ -65,24 +65,27 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
 namespace {
 
 // The taps over fine samples (field lines, or 4:2:2 chroma samples) d = −kChromaChainLines … kChromaChainLines about
-// a fine sample of `phase` (0 even, 1 odd) of a chain whose coarse rows lie every two fine samples at 2k + site: each
-// coarse row the tent of half-width two fine samples about its site, the reader's linear interpolation between the
-// two rows about the fine sample (its weights in 1/256, as it takes them).
-void compose_chain(double site, int phase, double* out) {
+// fine sample y of a chain whose coarse rows lie every two fine samples at 2k + site: each coarse row the tent of
+// half-width two fine samples about its site, the reader's linear interpolation between the two rows about the fine
+// sample (its weights in 1/256, as it takes them). n_fine > 0: only the fine samples 0 … n_fine − 1 and the rows
+// 0 … n_fine / 2 − 1 exist, the writer repeating the edge samples and the reader the edge rows; 0: no edge.
+void compose_chain(double site, int y, int n_fine, double* out) {
     constexpr int kL = kChromaChainLines;
     std::fill(out, out + 2 * kL + 1, 0.0);
-    const int y = 8 + phase;  // a fine sample of this phase away from the edges
     const double at = (y - site) / 2.0, row0 = std::floor(at);
     const double w1 = std::round((at - row0) * 256.0) / 256.0;
     for (int a = 0; a < 2; ++a) {
         const double wa = a == 0 ? 1.0 - w1 : w1;
         if (wa == 0.0) continue;
-        const double centre = 2.0 * (row0 + a) + site;
+        double row = row0 + a;
+        if (n_fine > 0) row = std::clamp(row, 0.0, static_cast<double>(n_fine / 2 - 1));
+        const double centre = 2.0 * row + site;
         double tent[5], sum = 0;
         const int first = static_cast<int>(std::floor(centre)) - 1;
         for (int k = 0; k < 5; ++k) sum += tent[k] = std::max(0.0, 1.0 - std::fabs(first + k - centre) / 2.0);
         for (int k = 0; k < 5; ++k) {
-            const int d = first + k - y;
+            const int line = n_fine > 0 ? std::clamp(first + k, 0, n_fine - 1) : first + k;
+            const int d = line - y;
             if (tent[k] > 0.0 && d >= -kL && d <= kL) out[d + kL] += wa * tent[k] / sum;
         }
     }
@@ -90,17 +93,36 @@ void compose_chain(double site, int phase, double* out) {
 
 }  // namespace
 
-void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]) {
+void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2], int field_lines) {
+    constexpr int kE = kChromaChainEdgeLines;
     for (int p = 0; p < 2; ++p)
-        for (int c = 0; c < 2; ++c)
-            for (int phase = 0; phase < 2; ++phase) compose_chain(site_lines[p][c], phase, config.chroma_v_taps[p][phase][c]);
+        for (int c = 0; c < 2; ++c) {
+            // A fine sample of each phase away from the edges.
+            for (int phase = 0; phase < 2; ++phase)
+                compose_chain(site_lines[p][c], 8 + phase, 0, config.chroma_v_taps[p][phase][c]);
+            for (int k = 0; field_lines >= 4 * kE && k < kE; ++k) {
+                compose_chain(site_lines[p][c], k, field_lines, config.chroma_v_edge_taps[p][0][k][c]);
+                compose_chain(site_lines[p][c], field_lines - 1 - k, field_lines, config.chroma_v_edge_taps[p][1][k][c]);
+            }
+        }
+    config.chroma_chain_field_lines = field_lines >= 4 * kE ? field_lines : 0;
     config.chroma_chain = true;
     if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
 }
 
+const double* chroma_chain_v_taps(const SphereFitConfig& config, int parity, int y, int c, int field_lines) {
+    constexpr int kE = kChromaChainEdgeLines;
+    parity &= 1;
+    if (field_lines > 0 && field_lines == config.chroma_chain_field_lines) {
+        if (y >= 0 && y < kE) return config.chroma_v_edge_taps[parity][0][y][c];
+        if (y < field_lines && y >= field_lines - kE) return config.chroma_v_edge_taps[parity][1][field_lines - 1 - y][c];
+    }
+    return config.chroma_v_taps[parity][y & 1][c];
+}
+
 void chroma_chain_411(SphereFitConfig& config, double site_px) {
     // In 4:2:2 samples (two luma columns each), 4:1:1 sample m lies at 2m + site_px / 2.
-    for (int phase = 0; phase < 2; ++phase) compose_chain(site_px / 2.0, phase, config.chroma_h_taps[phase]);
+    for (int phase = 0; phase < 2; ++phase) compose_chain(site_px / 2.0, 8 + phase, 0, config.chroma_h_taps[phase]);
     config.chroma_chain_h = true;
     if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
 }
@@ -581,6 +603,8 @@ struct Patch {
     // reach kChromaChainLines (vertical) and its columns 2·kChromaChainLines (horizontal) beyond the observed ones
     // (lines core_j0 … core_j1, columns core_x0 … core_x1 of the field); what lies beyond is left out (foreign).
     bool chain = false, hchain = false;  // the vertical (4:2:0) and horizontal (4:1:1) chains
+    // The field's lines when the chain's edge taps are for them (SphereFitConfig::chroma_v_edge_taps), else 0.
+    int edge_height = 0;
     int core_j0 = 0, core_j1 = 0, core_x0 = 0, core_x1 = 0;
     double chroma_sigma_dn = 1.0;  // the chroma observations' σ
     MarkerColour colour;
@@ -590,7 +614,7 @@ struct Patch {
 // at the patch's chroma sample s over the samples; offsets −kChromaChainLines … kChromaChainLines; the identity where
 // the source has no such chain.
 const double* chain_vtaps(const SphereFitConfig& cfg, const Patch& p, int j, int ch) {
-    return p.chain ? cfg.chroma_v_taps[p.parity][(p.j0 + j) & 1][ch - 1] : kIdentityTaps;
+    return p.chain ? chroma_chain_v_taps(cfg, p.parity, p.j0 + j, ch - 1, p.edge_height) : kIdentityTaps;
 }
 const double* chain_htaps(const SphereFitConfig& cfg, const Patch& p, int s) {
     return p.hchain ? cfg.chroma_h_taps[((p.x0 + (p.x0 & 1)) / 2 + s) & 1] : kIdentityTaps;
@@ -1942,11 +1966,16 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     p.core_x1 = p.x1;
     // The source's chroma chains, where the field and the workspace have their lines and columns beyond the patch's.
     constexpr int kCL = kChromaChainLines;
-    if (cfg.chroma_chain && p.j0 - kCL >= 0 && p.j1 + kCL <= height - 1 && p.lines + 2 * kCL <= kFitMaxLines) {
+    // At the field's top and bottom the edge taps fold the lines beyond it onto the edge line: the patch stops there.
+    const bool edges = cfg.chroma_chain_field_lines == height;
+    const int cj0 = edges ? std::max(0, p.j0 - kCL) : p.j0 - kCL;
+    const int cj1 = edges ? std::min(height - 1, p.j1 + kCL) : p.j1 + kCL;
+    if (cfg.chroma_chain && cj0 >= 0 && cj1 <= height - 1 && cj1 - cj0 + 1 <= kFitMaxLines) {
         p.chain = true;
-        p.j0 -= kCL;
-        p.j1 += kCL;
-        p.lines += 2 * kCL;
+        p.edge_height = edges ? height : 0;
+        p.j0 = cj0;
+        p.j1 = cj1;
+        p.lines = cj1 - cj0 + 1;
     }
     if (cfg.chroma_chain_h && !hint && p.x0 - 2 * kCL >= 1 && p.x1 + 2 * kCL <= kWidth - 2 &&
         p.x1 - p.x0 + 1 + 4 * kCL <= kFitMaxCols) {
@@ -2325,8 +2354,15 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // A marker mostly hidden: the pipeline's centroid of what is left, and so the start, can be a pixel off (its
     // chroma spread across the occluder's edge), and the pose anchors the fit instead (checked below).
     const bool sliver = hint && visible < cfg.prediction_gate_visible;
+    // A marker the field's top or bottom edge cuts, on a source whose chroma chain repeats the edge line (4:2:0):
+    // the pipeline's centroid of what is left lies up to 0.65 px inward (the edge line's chroma repeated over the
+    // next lines), and the start with it; the pose anchors the fit too (sweep seed 94, FFV1 4:2:0: fits with χ²
+    // 0.5–0.9 refused as not anchored). Not the pose's gate below: a field old, it is 0.2–0.3 px off a marker in
+    // motion that the edge hardly cuts.
+    const bool edge_cut = hint && p.edge_height > 0 && (blob.y_min == 0 || blob.y_max == height - 1);
     const bool anchored = near(x_start, v_start) ||
-                          (hint && (blob.foreign_overlap || sliver) && near(hint->centre_x_px, hint->centre_v_px)) ||
+                          (hint && (blob.foreign_overlap || sliver || edge_cut) &&
+                           near(hint->centre_x_px, hint->centre_v_px)) ||
                           (merged && near(mask->keep_x_px, mask->keep_v_px));
     if (!anchored) return res;
     res.hinted = hint != nullptr;

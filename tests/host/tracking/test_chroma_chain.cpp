@@ -13,6 +13,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <memory>
@@ -48,6 +49,9 @@ std::vector<std::vector<uint8_t>> random_chroma_fields(int n, uint32_t seed) {
 struct ChainError {
     double rms_chain = 0, max_chain = 0;  // the chain's taps against what was read
     double rms_none = 0;                  // each line's own chroma (the 4:2:2 model) against what was read
+    // The vertical chain on the eight lines at each edge of the field: with its edge taps, and with the interior
+    // taps, the lines beyond the field taken as the edge line (4:2:0 only).
+    double rms_edge = 0, max_edge = 0, rms_edge_interior = 0;
 };
 
 // Writes `fields` with `codec` (`chroma` for FFV1), reads each back, and compares every chroma sample of the
@@ -81,8 +85,9 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
         double site[2][2];
         for (int p = 0; p < 2; ++p)
             for (int c = 0; c < 2; ++c) site[p][c] = rig::field_chroma_site(r.info(), p, c);
-        tracking::chroma_chain_420(cfg, site);
+        tracking::chroma_chain_420(cfg, site, rig::kFieldHeight);
         REQUIRE(cfg.chroma_chain);
+        REQUIRE(cfg.chroma_chain_field_lines == rig::kFieldHeight);
         for (int p = 0; p < 2; ++p)
             for (int ph = 0; ph < 2; ++ph)
                 for (int c = 0; c < 2; ++c) {
@@ -92,8 +97,8 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
                 }
     }
     ChainError e;
-    double se_chain = 0, se_none = 0;
-    long n = 0;
+    double se_chain = 0, se_none = 0, se_edge = 0, se_edge_interior = 0;
+    long n = 0, n_edge = 0;
     std::vector<uint8_t> out(rig::kFieldBytes);
     constexpr int kL = tracking::kChromaChainLines;
     for (size_t i = 0; i < fields.size(); ++i) {
@@ -123,10 +128,39 @@ ChainError chain_error(rig::VideoCodec codec, rig::VideoChroma chroma, const std
                     se_none += (got - at(in, y, x)) * (got - at(in, y, x));
                     ++n;
                 }
+        for (int y = 0; !across && y < rig::kFieldHeight; y = y == 7 ? rig::kFieldHeight - 8 : y + 1)
+            for (int x = 16; x < rig::kFieldWidth - 16; x += 2)
+                for (int c = 0; c < 2; ++c) {
+                    const int byte = c == 0 ? 0 : 2;
+                    auto at = [&](const std::vector<uint8_t>& f, int line) {
+                        line = std::clamp(line, 0, rig::kFieldHeight - 1);
+                        return double(f[(static_cast<size_t>(line) * rig::kFieldWidth + x) * 2 + byte]);
+                    };
+                    const double* taps = tracking::chroma_chain_v_taps(cfg, parity, y, c, rig::kFieldHeight);
+                    const double* inner = cfg.chroma_v_taps[parity][y & 1][c];
+                    double pred = 0, pred_inner = 0, sum = 0;
+                    for (int d = -kL; d <= kL; ++d) {
+                        // The edge taps reach no line beyond the field.
+                        if (y + d < 0 || y + d >= rig::kFieldHeight) CHECK(taps[d + kL] == 0.0);
+                        pred += taps[d + kL] * at(in, y + d);
+                        pred_inner += inner[d + kL] * at(in, y + d);
+                        sum += taps[d + kL];
+                    }
+                    CHECK(sum == Approx(1.0).margin(1e-12));
+                    const double got = at(out, y);
+                    se_edge += (got - pred) * (got - pred);
+                    se_edge_interior += (got - pred_inner) * (got - pred_inner);
+                    e.max_edge = std::max(e.max_edge, std::abs(got - pred));
+                    ++n_edge;
+                }
     }
     fs::remove_all(dir);
     e.rms_chain = std::sqrt(se_chain / static_cast<double>(n));
     e.rms_none = std::sqrt(se_none / static_cast<double>(n));
+    if (n_edge > 0) {
+        e.rms_edge = std::sqrt(se_edge / static_cast<double>(n_edge));
+        e.rms_edge_interior = std::sqrt(se_edge_interior / static_cast<double>(n_edge));
+    }
     return e;
 }
 
@@ -143,6 +177,14 @@ void check_lossless_chain(rig::VideoChroma chroma, uint32_t seed, const char* wh
     CHECK(lossless.rms_chain < 0.6);
     CHECK(lossless.max_chain <= 1.5);
     CHECK(lossless.rms_none > 20.0);  // random chroma: the 4:2:2 model is far off
+    if (chroma == rig::VideoChroma::k420) {
+        // The field's first and last eight lines, where the writer repeats the edge line and the reader the edge row.
+        INFO(what << " at the field's edges: edge taps RMS " << lossless.rms_edge << " DN (max " << lossless.max_edge
+                  << "), interior taps " << lossless.rms_edge_interior << " DN");
+        CHECK(lossless.rms_edge < 0.6);
+        CHECK(lossless.max_edge <= 1.5);
+        CHECK(lossless.rms_edge_interior > 4.0 * lossless.rms_edge);
+    }
 }
 
 }  // namespace
@@ -198,8 +240,10 @@ TEST_CASE("DV's line-alternate 4:2:0 chain: Cr on the even field lines, Cb on th
             }
         }
     const ChainError dv = chain_error(rig::VideoCodec::kDv, rig::VideoChroma::kCodec, fields);
-    INFO("DV: chain RMS " << dv.rms_chain << " DN, per-line model " << dv.rms_none << " DN");
+    INFO("DV: chain RMS " << dv.rms_chain << " DN, per-line model " << dv.rms_none << " DN; at the field's edges "
+                          << dv.rms_edge << " DN, with the interior taps " << dv.rms_edge_interior << " DN");
     CHECK(dv.rms_chain < 0.5 * dv.rms_none);
+    CHECK(dv.rms_edge < 0.5 * dv.rms_edge_interior);
 }
 
 TEST_CASE("sphere fit on lossless 4:2:0 and 4:1:1 video: the chain's model of the chroma places clear markers closer",
@@ -226,7 +270,7 @@ TEST_CASE("sphere fit on lossless 4:2:0 and 4:1:1 video: the chain's model of th
             for (int c = 0; c < 2; ++c) site[p][c] = rig::field_chroma_site(info, p, c);
         CHECK(site[0][0] == 0.25);  // MPEG-2 / H.264 siting, a quarter line into each field
         CHECK(site[1][1] == 0.75);
-        tracking::chroma_chain_420(with, site);
+        tracking::chroma_chain_420(with, site, rig::kFieldHeight);
     }
     CHECK(with.chain_chroma_noise_dn == with.noise_dn);
 

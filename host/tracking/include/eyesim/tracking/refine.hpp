@@ -25,6 +25,12 @@ struct MarkerColour {
     static MarkerColour from_rgb(double r, double g, double b);
 };
 
+/// Field lines either side of an observation that the vertical chroma chain reaches (SphereFitConfig::chroma_chain).
+inline constexpr int kChromaChainLines = 3;
+/// Field lines at each edge whose chain taps the writer's and reader's edge repetition changes (at most three at
+/// the top, four at the bottom for the sites below; SphereFitConfig::chroma_v_edge_taps).
+inline constexpr int kChromaChainEdgeLines = 4;
+
 /// How the marker's pixels are rendered in the fit.
 enum class SphereFitModel : uint8_t {
     kAnalytic,      ///< per pixel: exact coverage of a straight edge through the pixel box, shading in closed form
@@ -81,6 +87,13 @@ struct SphereFitConfig {
     /// 1 Cr, with σ chain_chroma_noise_dn instead of chroma_noise_dn (which stays for the fits it does not fit).
     bool chroma_chain = false;
     double chroma_v_taps[2][2][2][7] = {};
+    /// The chain at the field's edges, where the writer repeats the first (last) field line and the reader the first
+    /// (last) chroma row: the taps of field line k (edge 0) and of line chroma_chain_field_lines − 1 − k (edge 1),
+    /// k < kChromaChainEdgeLines, [parity][edge][k][c]. With them a marker the image's top or bottom edge cuts is
+    /// fitted with its chain too, its patch reaching no line beyond the field. Used on fields of
+    /// chroma_chain_field_lines lines only (0: none; the chain then needs kChromaChainLines lines each side).
+    double chroma_v_edge_taps[2][2][kChromaChainEdgeLines][2][7] = {};
+    int chroma_chain_field_lines = 0;
     /// The same across the columns (4:1:1 video; chroma_chain_411): each chroma observation at the 4:2:2 sample k
     /// (luma column 2k) is Σ_d chroma_h_taps[k & 1][d + kChromaChainLines] · (the camera's chroma sample k + d),
     /// on top of the vertical chain where there is one. The patch then reaches 2·kChromaChainLines columns further.
@@ -308,15 +321,21 @@ BlobBox blob_box(const B& b) {
 /// chain_chroma_noise_dn for a lossy 4:2:0 source: the chain is modelled, the codec's quantisation of the chroma
 /// is not (`sweep` seeds 1–10, 2 s: DV, MPEG-2 and H.264 best at 3–4 DN; lossless FFV1 4:2:0 at the sensor's 1 DN).
 inline constexpr double kLossyChainChromaNoiseDn = 4.0;
-/// Field lines either side of an observation that the vertical chroma chain reaches (SphereFitConfig::chroma_chain).
-inline constexpr int kChromaChainLines = 3;
 
 /// Sets config's vertical chroma chain for interlaced 4:2:0 video: per field, chroma row k of component c (0 Cb,
 /// 1 Cr) is sited at field line 2k + site_lines[parity][c] and holds the 2:1 decimation tent (half-width two field
 /// lines) centred there; the reader gives field line y the linear interpolation between the two rows about it
 /// (rig/video.hpp field_chroma_site). MPEG-2 and H.264 sites: 0.25 (top field) and 0.75 (bottom); DV's
-/// line-alternate 4:2:0: Cr 0, Cb 1. Also sets chroma_chain and, where it was 0, chain_chroma_noise_dn to the sensor's.
-void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2]);
+/// line-alternate 4:2:0: Cr 0, Cb 1. Also sets chroma_chain and, where it was 0, chain_chroma_noise_dn to the sensor's,
+/// and the taps at the edges of a field of `field_lines` lines (both edges repeated, as rig::VideoWriter and
+/// rig::VideoReader do; 0: none).
+void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2], int field_lines = 0);
+
+/// The vertical chain's taps for the chroma of component c (0 Cb, 1 Cr) on field line y of a field of `parity` and
+/// `field_lines` lines, over the lines y + d, d = −kChromaChainLines … kChromaChainLines (index d +
+/// kChromaChainLines): the edge taps within kChromaChainEdgeLines of either edge where config has them for that
+/// height, the interior ones elsewhere.
+const double* chroma_chain_v_taps(const SphereFitConfig& config, int parity, int y, int c, int field_lines);
 
 /// Sets config's horizontal chroma chain for 4:1:1 video: 4:1:1 sample m is sited at luma column 4m + site_px and
 /// holds the [1 2 1]/4 decimation (the tent of half-width two 4:2:2 samples) about it; the reader gives each 4:2:2
