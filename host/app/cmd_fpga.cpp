@@ -243,6 +243,7 @@ int run(const FpgaOptions& opt) {
     // What hides part of a marker (its shaft, the eye) for the fits, as the host's live chain has it: a tracker runs
     // on the refined blobs, and each field's fits take the occluders of the newest poses it gave (earlier fields).
     std::unique_ptr<eyesim::tracking::Tracker> hint_tracker;
+    std::unique_ptr<eyesim::app::HintMotion> hint_motion;  // the instruments' hints at each field's time
     eyesim::tracking::MarkerHintSource marker_hints;
     eyesim::tracking::TrackingFrame hint_frame;
     std::vector<std::pair<double, proto::FieldMarkers>> hint_msgs;
@@ -259,6 +260,7 @@ int run(const FpgaOptions& opt) {
             // The first fields' hints from the poses a look ahead finds (they have no earlier fields' poses).
             eyesim::app::prime_marker_hints(opt.recording, cams, maps, refiner_config, tcfg,
                                             std::min(eyesim::app::kMaxPrimingFields, n_fields), marker_hints);
+            hint_motion = std::make_unique<eyesim::app::HintMotion>(tcfg);
             hint_tracker = std::make_unique<eyesim::tracking::Tracker>(std::move(tcfg));
             refiner->set_hints(&marker_hints);
         } catch (const std::invalid_argument& e) {
@@ -282,6 +284,7 @@ int run(const FpgaOptions& opt) {
             CameraStats& st = stats[k++];
             if (opt.refine) {
                 const auto r0 = std::chrono::steady_clock::now();
+                if (hint_motion) hint_motion->move_to_field(hint_frame, f.camera, f.parity, f.start_us, marker_hints);
                 st.refined += refiner->refine(f.uyvy, rig::kFieldHeight, *f.blobs, f.camera);
                 refine_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
             }
@@ -328,7 +331,8 @@ int run(const FpgaOptions& opt) {
                 }
             }
         });
-        if (hint_tracker) eyesim::app::feed_hint_tracker(hint_msgs, *hint_tracker, hint_frame, marker_hints);
+        if (hint_tracker)
+            eyesim::app::feed_hint_tracker(hint_msgs, *hint_tracker, hint_frame, marker_hints, hint_motion.get());
         if (capture_on) {
             // Everything of the next field is ready no earlier than its earliest camera's vertical sync.
             uint64_t horizon_ns = ~uint64_t{0};

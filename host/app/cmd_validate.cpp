@@ -1258,8 +1258,10 @@ int run_validate(const ValidateOptions& opt) {
     // What hides part of a marker (its shaft, the eye) for the fits, from the chain's own newest poses (the fields
     // before this one); the first fields' from the poses a look ahead finds.
     tr::MarkerHintSource marker_hints(cfg.cameras, cfg.bodies);
+    std::unique_ptr<eyesim::app::HintMotion> hint_motion;  // the instruments' hints at each field's time
     if (refiner && !opt.no_hints) {
         refiner->set_hints(&marker_hints);
+        hint_motion = std::make_unique<eyesim::app::HintMotion>(cfg);
         std::vector<int> all_cams(static_cast<std::size_t>(ncam));
         for (int c = 0; c < ncam; ++c) all_cams[static_cast<std::size_t>(c)] = c;
         try {
@@ -1294,6 +1296,9 @@ int run_validate(const ValidateOptions& opt) {
             fpga_us += us_now() - f0;
             if (refiner) {
                 const double r0 = us_now();
+                if (hint_motion)
+                    if (const tr::TrackingFrame* lf = fpga_run.last_frame())
+                        hint_motion->move_to_field(*lf, c, parity, start_us, marker_hints);
                 refined += refiner->refine(field.data(), rig::kFieldHeight, blobs, c);
                 refine_us += us_now() - r0;
             }
@@ -1443,7 +1448,9 @@ int run_validate(const ValidateOptions& opt) {
             }
             truth_msgs.push_back({double(tm.field_end_us), tm});
         }
-        fpga_run.push(fpga_msgs);
+        fpga_run.push(fpga_msgs);  // in receive order now
+        if (hint_motion)
+            for (const Timed& t : fpga_msgs) hint_motion->push(t.msg, t.received_us);
         if (const tr::TrackingFrame* f = fpga_run.last_frame()) marker_hints.update(*f);
         if (have_truth) truth_run.push(truth_msgs);
         pr.update(long(i + 1), long(n));

@@ -1,12 +1,15 @@
 #include "eyesim/app/refine.hpp"
 
 #include "eyesim/app/fpga_run.hpp"
+#include "eyesim/fpga/timing.hpp"
+#include "eyesim/fpga/wire.hpp"
 
 #include "eyesim/rig/bodies.hpp"
 #include "eyesim/rig/video.hpp"
 
 #include <algorithm>
 #include <cmath>
+#include <span>
 #include <utility>
 
 namespace eyesim::app {
@@ -105,13 +108,68 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
 }
 
 void feed_hint_tracker(std::vector<std::pair<double, protocol::FieldMarkers>>& msgs, tracking::Tracker& tracker,
-                       tracking::TrackingFrame& frame, tracking::MarkerHintSource& hints) {
+                       tracking::TrackingFrame& frame, tracking::MarkerHintSource& hints, HintMotion* motion) {
     std::stable_sort(msgs.begin(), msgs.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     for (const auto& [t_us, m] : msgs) {
         tracker.push(m, t_us);
         while (tracker.pop(frame, t_us)) hints.update(frame);
+        if (motion) motion->push(m, t_us);
     }
     msgs.clear();
+}
+
+namespace {
+tracking::TrackerConfig async_config(tracking::TrackerConfig config) {
+    config.sync.mode = tracking::SyncMode::Async;
+    return config;
+}
+}  // namespace
+
+HintMotion::HintMotion(tracking::TrackerConfig config) : tracker_(async_config(std::move(config))) {}
+
+void HintMotion::push(const protocol::FieldMarkers& msg, double received_us) {
+    tracker_.push(msg, received_us);
+    while (tracker_.pop(frame_, received_us)) {
+    }
+}
+
+bool HintMotion::move_to_field(const tracking::TrackingFrame& frame, int camera, int parity, uint64_t field_start_us,
+                               tracking::MarkerHintSource& hints) {
+    const auto& timing = tracker_.config().timing;
+    const int n = std::min(frame.instrument_count, static_cast<int>(at_frame_.size()));
+    if (n <= 0 || camera < 0 || camera >= static_cast<int>(timing.size())) return false;
+    // The field's exposure time as the tracker takes it: its end (the last active line's, as the device stamps
+    // it) less the camera's end-to-exposure time for the parity.
+    const double end_us = static_cast<double>(
+        fpga::device_time_us(field_start_us, fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1)));
+    const double field_us = end_us - timing[static_cast<size_t>(camera)].end_to_sample_us[static_cast<size_t>(parity & 1)];
+    tracking::EyePose eye1 = frame.eye, eye2 = frame.eye;
+    std::copy_n(frame.instruments.begin(), n, at_frame_.begin());
+    std::copy_n(frame.instruments.begin(), n, at_field_.begin());
+    if (!tracker_.pose_at(frame.time_device_us, eye1, std::span<tracking::InstrumentPose>(at_frame_.data(), n)) ||
+        !tracker_.pose_at(field_us, eye2, std::span<tracking::InstrumentPose>(at_field_.data(), n)))
+        return false;
+    tracking::EyePose eye = frame.eye;
+    eye.flags = tracking::kPoseHeld;  // the eye's hint stays the frame's (above)
+    bool any = false;
+    for (int b = 0; b < n; ++b) {
+        const auto k = static_cast<size_t>(b);
+        const tracking::InstrumentPose &p = frame.instruments[k], &a1 = at_frame_[k], &a2 = at_field_[k];
+        tracking::InstrumentPose& o = moved_[k];
+        o = p;
+        // From a measured pose only (pose_at leaves a body its filters do not follow as it was: not moved).
+        if (!(p.measured() && a1.measured() && a2.measured())) {
+            o.flags = tracking::kPoseHeld;
+            continue;
+        }
+        const Eigen::Quaterniond motion = a2.rotation_body_to_rig * a1.rotation_body_to_rig.inverse();
+        o.rotation_body_to_rig = (motion * p.rotation_body_to_rig).normalized();
+        o.tip_rig_mm = motion * (p.tip_rig_mm - a1.tip_rig_mm) + a2.tip_rig_mm;
+        o.axis_rig = motion * p.axis_rig;
+        any = true;
+    }
+    if (any) hints.predict(eye, std::span<const tracking::InstrumentPose>(moved_.data(), static_cast<size_t>(n)));
+    return any;
 }
 
 }  // namespace eyesim::app

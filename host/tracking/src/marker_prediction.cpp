@@ -196,6 +196,12 @@ void MarkerHintSource::update(const EyePose& eye, std::span<const InstrumentPose
     }
 }
 
+void MarkerHintSource::predict(const EyePose& eye, std::span<const InstrumentPose> instruments) {
+    if (eye.measured() && eye_age_ <= kMaxAgeFrames) eye_ = eye;
+    for (std::size_t b = 0; b < poses_.size() && b < instruments.size(); ++b)
+        if (instruments[b].measured() && age_[b] <= kMaxAgeFrames) poses_[b] = instruments[b];
+}
+
 SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint8_t* field, int height,
                                       const BlobBox& blob, int camera, const SphereFitConfig& config,
                                       SphereFitWorkspace& work, bool& hinted) {

@@ -63,6 +63,9 @@ public:
     void update(const TrackingFrame& frame);
     /// The same from the eye's pose and the instrument poses in BodySet order (measured() ones count).
     void update(const EyePose& eye, std::span<const InstrumentPose> instruments);
+    /// Poses predicted to the time of the field about to be fitted (Tracker::pose_at): they replace the held poses
+    /// of the bodies that still give hints, whose ages stay (a prediction is no measurement).
+    void predict(const EyePose& eye, std::span<const InstrumentPose> instruments);
 
     /// The hint for `blob` of camera `camera` (its class, parity and centroid): the marker of its class predicted
     /// nearest, within kGatePx. An instrument marker's hint holds its shaft; an eye marker's the eye's sphere, and
