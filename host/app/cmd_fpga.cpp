@@ -260,7 +260,8 @@ int run(const FpgaOptions& opt) {
             // The first fields' hints from the poses a look ahead finds (they have no earlier fields' poses).
             eyesim::app::prime_marker_hints(opt.recording, cams, maps, refiner_config, tcfg,
                                             std::min(eyesim::app::kMaxPrimingFields, n_fields), marker_hints);
-            hint_motion = std::make_unique<eyesim::app::HintMotion>(tcfg);
+            if (eyesim::app::hint_motion_for(refiner_config))
+                hint_motion = std::make_unique<eyesim::app::HintMotion>(tcfg);
             hint_tracker = std::make_unique<eyesim::tracking::Tracker>(std::move(tcfg));
             refiner->set_hints(&marker_hints);
         } catch (const std::invalid_argument& e) {

@@ -1261,7 +1261,7 @@ int run_validate(const ValidateOptions& opt) {
     std::unique_ptr<eyesim::app::HintMotion> hint_motion;  // the instruments' hints at each field's time
     if (refiner && !opt.no_hints) {
         refiner->set_hints(&marker_hints);
-        hint_motion = std::make_unique<eyesim::app::HintMotion>(cfg);
+        if (eyesim::app::hint_motion_for(fit_config)) hint_motion = std::make_unique<eyesim::app::HintMotion>(cfg);
         std::vector<int> all_cams(static_cast<std::size_t>(ncam));
         for (int c = 0; c < ncam; ++c) all_cams[static_cast<std::size_t>(c)] = c;
         try {

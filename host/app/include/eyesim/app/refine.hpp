@@ -85,7 +85,11 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
 /// messages; before a field is fitted, each instrument pose of the hint tracker's frame is moved by the motion its
 /// filter predicts from that frame's time to the field's exposure time. The eye's hint stays the frame's: it moves
 /// a tenth of that, and its predicted motion moved the fits of eye markers 90 % behind the eye's outline more
-/// than it placed them (raw `sweep` seed 91: 0.0229 → 0.0241 px over all blobs). Fixed storage after construction.
+/// than it placed them (raw `sweep` seed 91: 0.0229 → 0.0241 px over all blobs). For lossy sources only
+/// (hint_motion_for): their fits lean on the pose (tracking::SphereFitConfig::prediction_gate_visible,
+/// restart_from_prediction); on raw and lossless fields, whose fits start from an accurate pipeline centroid and take
+/// only the occluders from the hint, `fast` lost by it (raw seeds 125–130: +1 … +22 %). Fixed storage after
+/// construction.
 class HintMotion {
 public:
     /// `config`: the hint tracker's; the motion tracker runs it with SyncMode::Async.
@@ -103,6 +107,12 @@ private:
     tracking::TrackingFrame frame_;
     std::array<tracking::InstrumentPose, tracking::kMaxInstruments> at_frame_{}, at_field_{}, moved_{};
 };
+
+/// Whether the fits of `fit` (recording_sphere_fit_config) take their hints moved to the field's time (HintMotion):
+/// a lossy source's, which the pose anchors.
+inline bool hint_motion_for(const tracking::SphereFitConfig& fit) {
+    return fit.restart_from_prediction || fit.prediction_gate_visible > 0.0;
+}
 
 /// One field's messages (`msgs`: device-ready time in µs, message) into the hint tracker in the order the device has
 /// them ready, each frame it gives into `hints`; `msgs` is left empty. With `motion`, it gets them too.
