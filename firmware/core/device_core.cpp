@@ -4,6 +4,7 @@
 #include "eyesim/firmware/registers.hpp"
 
 #include "eyesim/fpga/timing.hpp"
+#include "eyesim/fpga/wire.hpp"
 #include "eyesim/protocol/codec.hpp"
 
 namespace eyesim::firmware {
@@ -271,8 +272,7 @@ void DeviceCore::end_field(std::size_t camera) noexcept {
     // The field is over once its last active pixel is in and the last blob has left the pipeline.
     const std::uint32_t end_cycle =
         st.last_emit_cycle > st.last_active_line_end_cycle ? st.last_emit_cycle : st.last_active_line_end_cycle;
-    cam.field_end_us = fpga::device_time_us(cam.field_start_us,
-                                            fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1));
+    cam.field_end_us = fpga::field_end_us(cam.field_start_us);
     const std::uint64_t ready_ns = cycle_time_ns(cam.field_start_us, end_cycle);
     if (cam.low_latency) {
         cam.closed = true;

@@ -8,6 +8,10 @@ uint64_t device_time_us(uint64_t field_start_us, uint32_t cycle) {
     return field_start_us + static_cast<uint64_t>(cycle) * 1'000'000ull / kPixelClockHz;
 }
 
+uint64_t field_end_us(uint64_t field_start_us) {
+    return device_time_us(field_start_us, active_line_end_cycle(kActiveLinesPerField - 1));
+}
+
 protocol::Marker to_marker(const Blob& b, uint64_t field_start_us) {
     protocol::Marker m;
     m.colour_class = b.class_id;
@@ -45,7 +49,7 @@ size_t to_field_markers(const Blob* blobs, size_t n, const FieldInfo& info, prot
                         size_t max_out) {
     const size_t parts = field_markers_messages(n);
     if (max_out < parts || out == nullptr) return 0;
-    const uint64_t end_us = device_time_us(info.field_start_us, active_line_end_cycle(kActiveLinesPerField - 1));
+    const uint64_t end_us = field_end_us(info.field_start_us);
     size_t next = 0;
     for (size_t p = 0; p < parts; ++p) {
         protocol::FieldMarkers& m = out[p];

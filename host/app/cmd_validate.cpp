@@ -1199,8 +1199,7 @@ int run_validate(const ValidateOptions& opt) {
     } catch (const std::invalid_argument& e) {
         throw Error(std::string(e.what()));
     }
-    const double end_after_start_us =
-        double(eyesim::fpga::device_time_us(0, eyesim::fpga::active_line_end_cycle(eyesim::fpga::kActiveLinesPerField - 1)));
+    const double end_after_start_us = double(eyesim::fpga::field_end_us(0));
     for (int c = 0; c < ncam; ++c) {
         const rig::CameraModel& cm = rec.cameras()[std::size_t(c)];
         cfg.cameras.push_back(tr::camera_geometry(track_cams[std::size_t(c)]));
@@ -1333,9 +1332,7 @@ int run_validate(const ValidateOptions& opt) {
                     fm.flags = proto::kFieldFlagLowLatency;
                     if (!closing) fm.flags |= proto::kFieldFlagMoreFollows;
                     if (closing && info.blobs_dropped) fm.flags |= proto::kFieldFlagBlobsDropped;
-                    fm.field_end_us = closing ? eyesim::fpga::device_time_us(start_us, eyesim::fpga::active_line_end_cycle(
-                                                                                            eyesim::fpga::kActiveLinesPerField - 1))
-                                              : 0;
+                    fm.field_end_us = closing ? eyesim::fpga::field_end_us(start_us) : 0;
                     fm.part_index = std::uint16_t(nm);
                     fm.marker_count = std::uint8_t(k);
                     for (std::size_t q = 0; q < k; ++q) fm.markers[q] = eyesim::fpga::to_marker(blobs[k0 + q], start_us);

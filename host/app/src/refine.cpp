@@ -1,7 +1,6 @@
 #include "eyesim/app/refine.hpp"
 
 #include "eyesim/app/fpga_run.hpp"
-#include "eyesim/fpga/timing.hpp"
 #include "eyesim/fpga/wire.hpp"
 
 #include "eyesim/rig/bodies.hpp"
@@ -131,6 +130,7 @@ void HintMotion::push(const protocol::FieldMarkers& msg, double received_us) {
     tracker_.push(msg, received_us);
     while (tracker_.pop(frame_, received_us)) {
     }
+    frame_pose_ok_ = false;  // the filters moved on: the poses at the frame's time again when next asked
 }
 
 bool HintMotion::move_to_field(const tracking::TrackingFrame& frame, int camera, int parity, uint64_t field_start_us,
@@ -140,14 +140,19 @@ bool HintMotion::move_to_field(const tracking::TrackingFrame& frame, int camera,
     if (n <= 0 || camera < 0 || camera >= static_cast<int>(timing.size())) return false;
     // The field's exposure time as the tracker takes it: its end (the last active line's, as the device stamps
     // it) less the camera's end-to-exposure time for the parity.
-    const double end_us = static_cast<double>(
-        fpga::device_time_us(field_start_us, fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1)));
+    const double end_us = static_cast<double>(fpga::field_end_us(field_start_us));
     const double field_us = end_us - timing[static_cast<size_t>(camera)].end_to_sample_us[static_cast<size_t>(parity & 1)];
-    tracking::EyePose eye1 = frame.eye, eye2 = frame.eye;
-    std::copy_n(frame.instruments.begin(), n, at_frame_.begin());
+    // The poses at the frame's time serve every camera's field until the next message (push).
+    if (!frame_pose_ok_ || frame_pose_us_ != frame.time_device_us) {
+        tracking::EyePose eye1 = frame.eye;
+        std::copy_n(frame.instruments.begin(), n, at_frame_.begin());
+        frame_pose_ok_ =
+            tracker_.pose_at(frame.time_device_us, eye1, std::span<tracking::InstrumentPose>(at_frame_.data(), n));
+        frame_pose_us_ = frame.time_device_us;
+    }
+    tracking::EyePose eye2 = frame.eye;
     std::copy_n(frame.instruments.begin(), n, at_field_.begin());
-    if (!tracker_.pose_at(frame.time_device_us, eye1, std::span<tracking::InstrumentPose>(at_frame_.data(), n)) ||
-        !tracker_.pose_at(field_us, eye2, std::span<tracking::InstrumentPose>(at_field_.data(), n)))
+    if (!frame_pose_ok_ || !tracker_.pose_at(field_us, eye2, std::span<tracking::InstrumentPose>(at_field_.data(), n)))
         return false;
     tracking::EyePose eye = frame.eye;
     eye.flags = tracking::kPoseHeld;  // the eye's hint stays the frame's (above)

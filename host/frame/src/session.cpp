@@ -44,8 +44,7 @@ tr::TrackerConfig tracker_config(const std::vector<rig::CameraModel>& cams, cons
         throw SourceError(fmt::format("rig.yaml: camera_count: {} (need 2..{})", cams.size(), tr::kMaxCameras));
     // Device field end = field start (vertical sync, end of exposure) + the FPGA's end of active video; the
     // frame instant is the exposure mid-time, half a shutter before the start.
-    const double end_after_start_us =
-        double(fpga::device_time_us(0, fpga::active_line_end_cycle(fpga::kActiveLinesPerField - 1)));
+    const double end_after_start_us = double(fpga::field_end_us(0));
     for (size_t c = 0; c < cams.size(); ++c) {
         cfg.cameras.push_back(tr::camera_geometry(cams[c]));
         if (!cfg.cameras.back().valid()) throw SourceError(fmt::format("rig.yaml: camera {}: invalid intrinsics or pose", c));

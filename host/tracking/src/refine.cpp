@@ -95,17 +95,18 @@ void compose_chain(double site, int y, int n_fine, double* out) {
 
 void chroma_chain_420(SphereFitConfig& config, const double site_lines[2][2], int field_lines) {
     constexpr int kE = kChromaChainEdgeLines;
+    const bool edges = field_lines >= 4 * kE;  // a field tall enough for its two edges' taps not to meet
     for (int p = 0; p < 2; ++p)
         for (int c = 0; c < 2; ++c) {
             // A fine sample of each phase away from the edges.
             for (int phase = 0; phase < 2; ++phase)
                 compose_chain(site_lines[p][c], 8 + phase, 0, config.chroma_v_taps[p][phase][c]);
-            for (int k = 0; field_lines >= 4 * kE && k < kE; ++k) {
+            for (int k = 0; edges && k < kE; ++k) {
                 compose_chain(site_lines[p][c], k, field_lines, config.chroma_v_edge_taps[p][0][k][c]);
                 compose_chain(site_lines[p][c], field_lines - 1 - k, field_lines, config.chroma_v_edge_taps[p][1][k][c]);
             }
         }
-    config.chroma_chain_field_lines = field_lines >= 4 * kE ? field_lines : 0;
+    config.chroma_chain_field_lines = edges ? field_lines : 0;
     config.chroma_chain = true;
     if (!(config.chain_chroma_noise_dn > 0)) config.chain_chroma_noise_dn = config.noise_dn;
 }

@@ -23,6 +23,10 @@ namespace eyesim::fpga {
 /// Device time in µs of pixel-clock cycle `cycle` of a field that started at `field_start_us`.
 uint64_t device_time_us(uint64_t field_start_us, uint32_t cycle);
 
+/// Device time in µs of the end of a field that started at `field_start_us`, as FieldMarkers::field_end_us carries
+/// it: the end of its last active line.
+uint64_t field_end_us(uint64_t field_start_us);
+
 /// The wire marker of one blob.
 protocol::Marker to_marker(const Blob& blob, uint64_t field_start_us);
 

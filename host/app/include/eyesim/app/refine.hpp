@@ -106,6 +106,8 @@ private:
     tracking::Tracker tracker_;
     tracking::TrackingFrame frame_;
     std::array<tracking::InstrumentPose, tracking::kMaxInstruments> at_frame_{}, at_field_{}, moved_{};
+    double frame_pose_us_ = 0;    // the frame time at_frame_ holds the poses of
+    bool frame_pose_ok_ = false;  // at_frame_ is valid for it
 };
 
 /// Whether the fits of `fit` (recording_sphere_fit_config) take their hints moved to the field's time (HintMotion):
