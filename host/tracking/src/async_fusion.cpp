@@ -450,4 +450,23 @@ void BodyFilter::combine() const {
     merge(mu_, r, c_);
 }
 
+void configure_eye_filter(BodyFilter& f, const AsyncOptions& ao, const Eigen::Vector3d& centre_rig_mm) {
+    // Motion models steadiest first: (steady, agile) or (steady, geometric mean, agile); one: the agile alone. The
+    // acceleration model after them, its white acceleration the steady model's (the jerk carries the rest).
+    const int nm = std::clamp(ao.motion_models, 1, 3);
+    double psd[BodyFilter::kMaxModels] = {};
+    const double steady = ao.eye_steady_ang_accel_psd_rad2_s3, agile = ao.eye_ang_accel_psd_rad2_s3;
+    if (nm == 1) psd[0] = agile;
+    else if (nm == 2) psd[0] = steady, psd[1] = agile;
+    else psd[0] = steady, psd[1] = std::sqrt(steady * agile), psd[2] = agile;
+    const bool ca = ao.eye_acceleration_model;
+    if (ca) psd[nm] = steady;
+    f.configure_rotation(centre_rig_mm, psd, ca ? nm + 1 : nm, ao.model_switch_per_s);
+    if (ca) f.set_jerk(nm, ao.eye_ang_jerk_psd_rad2_s5, 0.0, ao.ang_accel0_sigma_rad_s2, 0.0, ao.accel_correlation_s);
+    // The steady model follows the eye's smooth turns with an acceleration of its own (one model: the agile).
+    if (nm > 1 && ao.eye_steady_ang_jerk_psd_rad2_s5 > 0.0)
+        f.set_jerk(0, ao.eye_steady_ang_jerk_psd_rad2_s5, 0.0, ao.ang_accel0_sigma_rad_s2, 0.0,
+                   ao.eye_steady_accel_correlation_s);
+}
+
 }  // namespace eyesim::tracking

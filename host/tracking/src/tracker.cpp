@@ -79,22 +79,16 @@ Tracker::Tracker(TrackerConfig config)
         else if (nm == 2) out[0] = steady, out[1] = agile;
         else out[0] = steady, out[1] = std::sqrt(steady * agile), out[2] = agile;
     };
-    double eye_psd[BodyFilter::kMaxModels], ang_psd[BodyFilter::kMaxModels], lin_psd[BodyFilter::kMaxModels];
-    ladder(ao.eye_steady_ang_accel_psd_rad2_s3, ao.eye_ang_accel_psd_rad2_s3, eye_psd);
+    double ang_psd[BodyFilter::kMaxModels], lin_psd[BodyFilter::kMaxModels];
     ladder(ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang_psd);
     ladder(ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin_psd);
     // The acceleration model last, its white acceleration the steady model's (the jerk carries the rest).
-    const bool eye_ca = ao.eye_acceleration_model, ca = ao.acceleration_model;
-    if (eye_ca) eye_psd[nm] = ao.eye_steady_ang_accel_psd_rad2_s3;
+    const bool ca = ao.acceleration_model;
     if (ca) {
         ang_psd[nm] = ao.steady_ang_accel_psd_rad2_s3;
         lin_psd[nm] = ao.steady_accel_psd_mm2_s3;
     }
-    filters_[0].configure_rotation(config_.bodies.eye.centre_rig_mm, eye_psd, eye_ca ? nm + 1 : nm,
-                                   ao.model_switch_per_s);
-    if (eye_ca)
-        filters_[0].set_jerk(nm, ao.eye_ang_jerk_psd_rad2_s5, 0.0, ao.ang_accel0_sigma_rad_s2, 0.0,
-                             ao.accel_correlation_s);
+    configure_eye_filter(filters_[0], ao, config_.bodies.eye.centre_rig_mm);
     const int n_models = ca ? nm + 1 : nm;
     for (int b = 0; b < config_.bodies.instrument_count; ++b) {
         const InstrumentModel& m = config_.bodies.instruments[std::size_t(b)];

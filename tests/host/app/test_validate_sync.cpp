@@ -133,8 +133,8 @@ TEST_CASE("validate --sync async: images the eye partly hides are fused, moved b
     // it) and the centroid is the visible part's. The filters left such an image out by its blob area; now each one
     // the eye's outline crosses at the predicted pose is moved back by the shaded sphere less the eye (and the
     // shaft), its sigma grown with the shift, and fused. Measured on this recording with per-blob parts (in time
-    // order): 246 images so corrected, eye 0.0137 deg, 3D over all markers 19.8 um, tip 29.2 um; left out by area,
-    // 0.0150 deg, 21.0 um, 29.6 um.
+    // order; the eye's steady model with its acceleration): 246 images so corrected, eye 0.0146 deg, 3D over all
+    // markers 19.8 um, tip 29.2 um; left out by area, 0.0162 deg, 21.0 um, 29.6 um.
     const nlohmann::json j = validate_json("async", " --emit blob");
     for (const char* chain : {"fpga_chain", "truth_centroids"}) {
         INFO(chain);
@@ -142,7 +142,7 @@ TEST_CASE("validate --sync async: images the eye partly hides are fused, moved b
     }
     const nlohmann::json& c = j["fpga_chain"];
     INFO(c.dump());
-    CHECK(c["eye_rot_rms_deg"].get<double>() < 0.0143);
+    CHECK(c["eye_rot_rms_deg"].get<double>() < 0.0154);
     CHECK(c["marker3d_all_rms_um"].get<double>() < 20.5);
     CHECK(c["tip_rms_um"].get<double>() < 30.5);
     // Interpolation corrects the same views in its triangulation and counts them too.
