@@ -58,9 +58,12 @@ TEST_CASE("validate --sync async: poses one field readout after exposure, figure
     CHECK(a["sync"] == "async");
     const double a50 = a["exposure_to_pose_us"]["p50"].get<double>(), i50 = i["exposure_to_pose_us"]["p50"].get<double>();
     INFO("exposure -> pose p50: async " << a50 << " us, interpolate " << i50 << " us");
-    // The field's own readout: exposure mid → last pixel 21.8 ms (PAL timing, 4 ms shutter), plus transfer.
+    // The field's own readout: exposure mid → last pixel 21.8 ms (PAL timing, 4 ms shutter), plus transfer and the
+    // tracking stage's compute, measured on this machine (a sanitizer build's is ten times a release build's).
+    const double compute50 = a["fpga_chain"]["tracking_compute_us"]["p50"].get<double>();
+    INFO("async tracking compute p50 " << compute50 << " us");
     CHECK(a50 > 21800.0);
-    CHECK(a50 < 23000.0);
+    CHECK(a50 < 23000.0 + compute50);
     // Interpolation waits for the later cameras' next fields (up to a field period more).
     CHECK(i50 > a50 + 10000.0);
     CHECK(a["fpga_chain"]["frames"] == i["fpga_chain"]["frames"]);
