@@ -450,17 +450,22 @@ void BodyFilter::combine() const {
     merge(mu_, r, c_);
 }
 
+int motion_model_ladder(int models, double steady, double agile, double* out) {
+    const int nm = std::clamp(models, 1, 3);
+    if (nm == 1) out[0] = agile;
+    else if (nm == 2) out[0] = steady, out[1] = agile;
+    else out[0] = steady, out[1] = std::sqrt(steady * agile), out[2] = agile;
+    return nm;
+}
+
 void configure_eye_filter(BodyFilter& f, const AsyncOptions& ao, const Eigen::Vector3d& centre_rig_mm) {
-    // Motion models steadiest first: (steady, agile) or (steady, geometric mean, agile); one: the agile alone. The
-    // acceleration model after them, its white acceleration the steady model's (the jerk carries the rest).
-    const int nm = std::clamp(ao.motion_models, 1, 3);
+    // The acceleration model after the constant-velocity ones, its white acceleration the steady model's (the jerk
+    // carries the rest).
     double psd[BodyFilter::kMaxModels] = {};
-    const double steady = ao.eye_steady_ang_accel_psd_rad2_s3, agile = ao.eye_ang_accel_psd_rad2_s3;
-    if (nm == 1) psd[0] = agile;
-    else if (nm == 2) psd[0] = steady, psd[1] = agile;
-    else psd[0] = steady, psd[1] = std::sqrt(steady * agile), psd[2] = agile;
+    const int nm = motion_model_ladder(ao.motion_models, ao.eye_steady_ang_accel_psd_rad2_s3,
+                                       ao.eye_ang_accel_psd_rad2_s3, psd);
     const bool ca = ao.eye_acceleration_model;
-    if (ca) psd[nm] = steady;
+    if (ca) psd[nm] = ao.eye_steady_ang_accel_psd_rad2_s3;
     f.configure_rotation(centre_rig_mm, psd, ca ? nm + 1 : nm, ao.model_switch_per_s);
     if (ca) f.set_jerk(nm, ao.eye_ang_jerk_psd_rad2_s5, 0.0, ao.ang_accel0_sigma_rad_s2, 0.0, ao.accel_correlation_s);
     // The steady model follows the eye's smooth turns with an acceleration of its own (one model: the agile).

@@ -72,16 +72,10 @@ Tracker::Tracker(TrackerConfig config)
         throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
     // correspondence_ holds a span over cameras_, which is never resized after construction.
     const AsyncOptions& ao = config_.async;
-    // Motion models steadiest first: (steady, agile) or (steady, geometric mean, agile); one: the agile alone.
-    const int nm = std::clamp(ao.motion_models, 1, 3);  // constant-velocity models; the acceleration model after
-    auto ladder = [nm](double steady, double agile, double* out) {
-        if (nm == 1) out[0] = agile;
-        else if (nm == 2) out[0] = steady, out[1] = agile;
-        else out[0] = steady, out[1] = std::sqrt(steady * agile), out[2] = agile;
-    };
+    // Constant-velocity models steadiest first (motion_model_ladder); the acceleration model after them.
     double ang_psd[BodyFilter::kMaxModels], lin_psd[BodyFilter::kMaxModels];
-    ladder(ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang_psd);
-    ladder(ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin_psd);
+    const int nm = motion_model_ladder(ao.motion_models, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang_psd);
+    motion_model_ladder(ao.motion_models, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin_psd);
     // The acceleration model last, its white acceleration the steady model's (the jerk carries the rest).
     const bool ca = ao.acceleration_model;
     if (ca) {

@@ -412,6 +412,16 @@ struct SwingMotion {
     Eigen::Vector3d t(double t_us) const { return t0 + R0 * pivot_body - R(t_us) * pivot_body; }
 };
 
+/// The eye turned about its centre: 0° → `peak_deg` → 0° at `hz`, from rest at 0.3 s.
+SwingMotion eye_turn(double peak_deg, double hz) {
+    SwingMotion m;
+    m.pivot_body.setZero();
+    m.amplitude_rad = peak_deg * 3.141592653589793 / 180.0;
+    m.hz = hz;
+    m.start_us = 300000.0;
+    return m;
+}
+
 /// RMS (µm) of the markers where `f` predicts them at each field's time before that field's images are fused (what
 /// the first low-latency part of a field is reported with), over fields after `from_us`.
 double prediction_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, double to_us, std::uint64_t seed,
@@ -462,11 +472,7 @@ TEST_CASE("async filter: the acceleration model predicts a fast swing between th
         for (std::uint64_t seed : {44u, 45u, 46u}) {
             double e[2], r[2];
             for (int k = 0; k < 2; ++k) {
-                SwingMotion swing;
-                swing.pivot_body.setZero();
-                swing.amplitude_rad = 12.0 * 3.141592653589793 / 180.0;
-                swing.hz = 1.5;
-                swing.start_us = 300000.0;
+                const SwingMotion swing = eye_turn(12.0, 1.5);
                 SwingMotion rest = swing;
                 rest.amplitude_rad = 0.0;
                 BodyFilter f, g;
@@ -535,11 +541,7 @@ TEST_CASE("async filter: the eye's steady model follows a slow turn without the 
     before.eye_steady_ang_accel_psd_rad2_s3 = 1.0e-3;
     before.eye_steady_ang_jerk_psd_rad2_s5 = 0.0;
     for (std::uint64_t seed : {51u, 52u, 53u}) {
-        SwingMotion turn;
-        turn.pivot_body.setZero();
-        turn.amplitude_rad = 10.0 * 3.141592653589793 / 180.0;  // 0° → 10° → 0°
-        turn.hz = 0.35;
-        turn.start_us = 300000.0;
+        const SwingMotion turn = eye_turn(10.0, 0.35);
         SwingMotion rest = turn;
         rest.amplitude_rad = 0.0;
         double e[2], r[2];

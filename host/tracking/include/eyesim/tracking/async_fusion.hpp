@@ -99,6 +99,10 @@ struct AsyncOptions {
 
 class BodyFilter;
 
+/// The constant-velocity models' white-acceleration densities, steadiest first, for `models` of them (clamped to
+/// 1..3): the agile alone; the steady and the agile; or also their geometric mean between them. Returns the count.
+int motion_model_ladder(int models, double steady, double agile, double* out);
+
 /// Configures `f` as the tracker's eye filter: rotation about `centre_rig_mm`, the motion models and acceleration
 /// models `ao` names for the eye (the constant-velocity ladder, its steady model with an acceleration when
 /// eye_steady_ang_jerk_psd_rad2_s5 > 0, and the agile acceleration model when eye_acceleration_model).
