@@ -254,13 +254,14 @@ void stage_breakdown(const Tracker& tracker, const std::vector<Frame>& frames, i
 /// frame per reference field. Time per camera field (push + pop: association and the filters' updates), and the
 /// frames' errors against the scene's truth at each frame's time.
 Result run_async(const test::SyntheticScene& scene, int fields, double sigma_px, int motion_models, bool eye_accel,
-                 int repeats) {
+                 bool pivot, int repeats) {
     std::mt19937_64 rng(7);
     const auto stream = scene.stream(fields, sigma_px, rng, [](int, int) { return false; });
     TrackerConfig cfg = scene.tracker_config();
     cfg.sync.mode = SyncMode::Async;
     cfg.async.motion_models = motion_models;
     cfg.async.eye_acceleration_model = eye_accel;
+    cfg.async.pivot_model = pivot;
     if (!eye_accel) {  // the eye's steady model without its acceleration too, as it was (constant velocity, 1e-3)
         cfg.async.eye_steady_ang_jerk_psd_rad2_s5 = 0.0;
         cfg.async.eye_steady_ang_accel_psd_rad2_s3 = 1.0e-3;
@@ -369,9 +370,10 @@ int main(int argc, char** argv) {
         std::printf("| %d | ratio eyesim 2-view / OpenCV: time %.2fx, 3D error %.3fx | | | | | | |\n", markers,
                     ours2.us_per_frame / peer.us_per_frame, ours2.rms_um / peer.rms_um);
     }
-    // The async filters: one agile motion model per body, the mixture of three constant-velocity models, and the
-    // default (that mixture, the eye's steady model with an acceleration and an agile acceleration model beside;
-    // AsyncOptions), on the unsynchronised
+    // The async filters: one agile motion model per body, the mixture of three constant-velocity models, the
+    // default (that mixture, the eye's steady model with an acceleration and an agile acceleration model beside,
+    // the instruments' agile model about the trocar; AsyncOptions) and the default without that pivot, on the
+    // unsynchronised
     // stream (every camera field on its own, the eye turning at up to 0.3 Hz, instruments tilting).
     const int async_fields = std::max(100, n_frames / 2);
     std::printf("\nasync filters (--sync async): %d fields per camera, unsynchronised, time per camera field (push +"
@@ -380,10 +382,11 @@ int main(int argc, char** argv) {
     std::printf("| centroid σ px | filters | us/camera field | markers/frame | 3D RMS um | tip RMS um | eye RMS deg |\n");
     std::printf("|---|---|---|---|---|---|---|\n");
     for (double sg : {sigma, 2.0 * sigma}) {
-        for (int row = 0; row < 3; ++row) {
-            const Result a = run_async(scene, async_fields, sg, row == 0 ? 1 : 3, row == 2, repeats);
-            static const char* const kNames[3] = {"one agile model", "mixture of three constant-velocity models",
-                                                  "mixture, the eye's steady and agile models with accelerations (default)"};
+        for (int row = 0; row < 4; ++row) {
+            const Result a = run_async(scene, async_fields, sg, row == 0 ? 1 : 3, row >= 2, row != 3, repeats);
+            static const char* const kNames[4] = {"one agile model", "mixture of three constant-velocity models",
+                                                  "mixture, the eye's steady and agile models with accelerations (default)",
+                                                  "the default, the instruments' agile model without its trocar pivot"};
             std::printf("| %.3f | %s | %.2f | %.1f | %.2f | %.2f | %.4f |\n", sg, kNames[row], a.us_per_frame,
                         a.markers_per_frame, a.rms_um, a.tip_um, a.eye_deg);
         }

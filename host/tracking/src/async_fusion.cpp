@@ -110,10 +110,36 @@ void RigidBodyFilter::init(double t_us, const Eigen::Quaterniond& R, const Eigen
     roll_pseudo_measurement();
 }
 
+void RigidBodyFilter::set_pivot(bool on, const Eigen::Vector3d& pivot_body_mm, const Eigen::Vector3d& axis_body,
+                                double across_fraction) {
+    const double n = axis_body.norm();
+    pivot_ = on && n > 0.0 && pivot_body_mm.allFinite() && !rotation_only_;
+    if (!pivot_) return;
+    pivot_body_mm_ = pivot_body_mm;
+    pivot_axis_body_ = axis_body / n;
+    pivot_across_ = std::max(0.0, across_fraction);
+}
+
+void RigidBodyFilter::propagate(double dt, const Eigen::Vector3d& w, const Eigen::Vector3d& v,
+                                const Eigen::Vector3d& alpha, const Eigen::Vector3d& acc, Eigen::Quaterniond& R,
+                                Eigen::Vector3d& t, Eigen::Vector3d* v_end) const {
+    const Eigen::Quaterniond D = detail::exp_rotation(w * dt + (0.5 * dt * dt) * alpha);
+    R = (D * R_).normalized();
+    if (pivot_) {
+        // The origin = pivot + lever: the pivot moves with its own velocity, the lever turns with the body.
+        const Eigen::Vector3d lever0 = -(R_ * pivot_body_mm_);
+        const Eigen::Vector3d v_pivot = v - w.cross(lever0);
+        const Eigen::Vector3d lever1 = D * lever0;
+        t = t_ - lever0 + lever1 + v_pivot * dt + (0.5 * dt * dt) * acc;
+        if (v_end) *v_end = v_pivot + dt * acc + (w + dt * alpha).cross(lever1);
+        return;
+    }
+    t = t_ + v * dt + (0.5 * dt * dt) * acc;
+    if (v_end) *v_end = v + dt * acc;
+}
+
 void RigidBodyFilter::pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
-    const double dt = (t_us - time_us_) * 1e-6;
-    R = (detail::exp_rotation(w_ * dt + (0.5 * dt * dt) * alpha_) * R_).normalized();
-    t = t_ + v_ * dt + (0.5 * dt * dt) * acc_;
+    propagate((t_us - time_us_) * 1e-6, w_, v_, alpha_, acc_, R, t, nullptr);
 }
 
 void RigidBodyFilter::display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen::Vector3d& t) const {
@@ -126,16 +152,19 @@ void RigidBodyFilter::display_pose_at(double t_us, Eigen::Quaterniond& R, Eigen:
     const Eigen::Vector3d v = rotation_only_ ? v_ : shrink(v_, std::max(0.0, P_.block<3, 3>(9, 9).trace()));
     const Eigen::Vector3d al = shrink(alpha_, std::max(0.0, P_.block<3, 3>(12, 12).trace()));
     const Eigen::Vector3d ac = rotation_only_ ? acc_ : shrink(acc_, std::max(0.0, P_.block<3, 3>(15, 15).trace()));
-    R = (detail::exp_rotation(w * dt + (0.5 * dt * dt) * al) * R_).normalized();
-    t = t_ + v * dt + (0.5 * dt * dt) * ac;
+    propagate(dt, w, v, al, ac, R, t, nullptr);
 }
 
 void RigidBodyFilter::predict_to(double t_us) {
     const double dt = (t_us - time_us_) * 1e-6;
     if (dt == 0.0) return;
-    pose_at(t_us, R_, t_);
+    Eigen::Quaterniond R;
+    Eigen::Vector3d t, v;
+    propagate(dt, w_, v_, alpha_, acc_, R, t, &v);
+    R_ = R;
+    t_ = t;
+    v_ = v;
     w_ += dt * alpha_;
-    v_ += dt * acc_;
     time_us_ = t_us;
     // δθ' = δθ + dt·δω (+ ½dt²·δα), δω' = δω + dt·δα, the same for δt, δv, δa; white acceleration noise, and
     // white jerk in a constant-acceleration model (their magnitude whichever way time runs).
@@ -179,16 +208,38 @@ void RigidBodyFilter::predict_to(double t_us) {
                 }
     }
     const double q11 = a * a * a / 3.0, q12 = a * a / 2.0, q22 = a;
-    for (int i = 0; i < 3; ++i) {
-        P_(i, i) += q_ang_ * q11;
-        P_(i, 6 + i) += q_ang_ * q12;
-        P_(6 + i, i) += q_ang_ * q12;
-        P_(6 + i, 6 + i) += q_ang_ * q22;
-        if (rotation_only_) continue;
-        P_(3 + i, 3 + i) += q_lin_ * q11;
-        P_(3 + i, 9 + i) += q_lin_ * q12;
-        P_(9 + i, 3 + i) += q_lin_ * q12;
-        P_(9 + i, 9 + i) += q_lin_ * q22;
+    if (pivot_) {
+        // White angular acceleration ε and the pivot's white linear acceleration η: the rates move by (ε, η + ε ×
+        // lever). Over (rotation, origin) the density is [q·I, q·[l]×; −q·[l]×, q·(|l|²I − l·lᵀ) + Q_pivot], l the
+        // lever pivot → origin; Q_pivot the linear density along the axis and across_fraction of it across.
+        const Eigen::Vector3d ax = R_ * pivot_axis_body_;
+        const Eigen::Vector3d l = -(R_ * pivot_body_mm_);
+        Eigen::Matrix3d lx;
+        lx << 0.0, -l.z(), l.y(), l.z(), 0.0, -l.x(), -l.y(), l.x(), 0.0;
+        const Eigen::Matrix3d across = Eigen::Matrix3d::Identity() - ax * ax.transpose();
+        Eigen::Matrix<double, 6, 6> Qc;
+        Qc.topLeftCorner<3, 3>() = q_ang_ * Eigen::Matrix3d::Identity();
+        Qc.topRightCorner<3, 3>() = q_ang_ * lx;
+        Qc.bottomLeftCorner<3, 3>() = -q_ang_ * lx;
+        Qc.bottomRightCorner<3, 3>() = q_ang_ * (l.squaredNorm() * Eigen::Matrix3d::Identity() - l * l.transpose()) +
+                                       q_lin_ * pivot_across_ * across + q_lin_ * (ax * ax.transpose());
+        // Error-state order: δθ, δt (the pose), δω, δv (the rates).
+        P_.block<6, 6>(0, 0) += q11 * Qc;
+        P_.block<6, 6>(0, 6) += q12 * Qc;
+        P_.block<6, 6>(6, 0) += q12 * Qc;
+        P_.block<6, 6>(6, 6) += q22 * Qc;
+    } else {
+        for (int i = 0; i < 3; ++i) {
+            P_(i, i) += q_ang_ * q11;
+            P_(i, 6 + i) += q_ang_ * q12;
+            P_(6 + i, i) += q_ang_ * q12;
+            P_(6 + i, 6 + i) += q_ang_ * q22;
+            if (rotation_only_) continue;
+            P_(3 + i, 3 + i) += q_lin_ * q11;
+            P_(3 + i, 9 + i) += q_lin_ * q12;
+            P_(9 + i, 3 + i) += q_lin_ * q12;
+            P_(9 + i, 9 + i) += q_lin_ * q22;
+        }
     }
     roll_pseudo_measurement();
 }

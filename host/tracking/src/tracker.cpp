@@ -13,6 +13,8 @@ namespace eyesim::tracking {
 
 namespace {
 
+constexpr double kNever = -1e300;  // a time before any field
+
 double steady_us() {
     return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
@@ -109,6 +111,7 @@ void Tracker::restart() {
     last_eye_ = EyePose{};
     last_instruments_.fill(InstrumentPose{});
     for (BodyFilter& f : filters_) f.reset();
+    missed_us_.fill(kNever);
     queue_count_ = 0;
     acquire_measured_.fill(false);
     open_queued_.fill(0);
@@ -779,8 +782,6 @@ void instrument_from_filter(const InstrumentModel& model, const Eigen::Quaternio
     pose.flags = no_roll ? kPoseNoRoll : kPoseOk;
 }
 
-constexpr double kNever = -1e300;
-
 }  // namespace
 
 bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
@@ -818,6 +819,23 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         return true;
     }
     return false;
+}
+
+void Tracker::set_trocar_pivot(int b) {
+    const InstrumentModel& m = config_.bodies.instruments[std::size_t(b - 1)];
+    BodyFilter& flt = filters_[std::size_t(b)];
+    // The pivot is the trocar's point on the shaft while the tip is inside the eye (the trocar prior's own test).
+    const Eigen::Vector3d axis = m.axis_body.normalized();
+    double depth_mm = -1.0;
+    if (m.has_trocar && filters_[0].tracking() && config_.pose.trocar_constraint) {
+        const Eigen::Vector3d d = filters_[0].to_rig(m.trocar_eye_mm) - flt.to_rig(m.tip_body_mm);
+        const Eigen::Vector3d a = flt.rotation() * axis;
+        const double depth = d.dot(a);
+        if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm) depth_mm = depth;
+    }
+    // The agile model: the last constant-velocity one (motion_model_ladder).
+    flt.set_pivot(std::clamp(config_.async.motion_models, 1, 3) - 1, depth_mm > 0.0, m.tip_body_mm + depth_mm * axis,
+                  axis, config_.async.pivot_across_fraction);
 }
 
 int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
@@ -861,6 +879,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
         // of time order) is fused at its own time (time_order_parts, below), or else as an aged observation.
         // Its images are associated here against the pose carried back to its time.
         age_us[std::size_t(b)] = std::max(0.0, flt.time_us() - T);
+        if (b > 0 && ao.pivot_model) set_trocar_pivot(b);
         if (age_us[std::size_t(b)] == 0.0) {
             if (replay_) replay_begin(b, T);
             flt.predict_to(T);
@@ -908,7 +927,10 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
     for (int b = 0; b < nb; ++b) {
         BodyFilter& flt = filters_[std::size_t(b)];
         int& field_used = field_used_[std::size_t(b)][std::size_t(c)];
-        if (first == 0) field_used = 0;  // a new field of this camera
+        if (first == 0) {  // a new field of this camera
+            prev_field_used_[std::size_t(b)][std::size_t(c)] = field_used;
+            field_used = 0;
+        }
         if (!flt.tracking()) continue;
         const auto [ms, mc] = body_markers(b);
         const InstrumentModel* model = b > 0 ? &bodies.instruments[std::size_t(b - 1)] : nullptr;
@@ -1011,6 +1033,32 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
             !flt.translation().allFinite() || !flt.rotation().coeffs().allFinite())
             flt.reset();
+    }
+    // An instrument that a camera's field before supported (min_markers_good images) and whose whole field now
+    // shows none of the two or more markers the filter puts in that image has gone from where the filter puts it:
+    // its pose is reported held (not measured) until a field supports it again. An instrument pulled out of the
+    // eye, or pushed in, at up to a metre a second leaves the 6 px gate within a field, and the prediction from the
+    // last supporting field, up to 0.75 of a period old, was reported as measured 1–2 mm off (`occlusion`). Only a
+    // change counts: a camera that has not seen the body for a while (behind the eye, another instrument) would
+    // otherwise hold it at every one of its fields (docs/tracking.md, "Acquisition and loss").
+    if (last && ao.hold_on_miss) {
+        for (int b = 1; b < nb; ++b) {
+            const BodyFilter& flt = filters_[std::size_t(b)];
+            if (!flt.tracking() || field_used_[std::size_t(b)][std::size_t(c)] > 0 ||
+                prev_field_used_[std::size_t(b)][std::size_t(c)] < ao.min_markers_good)
+                continue;
+            const auto [ms, mc] = body_markers(b);
+            int in_view = 0;
+            for (int k = 0; k < mc; ++k) {
+                Eigen::Vector2d px;
+                if (!flt.predict_pixel(g, ms[k].pos_body_mm, px, std::max(0.0, flt.time_us() - T))) continue;
+                // Inside the image (its extent taken as twice the principal point), clear of its edge.
+                constexpr double kMarginPx = 8.0;
+                in_view += px.x() > kMarginPx && px.y() > kMarginPx && px.x() < 2.0 * g.cx - kMarginPx &&
+                           px.y() < 2.0 * g.cy - kMarginPx;
+            }
+            if (in_view >= 2) missed_us_[std::size_t(b)] = std::max(missed_us_[std::size_t(b)], T);
+        }
     }
     return accepted;
 }
@@ -1207,6 +1255,7 @@ void Tracker::acquire(const CameraField& f) {
             flt.init(T, R, t, w, v, 2e-3, 0.05, 0.3, 10.0);
             if (replay_) replay_[std::size_t(b)].clear();
             last_good_us_[std::size_t(b)] = T;
+            missed_us_[std::size_t(b)] = kNever;
             for (auto& m : seen_us_[std::size_t(b)]) m.fill(kNever);
         }
         acquire_measured_[std::size_t(b)] = measured;
@@ -1249,7 +1298,8 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     out.markers_unassigned = 0;
     // A tracked body that no field supported lately is coasting on its prediction: held.
     const auto coasting = [&](int b) {
-        return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us;
+        return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us ||
+               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)];
     };
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
     std::array<Eigen::Quaterniond, kBodies> R_at;

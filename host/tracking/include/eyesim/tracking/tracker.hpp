@@ -191,6 +191,7 @@ private:
     /// Fuses images [first, f.count) of camera field `f` (a whole field, or the newest parts of an open one in
     /// low-latency mode); `last` when the field is complete. Returns the images a filter accepted.
     int fuse_field(const CameraField& f, int first, bool last, double t_us);  // at device time t_us
+    void set_trocar_pivot(int b);  // instrument b's agile model about its trocar (or none) from the newest poses
     // Parts in time order (AsyncOptions::time_order_parts): per body, the filter as it was before each recent
     // update time and the images (and trocar lines) applied at that time. A part older than the filter's state is
     // fused at its own time from the state before it, and the newer times' images are applied again after it.
@@ -273,6 +274,7 @@ private:
     std::uint64_t eye_model_views_ = 0;
     std::array<BodyFilter, kBodies> filters_{};
     std::array<double, kBodies> last_good_us_{};
+    std::array<double, kBodies> missed_us_{};  ///< the newest camera field that found the instrument missing
     std::array<int, kBodies> used_last_field_{};
     // When each body marker was last used in each camera (device µs), for the markers a frame reports.
     std::array<std::array<std::array<double, kMaxCameras>, kMaxBodyMarkers>, kBodies> seen_us_{};
@@ -288,6 +290,7 @@ private:
     std::array<bool, kMaxCameras> have_done_{};
     // Images each body's filter accepted from each camera's current field so far (over its parts).
     std::array<std::array<int, kMaxCameras>, kBodies> field_used_{};
+    std::array<std::array<int, kMaxCameras>, kBodies> prev_field_used_{};  // the same over that camera's field before
     std::array<std::uint32_t, kMaxCameras> field_images_tried_{};  // bit i: image i was offered to a filter
     static_assert(kMaxMarkersPerCamera <= 32, "field_images_tried_ holds one bit per image");
     std::uint32_t ref_reported_counter_ = 0;  // the reference field a frame was last reported for
