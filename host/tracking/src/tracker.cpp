@@ -1299,7 +1299,8 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     // A tracked body that no field supported lately is coasting on its prediction: held.
     const auto coasting = [&](int b) {
         return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us ||
-               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)];
+               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)] ||
+               (b > 0 && filters_[std::size_t(b)].position_sigma_mm() > ao.held_position_sigma_mm);
     };
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
     std::array<Eigen::Quaterniond, kBodies> R_at;

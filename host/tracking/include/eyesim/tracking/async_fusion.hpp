@@ -85,6 +85,13 @@ struct AsyncOptions {
     /// periods: one view leaves the depth along its rays to the motion model.
     double other_view_fields = 1.05;
     double max_position_sigma_mm = 1.0;  ///< √trace of the position covariance above this: lost
+    /// An instrument whose position σ (√trace of its filter's position covariance, the tip's) is above this is
+    /// reported held: the images that still support it leave its pose loose (out of the eye, no trocar line; one
+    /// camera with two markers and another with one), and the filter drifts millimetres while they fit it. A
+    /// well-supported instrument's σ is 0.08–0.10 mm; the agile model raises it on fast tilts (at 0.12 mm a
+    /// quarter of `fast`'s instrument frames were held). Chosen on 2 s `occlusion` seeds 75–80 and `fast`,
+    /// `sweep`, `surgery` seeds 75–77 (docs/validation.md, "An instrument whose filter is unsure is held").
+    double held_position_sigma_mm = 0.15;
     double marker_recent_us = 30000.0;   ///< a marker seen by ≥ 2 cameras within this is reported in a frame
     double min_area_ratio = 0.6;      ///< an image whose blob area is below this share of the sphere's: occluded
     /// One more motion model, acceleration under white jerk (a fast turn bends a body's path within the 7–13 ms
