@@ -821,21 +821,26 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
     return false;
 }
 
+double Tracker::trocar_depth_mm(int b, Eigen::Vector3d* trocar_rig_mm) const {
+    const InstrumentModel& m = config_.bodies.instruments[std::size_t(b - 1)];
+    const BodyFilter& flt = filters_[std::size_t(b)];
+    if (!config_.pose.trocar_constraint || !m.has_trocar || !filters_[0].tracking()) return -1.0;
+    const Eigen::Vector3d p = filters_[0].to_rig(m.trocar_eye_mm);
+    const Eigen::Vector3d a = (flt.rotation() * m.axis_body).normalized();
+    const Eigen::Vector3d d = p - flt.to_rig(m.tip_body_mm);
+    const double depth = d.dot(a);
+    if (!(depth > 0.0) || !((d - depth * a).norm() < config_.pose.trocar_gate_mm)) return -1.0;
+    if (trocar_rig_mm) *trocar_rig_mm = p;
+    return depth;
+}
+
 void Tracker::set_trocar_pivot(int b) {
     const InstrumentModel& m = config_.bodies.instruments[std::size_t(b - 1)];
-    BodyFilter& flt = filters_[std::size_t(b)];
-    // The pivot is the trocar's point on the shaft while the tip is inside the eye (the trocar prior's own test).
     const Eigen::Vector3d axis = m.axis_body.normalized();
-    double depth_mm = -1.0;
-    if (m.has_trocar && filters_[0].tracking() && config_.pose.trocar_constraint) {
-        const Eigen::Vector3d d = filters_[0].to_rig(m.trocar_eye_mm) - flt.to_rig(m.tip_body_mm);
-        const Eigen::Vector3d a = flt.rotation() * axis;
-        const double depth = d.dot(a);
-        if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm) depth_mm = depth;
-    }
+    const double depth_mm = trocar_depth_mm(b, nullptr);
     // The agile model: the last constant-velocity one (motion_model_ladder).
-    flt.set_pivot(std::clamp(config_.async.motion_models, 1, 3) - 1, depth_mm > 0.0, m.tip_body_mm + depth_mm * axis,
-                  axis, config_.async.pivot_across_fraction);
+    filters_[std::size_t(b)].set_pivot(std::clamp(config_.async.motion_models, 1, 3) - 1, depth_mm > 0.0,
+                                       m.tip_body_mm + depth_mm * axis, axis, config_.async.pivot_across_fraction);
 }
 
 int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
@@ -999,21 +1004,14 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
         // field's time (at the field's time, on held-out `surgery` and `fast` 2 s seeds 85-89, the tip was 7-13 %
         // worse: the newer images then carry the state away from the line), and kept with that newest time's
         // images for a replay.
-        if (last && model && field_used > 0 && config_.pose.trocar_constraint && model->has_trocar &&
-            filters_[0].tracking()) {
-            const Eigen::Vector3d p = filters_[0].to_rig(model->trocar_eye_mm);
-            const Eigen::Vector3d tip = flt.to_rig(model->tip_body_mm);
-            const Eigen::Vector3d a = (flt.rotation() * model->axis_body).normalized();
-            const Eigen::Vector3d d = p - tip;
-            const double depth = d.dot(a);
-            if (depth > 0.0 && (d - depth * a).norm() < config_.pose.trocar_gate_mm) {
-                flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
-                if (replay_) {
-                    ReplayObs o;
-                    o.p_rig_mm = p;
-                    o.sigma_mm = trocar_sigma_mm;
-                    replay_record_newest(b, o);
-                }
+        Eigen::Vector3d p;
+        if (last && model && field_used > 0 && trocar_depth_mm(b, &p) > 0.0) {
+            flt.update_line_through(model->tip_body_mm, model->axis_body.normalized(), p, trocar_sigma_mm);
+            if (replay_) {
+                ReplayObs o;
+                o.p_rig_mm = p;
+                o.sigma_mm = trocar_sigma_mm;
+                replay_record_newest(b, o);
             }
         }
         used_last_field_[std::size_t(b)] = field_used;

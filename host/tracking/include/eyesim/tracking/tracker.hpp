@@ -191,6 +191,9 @@ private:
     /// Fuses images [first, f.count) of camera field `f` (a whole field, or the newest parts of an open one in
     /// low-latency mode); `last` when the field is complete. Returns the images a filter accepted.
     int fuse_field(const CameraField& f, int first, bool last, double t_us);  // at device time t_us
+    /// Instrument b's tip depth past its trocar (mm) where its shaft passes through it (the trocar prior's test:
+    /// the tip inside the eye, the line within trocar_gate_mm of the trocar), else −1; the trocar's rig point.
+    double trocar_depth_mm(int b, Eigen::Vector3d* trocar_rig_mm) const;
     void set_trocar_pivot(int b);  // instrument b's agile model about its trocar (or none) from the newest poses
     // Parts in time order (AsyncOptions::time_order_parts): per body, the filter as it was before each recent
     // update time and the images (and trocar lines) applied at that time. A part older than the filter's state is
