@@ -6,6 +6,7 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -112,6 +113,7 @@ void Tracker::restart() {
     last_instruments_.fill(InstrumentPose{});
     for (BodyFilter& f : filters_) f.reset();
     missed_us_.fill(kNever);
+    for (auto& s : supported_us_) s.fill(kNever);
     queue_count_ = 0;
     acquire_measured_.fill(false);
     open_queued_.fill(0);
@@ -1026,6 +1028,8 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
                 other_view = T - seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c2)] <=
                              ao.other_view_fields * config_.sync.field_period_us;
         }
+        if (field_used >= ao.min_markers_good)
+            supported_us_[std::size_t(b)][std::size_t(c)] = std::max(supported_us_[std::size_t(b)][std::size_t(c)], T);
         if (field_used >= ao.min_markers_good && other_view)
             last_good_us_[std::size_t(b)] = std::max(last_good_us_[std::size_t(b)], T);
         if (T - last_good_us_[std::size_t(b)] > ao.lost_after_us || flt.position_sigma_mm() > ao.max_position_sigma_mm ||
@@ -1039,7 +1043,17 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
     // last supporting field, up to 0.75 of a period old, was reported as measured 1–2 mm off (`occlusion`). Only a
     // change counts: a camera that has not seen the body for a while (behind the eye, another instrument) would
     // otherwise hold it at every one of its fields (docs/tracking.md, "Acquisition and loss").
-    if (last && ao.hold_on_miss) {
+    // With low-latency parts this is decided at each part, over the markers the readout has passed: images arrive in
+    // the order their blobs complete, so a marker predicted more than two gates above the lowest image of the field
+    // so far would have been among them. Decided only at the field's last part, the parts before it reported the
+    // prediction as measured, up to 1.6 mm off for a field (`occlusion`, an instrument pushed into the eye).
+    double read_px = std::numeric_limits<double>::infinity();
+    if (!last) {
+        read_px = -read_px;
+        for (int i = 0; i < f.count; ++i) read_px = std::max(read_px, f.images[std::size_t(i)].frame_px.y());
+        read_px -= 2.0 * ao.gate_px;
+    }
+    if (ao.hold_on_miss) {
         for (int b = 1; b < nb; ++b) {
             const BodyFilter& flt = filters_[std::size_t(b)];
             if (!flt.tracking() || field_used_[std::size_t(b)][std::size_t(c)] > 0 ||
@@ -1053,7 +1067,7 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
                 // Inside the image (its extent taken as twice the principal point), clear of its edge.
                 constexpr double kMarginPx = 8.0;
                 in_view += px.x() > kMarginPx && px.y() > kMarginPx && px.x() < 2.0 * g.cx - kMarginPx &&
-                           px.y() < 2.0 * g.cy - kMarginPx;
+                           px.y() < 2.0 * g.cy - kMarginPx && px.y() < read_px;
             }
             if (in_view >= 2) missed_us_[std::size_t(b)] = std::max(missed_us_[std::size_t(b)], T);
         }
@@ -1295,9 +1309,17 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     out.assignment.marker.fill(-1);
     out.markers_unassigned = 0;
     // A tracked body that no field supported lately is coasting on its prediction: held.
+    // An instrument needs two cameras that each gave it min_markers_good images lately (AsyncOptions::two_view_support).
+    const auto one_view = [&](int b) {
+        if (b == 0 || !ao.two_view_support) return false;
+        int views = 0;
+        for (int c = 0; c < ncam; ++c)
+            views += T - supported_us_[std::size_t(b)][std::size_t(c)] <= ao.other_view_fields * config_.sync.field_period_us;
+        return views < 2;
+    };
     const auto coasting = [&](int b) {
         return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us ||
-               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)] ||
+               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)] || one_view(b) ||
                (b > 0 && filters_[std::size_t(b)].position_sigma_mm() > ao.held_position_sigma_mm);
     };
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).

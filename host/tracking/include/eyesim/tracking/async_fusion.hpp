@@ -65,8 +65,14 @@ struct AsyncOptions {
     double pivot_across_fraction = 0.3;
     /// An instrument that a camera's field before supported and whose next field of that camera shows none of the
     /// two or more markers the filter puts in that image is reported held until a field supports it again (it has
-    /// moved out of the gate: pulled out, pushed in; Tracker::fuse_field).
+    /// moved out of the gate: pulled out, pushed in; Tracker::fuse_field). With low-latency parts it is decided at
+    /// each part over the markers the readout has passed.
     bool hold_on_miss = true;
+    /// An instrument is reported measured only while two cameras have each given at least `min_markers_good` of its
+    /// images within `other_view_fields` periods: two markers in one camera and a single one in another leave its
+    /// direction, and the tip 26 mm beyond its markers, loose (`occlusion`: 0.4–0.9 mm off over 0.2 s, σ
+    /// 0.10–0.13 mm; docs/validation.md, "Two views for an instrument").
+    bool two_view_support = true;
     /// Rate at which the body is expected to switch between steady and agile motion (1/s, each way): the
     /// models' prior mixing (with the images' likelihoods it decides which model the pose follows).
     double model_switch_per_s = 2.0;

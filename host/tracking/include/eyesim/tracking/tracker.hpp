@@ -278,6 +278,8 @@ private:
     std::array<BodyFilter, kBodies> filters_{};
     std::array<double, kBodies> last_good_us_{};
     std::array<double, kBodies> missed_us_{};  ///< the newest camera field that found the instrument missing
+    /// The newest field of each camera that gave the body min_markers_good images (device µs).
+    std::array<std::array<double, kMaxCameras>, kBodies> supported_us_{};
     std::array<int, kBodies> used_last_field_{};
     // When each body marker was last used in each camera (device µs), for the markers a frame reports.
     std::array<std::array<std::array<double, kMaxCameras>, kMaxBodyMarkers>, kBodies> seen_us_{};
