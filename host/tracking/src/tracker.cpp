@@ -1269,6 +1269,14 @@ void Tracker::acquire(const CameraField& f) {
             last_good_us_[std::size_t(b)] = T;
             missed_us_[std::size_t(b)] = kNever;
             for (auto& m : seen_us_[std::size_t(b)]) m.fill(kNever);
+            // The cameras whose images the fit triangulated (min_markers_good of the body's) support it now.
+            std::array<int, kMaxCameras> images{};
+            for (int k = 0; k < acquire_frame_.markers.count; ++k)
+                if (acquire_frame_.assignment.body[std::size_t(k)] == b)
+                    for (int c = 0; c < int(cameras_.size()); ++c)
+                        images[std::size_t(c)] += acquire_frame_.markers.markers[std::size_t(k)].image_index[std::size_t(c)] >= 0;
+            for (int c = 0; c < int(cameras_.size()); ++c)
+                if (images[std::size_t(c)] >= config_.async.min_markers_good) supported_us_[std::size_t(b)][std::size_t(c)] = T;
         }
         acquire_measured_[std::size_t(b)] = measured;
         acquire_t_us_[std::size_t(b)] = T;
@@ -1349,6 +1357,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
             if (coasting(b)) p.flags |= kPoseHeld;
         } else if (acquired_this_field_ && acquire_frame_.instruments[std::size_t(b - 1)].measured()) {
             p = acquire_frame_.instruments[std::size_t(b - 1)];
+            if (ao.hold_acquisition_fit) p.flags |= kPoseHeld;  // AsyncOptions::hold_acquisition_fit
         } else {
             p.flags = kPoseTooFewMarkers | kPoseHeld;
         }
@@ -1356,7 +1365,8 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
         instrument_in_eye(m, out.eye, p);
     }
     // Markers: those of a tracked body seen by two cameras lately, where the filter puts them; a body acquired
-    // from this frame's triangulation brings its triangulated markers.
+    // from this frame's triangulation brings its triangulated markers (an instrument's only where its fit is not
+    // held).
     for (int b = 0; b < nb; ++b) {
         const BodyFilter& flt = filters_[std::size_t(b)];
         const int mc = b == 0 ? bodies.eye.marker_count : bodies.instruments[std::size_t(b - 1)].marker_count;
@@ -1378,7 +1388,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
                 out.assignment.marker[std::size_t(out.markers.count)] = std::int8_t(k);
                 ++out.markers.count;
             }
-        } else if (acquired_this_field_) {
+        } else if (acquired_this_field_ && !(b > 0 && ao.hold_acquisition_fit)) {
             for (int k = 0; k < acquire_frame_.markers.count && out.markers.count < kMaxMarkersPerFrame; ++k) {
                 if (acquire_frame_.assignment.body[std::size_t(k)] != b) continue;
                 MatchedMarker& mk = out.markers.markers[std::size_t(out.markers.count)];

@@ -231,8 +231,8 @@ TEST_CASE("validate --sync async --emit blob: an instrument the readout has pass
     const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 79), "async", " --emit blob");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
-    // Measured 86.5 um and 46.6 um (the pull-out at 0.6 s keeps three parts 1.4 mm off: its markers were below
-    // the readout), 118 instrument frames not measured of 2 x 982 (102 before).
+    // Measured 83.8 um and 44.6 um (the pull-out at 0.6 s keeps three parts 1.4 mm off: its markers were below
+    // the readout), 122 instrument frames not measured of 2 x 982 (102 before).
     CHECK(j["tip_rms_um"].get<double>() < 110.0);
     CHECK(j["marker3d_all_rms_um"].get<double>() < 65.0);
     CHECK(c["instrument_not_measured_frames"]["injection"].get<int>() +
@@ -249,13 +249,31 @@ TEST_CASE("validate --sync async --emit blob: an instrument only one camera give
     const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 171), "async", " --emit blob");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
-    // Measured 52.8 um and 20.7 um, 297 instrument frames not measured of 2 x 884 (189 before).
+    // Measured 50.7 um and 19.6 um, 301 instrument frames not measured of 2 x 884 (189 before).
     CHECK(j["tip_rms_um"].get<double>() < 90.0);
     CHECK(j["marker3d_all_rms_um"].get<double>() < 28.0);
     CHECK(c["tip_um"]["max"].get<double>() < 800.0);
     CHECK(c["instrument_not_measured_frames"]["injection"].get<int>() +
               c["instrument_not_measured_frames"]["light_pipe"].get<int>() < 400);
     CHECK(c["frames"].get<int>() > 800);
+}
+
+TEST_CASE("validate --sync async --emit blob: an instrument re-found by one fit is held until its filter starts",
+          "[host][validate]") {
+    // A 2 s `occlusion` recording (seed 180): the injection cannula, lost while it was pulled out of the eye, is
+    // re-found at 0.72 s by a fit of the cameras' fields extrapolated to one time while it still moves fast; that
+    // first fit was reported as measured, its markers 1.5-1.9 mm off (tip max 1.50 mm, 3D over all markers 39.5 um).
+    // Now it is held until a second fit in a row starts the filter.
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 180), "async", " --emit blob");
+    const nlohmann::json& c = j["fpga_chain"];
+    INFO(j.dump());
+    // Measured: tip max 567 um (the cannula out of the eye, 0.3-0.5 mm off in two views), 3D 28.4 um, 232
+    // instrument frames not measured of 2 x 975 (228 before).
+    CHECK(c["tip_um"]["max"].get<double>() < 1000.0);
+    CHECK(j["marker3d_all_rms_um"].get<double>() < 34.0);
+    CHECK(c["instrument_not_measured_frames"]["injection"].get<int>() +
+              c["instrument_not_measured_frames"]["light_pipe"].get<int>() < 300);
+    CHECK(c["frames"].get<int>() > 900);
 }
 
 TEST_CASE("validate --sync with an unknown mode is a usage error", "[host][validate]") {

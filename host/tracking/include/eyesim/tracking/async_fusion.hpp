@@ -73,6 +73,10 @@ struct AsyncOptions {
     /// direction, and the tip 26 mm beyond its markers, loose (`occlusion`: 0.4–0.9 mm off over 0.2 s, σ
     /// 0.10–0.13 mm; docs/validation.md, "Two views for an instrument").
     bool two_view_support = true;
+    /// An instrument acquired from a fit (the filter not yet started) is reported held until a second fit in a row
+    /// starts its filter: the first fit, from cameras' fields extrapolated to one time, was up to 1.7 mm off where
+    /// an instrument reappeared moving fast (`occlusion`, the cannula re-found after its pull-out).
+    bool hold_acquisition_fit = true;
     /// Rate at which the body is expected to switch between steady and agile motion (1/s, each way): the
     /// models' prior mixing (with the images' likelihoods it decides which model the pose follows).
     double model_switch_per_s = 2.0;
