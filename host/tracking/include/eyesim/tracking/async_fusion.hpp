@@ -71,7 +71,7 @@ struct AsyncOptions {
     /// An instrument is reported measured only while two cameras have each given at least `min_markers_good` of its
     /// images within `other_view_fields` periods: two markers in one camera and a single one in another leave its
     /// direction, and the tip 26 mm beyond its markers, loose (`occlusion`: 0.4–0.9 mm off over 0.2 s, σ
-    /// 0.10–0.13 mm; docs/validation.md, "Two views for an instrument").
+    /// 0.10–0.13 mm; docs/validation.md, "An instrument the readout has passed; two views for an instrument").
     bool two_view_support = true;
     /// An instrument acquired from a fit (the filter not yet started) is reported held until a second fit in a row
     /// starts its filter: the first fit, from cameras' fields extrapolated to one time, was up to 1.7 mm off where
