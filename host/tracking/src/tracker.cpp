@@ -1047,13 +1047,13 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
     // the order their blobs complete, so a marker predicted more than two gates above the lowest image of the field
     // so far would have been among them. Decided only at the field's last part, the parts before it reported the
     // prediction as measured, up to 1.6 mm off for a field (`occlusion`, an instrument pushed into the eye).
-    double read_px = std::numeric_limits<double>::infinity();
-    if (!last) {
-        read_px = -read_px;
-        for (int i = 0; i < f.count; ++i) read_px = std::max(read_px, f.images[std::size_t(i)].frame_px.y());
-        read_px -= 2.0 * ao.gate_px;
-    }
     if (ao.hold_on_miss) {
+        double read_px = std::numeric_limits<double>::infinity();
+        if (!last) {
+            read_px = -read_px;
+            for (int i = 0; i < f.count; ++i) read_px = std::max(read_px, f.images[std::size_t(i)].frame_px.y());
+            read_px -= 2.0 * ao.gate_px;
+        }
         for (int b = 1; b < nb; ++b) {
             const BodyFilter& flt = filters_[std::size_t(b)];
             if (!flt.tracking() || field_used_[std::size_t(b)][std::size_t(c)] > 0 ||
@@ -1325,11 +1325,12 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
             views += T - supported_us_[std::size_t(b)][std::size_t(c)] <= ao.other_view_fields * config_.sync.field_period_us;
         return views < 2;
     };
-    const auto coasting = [&](int b) {
-        return T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us ||
-               missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)] || one_view(b) ||
-               (b > 0 && filters_[std::size_t(b)].position_sigma_mm() > ao.held_position_sigma_mm);
-    };
+    std::array<bool, kBodies> coasting{};  // once per body: the pose flags and the markers below both read it
+    for (int b = 0; b < nb; ++b)
+        coasting[std::size_t(b)] =
+            T - last_good_us_[std::size_t(b)] > ao.held_after_fields * config_.sync.field_period_us ||
+            missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)] || one_view(b) ||
+            (b > 0 && filters_[std::size_t(b)].position_sigma_mm() > ao.held_position_sigma_mm);
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
     std::array<Eigen::Quaterniond, kBodies> R_at;
     std::array<Eigen::Vector3d, kBodies> t_at;
@@ -1339,7 +1340,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     if (filters_[0].tracking()) {
         eye_from_filter(bodies.eye, R_at[0], out.eye);
         out.eye.markers_used = used_last_field_[0];
-        if (coasting(0)) out.eye.flags |= kPoseHeld;
+        if (coasting[0]) out.eye.flags |= kPoseHeld;
     } else if (acquired_this_field_ && acquire_frame_.eye.measured()) {
         out.eye = acquire_frame_.eye;
     } else {
@@ -1354,7 +1355,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
         if (flt.tracking()) {
             instrument_from_filter(m, R_at[std::size_t(b)], t_at[std::size_t(b)], m.markers_on_axis(), p);
             p.markers_used = used_last_field_[std::size_t(b)];
-            if (coasting(b)) p.flags |= kPoseHeld;
+            if (coasting[std::size_t(b)]) p.flags |= kPoseHeld;
         } else if (acquired_this_field_ && acquire_frame_.instruments[std::size_t(b - 1)].measured()) {
             p = acquire_frame_.instruments[std::size_t(b - 1)];
             if (ao.hold_acquisition_fit) p.flags |= kPoseHeld;  // AsyncOptions::hold_acquisition_fit
@@ -1371,7 +1372,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
         const BodyFilter& flt = filters_[std::size_t(b)];
         const int mc = b == 0 ? bodies.eye.marker_count : bodies.instruments[std::size_t(b - 1)].marker_count;
         const BodyMarker* ms = b == 0 ? bodies.eye.markers.data() : bodies.instruments[std::size_t(b - 1)].markers.data();
-        if (flt.tracking() && !coasting(b)) {  // a held body's markers are where its prediction puts them: left out
+        if (flt.tracking() && !coasting[std::size_t(b)]) {  // a held body's markers are where its prediction puts them: left out
             for (int k = 0; k < mc && out.markers.count < kMaxMarkersPerFrame; ++k) {
                 int views = 0;
                 for (int c = 0; c < ncam; ++c)
