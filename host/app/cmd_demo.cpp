@@ -37,6 +37,7 @@ struct DemoOptions {
     bool no_hints = false;
     std::string device;
     std::string sync = "async";
+    double report_delay_ms = 19.0;
 };
 
 /// Finds `eyesim-device`: beside `eyesim`, in the build tree's firmware folder, or on PATH.
@@ -156,6 +157,7 @@ int run_demo(const DemoOptions& opt) {
     req.precision = opt.precision;
     req.no_hints = opt.no_hints;
     req.sync = opt.sync;
+    req.report_delay_ms = opt.report_delay_ms;
     req.title = "eyesim demo: " + fs::path(scene).stem().string() + " on a live device (synthetic surgeon '" +
                 scenario + "')";
     return eyesim::app::run_scene(req);
@@ -185,6 +187,11 @@ eyesim::app::Registrar reg{
                        "tracking: async (per-body filters fed each blob as the device sends it, in its per-blob "
                        "mode) or interpolate (whole fields, the cameras interpolated to one time)")
             ->check(CLI::IsMember({"async", "interpolate"}))
+            ->capture_default_str();
+        sub.add_option("--report-delay-ms", opt->report_delay_ms,
+                       "with --sync async: report each reference field's frame this long after its exposure, its poses smoothed "
+                       "by the parts fused since (0: a frame at once from each part; at most 40)")
+            ->check(eyesim::app::finite_in(0.0, 40.0))
             ->capture_default_str();
         sub.add_flag("--json", opt->json, "one JSON object on stdout");
         return [opt]() -> int { return run_demo(*opt); };

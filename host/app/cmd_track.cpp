@@ -47,6 +47,7 @@ struct TrackOptions {
     std::string bodies;
     std::string instruments;
     std::string sync = "interpolate";
+    double report_delay_ms = 19.0;
     double seconds = 0.0;
     double stall_s = eyesim::app::kDefaultStallSeconds;
     long max_frames = 0;
@@ -108,6 +109,7 @@ int run_track(const TrackOptions& opt) {
         throw Error(opt.rig + ": camera_count: " + std::to_string(cfg.cameras.size()) + " (need 2.." +
                     std::to_string(tr::kMaxCameras) + ")");
     cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
+    cfg.async.report_delay_us = 1000.0 * opt.report_delay_ms;
     const tr::BodySet body_set = cfg.bodies;
     std::unique_ptr<eyesim::frame::HostRun> run;
     try {
@@ -232,6 +234,11 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
                    "camera time alignment: interpolate | extrapolate | nearest | async (per-body filters updated by "
                    "each camera field at its own time)")
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest", "async"}));
+    sub.add_option("--report-delay-ms", opt->report_delay_ms,
+                   "with --sync async: report each reference field's frame this long after its exposure, its poses smoothed "
+                   "by the parts fused since (0: a frame at once from each part; at most 40)")
+        ->check(eyesim::app::finite_in(0.0, 40.0))
+        ->capture_default_str();
     sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)")
         ->check(eyesim::app::finite_in(0.0, 1e6));
     sub.add_option("--stall-s", opt->stall_s, "live: end the run when the device sends nothing for this long")

@@ -71,6 +71,7 @@ struct ValidateOptions {
     bool refine = false;
     bool no_hints = false;  ///< --refine without occlusion hints: every fit a whole sphere
     std::string emit = "field";  ///< device emission: "field" (a field's parts at its end) or "blob" (low latency)
+    double report_delay_ms = 19.0;  ///< --sync async: fixed-lag frames this long after exposure (0: each part at once)
 };
 
 /// Everything collected from one tracking run.
@@ -96,6 +97,7 @@ struct RunStats {
          images_unmatched = 0, markers_unassigned = 0, truth_visible2 = 0, eye_held = 0;
     long eye_model_views = 0;  // views the eye's model corrected and the poses used (Tracker::eye_model_views)
     long time_ordered_parts = 0;  // low-latency parts fused at their own time, before newer ones (per body)
+    long smoothed_poses = 0;      // fixed-lag frames' body poses smoothed by later parts
     std::vector<long> tip_held;
 };
 
@@ -153,6 +155,7 @@ public:
         drain(now_us);
         stats_.eye_model_views = long(tracker_.eye_model_views());
         stats_.time_ordered_parts = long(tracker_.time_ordered_parts());
+        stats_.smoothed_poses = long(tracker_.smoothed_poses());
     }
 
     RunStats& stats() { return stats_; }
@@ -534,6 +537,7 @@ nlohmann::json run_json(const RunStats& s, const tr::BodySet& bodies) {
     j["eye_not_measured_frames"] = s.eye_held;
     j["eye_model_views"] = s.eye_model_views;
     j["time_ordered_parts"] = s.time_ordered_parts;
+    j["smoothed_poses"] = s.smoothed_poses;
     nlohmann::json held = nlohmann::json::object();
     for (int b = 0; b < bodies.instrument_count; ++b)
         held[bodies.instruments[std::size_t(b)].name] = s.tip_held[std::size_t(b)];
@@ -941,6 +945,7 @@ std::string html_chain(const nlohmann::json& f, long fields_with_drops, long par
     rows.push_back({"frames the eye was not measured", f["eye_not_measured_frames"].dump()});
     rows.push_back({"marker views the eye's model corrected", f["eye_model_views"].dump()});
     rows.push_back({"low-latency parts fused before newer ones (per body)", f["time_ordered_parts"].dump()});
+    rows.push_back({"fixed-lag body poses smoothed by later parts", f["smoothed_poses"].dump()});
     for (const auto& [k, v] : f["instrument_not_measured_frames"].items())
         rows.push_back({"frames " + k + " was not measured", v.dump()});
     rows.push_back({"fields with dropped blobs", std::to_string(fields_with_drops)});
@@ -1017,6 +1022,7 @@ int run_validate_capture(const ValidateOptions& opt) {
         throw Error(opt.rig + ": " + e.what());
     }
     cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
+    cfg.async.report_delay_us = 1000.0 * opt.report_delay_ms;
     cfg.pose.trocar_constraint = !opt.no_trocar;
     cfg.centroid_sigma_px = opt.sigma_px;
     const int ncam = int(cfg.cameras.size());
@@ -1210,6 +1216,7 @@ int run_validate(const ValidateOptions& opt) {
         cfg.timing.push_back(t);
     }
     cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
+    cfg.async.report_delay_us = 1000.0 * opt.report_delay_ms;
     cfg.pose.trocar_constraint = !opt.no_trocar;
     cfg.centroid_sigma_px = opt.sigma_px;
     for (const auto& g : cfg.cameras)
@@ -1522,6 +1529,7 @@ int run_validate(const ValidateOptions& opt) {
     j["fields_per_s"] = double(n * ncam) / std::max(wall_s, 1e-9);
     j["sync"] = opt.sync;
     j["emit"] = opt.emit;
+    j["report_delay_ms"] = opt.report_delay_ms;
     j["trocar_constraint"] = !opt.no_trocar;
     nlohmann::json cams = nlohmann::json::array();
     std::vector<double> all_c;
@@ -1692,6 +1700,11 @@ eyesim::app::Registrar reg{"validate",
                    "how the modelled device sends a field's markers: field (all at the field's end) | blob (each as "
                    "soon as the FPGA emits it, the low-latency mode; with --sync async each part is fused at once)")
         ->check(CLI::IsMember({"field", "blob"}));
+    sub.add_option("--report-delay-ms", opt->report_delay_ms,
+                   "with --sync async: report each reference field's frame this long after its exposure, its poses "
+                   "smoothed by the parts fused since (0: a frame at once from each part; at most 40)")
+        ->check(eyesim::app::finite_in(0.0, 40.0))
+        ->capture_default_str();
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
     sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run")
         ->check(eyesim::app::finite_in(0.0, 10.0));

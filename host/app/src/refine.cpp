@@ -120,6 +120,7 @@ void feed_hint_tracker(std::vector<std::pair<double, protocol::FieldMarkers>>& m
 namespace {
 tracking::TrackerConfig async_config(tracking::TrackerConfig config) {
     config.sync.mode = tracking::SyncMode::Async;
+    config.async.report_delay_us = 0.0;  // only its filters' poses are read, never its frames
     return config;
 }
 }  // namespace

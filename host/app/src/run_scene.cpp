@@ -173,6 +173,7 @@ int run_scene(const SceneRunRequest& req) {
         tr::TrackerConfig cfg = tracker_config(cams, bodies, instruments);
         try {
             cfg.sync.mode = tr::sync_mode_from_name(req.sync);
+            cfg.async.report_delay_us = 1000.0 * req.report_delay_ms;
         } catch (const std::invalid_argument& e) {
             throw Error(e.what());
         }

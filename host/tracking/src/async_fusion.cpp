@@ -491,6 +491,80 @@ void BodyFilter::merge(const std::array<double, kMaxModels>& w, int ref, RigidBo
         spread.template operator()<12>();
 }
 
+void BodyFilter::smoothed_pose_at(const BodyFilter& then, double t_us, Eigen::Quaterniond& R,
+                                  Eigen::Vector3d& t) const {
+    RigidBodyFilter s;
+    if (then.tracking() && smooth_step(then, mix(), s)) s.pose_at(t_us, R, t);
+    else mix().pose_at(t_us, R, t);
+}
+
+bool BodyFilter::smooth_step(const BodyFilter& then, const RigidBodyFilter& later, RigidBodyFilter& out) {
+    using Cov = RigidBodyFilter::Cov;
+    using State = RigidBodyFilter::State;
+    const RigidBodyFilter& f = then.mix();
+    out = f;
+    const double t_next = later.time_us();
+    if (!(t_next > f.time_us())) return false;
+    BodyFilter pred = then;
+    pred.predict_to(t_next);
+    const RigidBodyFilter& p = pred.mix();
+    const State d = difference(later, p);
+    // The error state's transition over the step (RigidBodyFilter::predict_to's F; a Singer model's accelerations
+    // fade by k).
+    const double dt = (t_next - f.time_us()) * 1e-6, h = 0.5 * dt * dt;
+    double k = 1.0;
+    for (int j = 0; j < then.n_; ++j) {
+        const RigidBodyFilter& m = then.m_[std::size_t(j)];
+        if (m.ca_ && m.tau_s_ > 0.0) k = std::exp(-dt / m.tau_s_);
+    }
+    Cov F = Cov::Identity();
+    for (int i = 0; i < 3; ++i) {
+        F(i, 6 + i) = dt;
+        F(i, 12 + i) = h;
+        F(6 + i, 12 + i) = dt;
+        F(12 + i, 12 + i) = k;
+        if (f.rotation_only_) continue;
+        F(3 + i, 9 + i) = dt;
+        F(3 + i, 15 + i) = h;
+        F(9 + i, 15 + i) = dt;
+        F(15 + i, 15 + i) = k;
+    }
+    // Over the components the prediction holds uncertain (a constant-velocity model's accelerations, the eye's
+    // translation: none).
+    std::array<int, RigidBodyFilter::kDim> idx{};
+    int n = 0;
+    const double scale = p.P_.diagonal().cwiseAbs().maxCoeff();
+    for (int i = 0; i < RigidBodyFilter::kDim; ++i)
+        if (p.P_(i, i) > 1e-12 * scale) idx[std::size_t(n++)] = i;
+    using Sub = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, RigidBodyFilter::kDim, RigidBodyFilter::kDim>;
+    using SubV = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, RigidBodyFilter::kDim, 1>;
+    Sub Ps(n, n);
+    SubV ds(n);
+    for (int a = 0; a < n; ++a) {
+        ds(a) = d(idx[std::size_t(a)]);
+        for (int b = 0; b < n; ++b) Ps(a, b) = p.P_(idx[std::size_t(a)], idx[std::size_t(b)]);
+    }
+    // The roll about a line of markers is held by a pseudo-measurement inside each prediction (a tiny predicted
+    // variance that the cross-covariance does not share): left out of the difference, as uninformative.
+    if (!p.roll_axis_body_.isZero()) {
+        const Eigen::Vector3d a = p.R_ * p.roll_axis_body_;
+        const double big = 1e6 * scale;
+        for (int blk : {0, 6, 12})
+            for (int ia = 0; ia < n; ++ia)
+                for (int ib = 0; ib < n; ++ib) {
+                    const int ra = idx[std::size_t(ia)] - blk, rb = idx[std::size_t(ib)] - blk;
+                    if (ra >= 0 && ra < 3 && rb >= 0 && rb < 3) Ps(ia, ib) += big * a(ra) * a(rb);
+                }
+    }
+    const SubV x = Ps.ldlt().solve(ds);
+    const Cov C = f.P_ * F.transpose();
+    State dx = State::Zero();
+    for (int a = 0; a < n; ++a) dx += C.col(idx[std::size_t(a)]) * x(a);
+    if (!dx.allFinite()) return false;
+    out.apply(dx);
+    return true;
+}
+
 void BodyFilter::combine() const {
     dirty_ = false;
     if (n_ == 1) return;

@@ -73,6 +73,10 @@ Tracker::Tracker(TrackerConfig config)
                                     std::to_string(config_.sync.reference_camera) + " is not a camera");
     if (!(config_.centroid_sigma_px > 0.0) || !std::isfinite(config_.centroid_sigma_px))
         throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
+    // The smoothing needs the filter as it was at the frame's time: the parts history (kReplayEpochs update times)
+    // reaches about 2.7 field periods back.
+    if (!(config_.async.report_delay_us >= 0.0 && config_.async.report_delay_us <= kMaxReportDelayUs))
+        throw std::invalid_argument("tracker: async.report_delay_us: must be 0..40000");
     // correspondence_ holds a span over cameras_, which is never resized after construction.
     const AsyncOptions& ao = config_.async;
     // Constant-velocity models steadiest first (motion_model_ladder); the acceleration model after them.
@@ -120,6 +124,9 @@ void Tracker::restart() {
     have_done_.fill(false);
     done_period_us_.fill(0.0);
     ref_reported_ = false;
+    pending_count_ = 0;
+    pending_reported_any_ = false;
+    flush_pending_ = false;
 }
 
 int Tracker::rejected_images() const {
@@ -798,7 +805,11 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         // field has already corrected the filters in between. In low-latency mode each part of the reference
         // field that corrected a filter gives a frame at once (the pose at the field's time, as far as its
         // image is read out); the complete field gives one more only if it brought something new.
-        if (f.camera != config_.sync.reference_camera || !std::isfinite(f.sample_device_us)) continue;
+        const bool lag = config_.async.report_delay_us > 0.0;
+        if (f.camera != config_.sync.reference_camera || !std::isfinite(f.sample_device_us)) {
+            if (lag && report_due(out, now_host_us)) return true;
+            continue;
+        }
         bool report = accepted > 0;
         if (q.last) {
             acquire(f);
@@ -807,9 +818,17 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         } else {
             acquired_this_field_ = false;
         }
-        if (!report) continue;
+        if (!report) {
+            if (lag && report_due(out, now_host_us)) return true;
+            continue;
+        }
         ref_reported_ = true;
         ref_reported_counter_ = f.field_counter;
+        if (lag) {
+            hold_frame(f, q.last);
+            if (report_due(out, now_host_us)) return true;
+            continue;
+        }
         build_async_frame(f, out);
         const double compute = steady_us() - t0;
         out.timing.sample_host_us = f.sample_device_us - offset_us_;
@@ -820,7 +839,45 @@ bool Tracker::pop_async(TrackingFrame& out, double now_host_us) {
         out.timing.poses_ready_host_us = now_host_us + compute;
         return true;
     }
-    return false;
+    return config_.async.report_delay_us > 0.0 && report_due(out, now_host_us);
+}
+
+void Tracker::hold_frame(const CameraField& f, bool last) {
+    if (pending_reported_any_ && pending_last_reported_ == f.field_counter) return;  // its frame already went
+    PendingFrame* p = nullptr;
+    if (pending_count_ > 0) {
+        PendingFrame& tail = pending_[std::size_t((pending_head_ + pending_count_ - 1) % kPending)];
+        if (tail.field.field_counter == f.field_counter) p = &tail;
+    }
+    if (!p) {
+        if (pending_count_ == kPending) {  // no part came for a whole queue's worth: the oldest is dropped
+            pending_head_ = (pending_head_ + 1) % kPending;
+            --pending_count_;
+        }
+        p = &pending_[std::size_t((pending_head_ + pending_count_++) % kPending)];
+    }
+    p->field = f;
+    p->last = last;
+}
+
+bool Tracker::report_due(TrackingFrame& out, double now_host_us) {
+    if (pending_count_ == 0) return false;
+    const PendingFrame& p = pending_[std::size_t(pending_head_)];
+    const double sample_host_us = p.field.sample_device_us - offset_us_;
+    if (!flush_pending_ && now_host_us < sample_host_us + config_.async.report_delay_us) return false;
+    const double t0 = steady_us();
+    build_async_frame(p.field, out, true);
+    const double compute = steady_us() - t0;
+    out.timing.sample_host_us = sample_host_us;
+    out.timing.field_end_host_us = p.last ? p.field.field_end_device_us - offset_us_ : 0.0;
+    out.timing.received_host_us = p.field.received_host_us;
+    out.timing.compute_us = compute;
+    out.timing.poses_ready_host_us = now_host_us + compute;
+    pending_last_reported_ = p.field.field_counter;
+    pending_reported_any_ = true;
+    pending_head_ = (pending_head_ + 1) % kPending;
+    --pending_count_;
+    return true;
 }
 
 double Tracker::trocar_depth_mm(int b, Eigen::Vector3d* trocar_rig_mm) const {
@@ -1285,7 +1342,7 @@ void Tracker::acquire(const CameraField& f) {
     }
 }
 
-void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
+void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out, bool smooth) {
     const BodySet& bodies = config_.bodies;
     const AsyncOptions& ao = config_.async;
     const double T = f.sample_device_us;
@@ -1334,8 +1391,27 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out) {
     // Each filter's pose at the frame's time (a state that a later camera's part already moved on is carried back).
     std::array<Eigen::Quaterniond, kBodies> R_at;
     std::array<Eigen::Vector3d, kBodies> t_at;
-    for (int b = 0; b < nb; ++b)
-        if (filters_[std::size_t(b)].tracking()) filters_[std::size_t(b)].pose_at(T, R_at[std::size_t(b)], t_at[std::size_t(b)]);
+    for (int b = 0; b < nb; ++b) {
+        const BodyFilter& flt = filters_[std::size_t(b)];
+        if (!flt.tracking()) continue;
+        // A fixed-lag frame: the filter as it was at T is the parts history's `before` of the first time after T
+        // (all images up to T fused), smoothed by the state now (BodyFilter::smoothed_pose_at).
+        const BodyFilter* then = nullptr;
+        if (smooth && replay_) {
+            const ReplayHistory& h = replay_[std::size_t(b)];
+            for (int i = 0; i < h.count; ++i) {
+                const ReplayEpoch& e = h.pool[std::size_t(h.order[std::size_t(i)])];
+                if (e.t_us <= T) continue;
+                if (e.before.tracking() && e.before.time_us() <= T) then = &e.before;
+                break;
+            }
+        }
+        if (then) {
+            flt.smoothed_pose_at(*then, T, R_at[std::size_t(b)], t_at[std::size_t(b)]);
+            ++smoothed_poses_;
+        } else
+            flt.pose_at(T, R_at[std::size_t(b)], t_at[std::size_t(b)]);
+    }
     // Eye.
     if (filters_[0].tracking()) {
         eye_from_filter(bodies.eye, R_at[0], out.eye);

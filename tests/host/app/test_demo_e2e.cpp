@@ -80,12 +80,14 @@ TEST_CASE("eyesim demo: the surgeon peels the membrane through eyesim-device ove
     // sometimes starved for a fifth of a second, and its modelled clock stamps those fields late (seen: p99 192 ms).
     CHECK(j["latency_us"]["p99"].get<double>() >= lat_p50);
     // The default chain is the low-latency one: the device sends each blob as the FPGA completes it and the
-    // filters take it at once, so a pose exists long before its field is read out (exposure mid → last line is
-    // 21.8 ms). Measured 13.8 ms p50 (seed 1); interpolating whole fields gives 35.4 ms.
+    // filters take it at once; each field's frame is reported 19 ms after its exposure (before the field is read
+    // out: exposure mid → last line is 21.8 ms), its poses smoothed by the other cameras' parts taken since.
+    // Measured 19.3 ms p50 (seed 41); interpolating whole fields gives 35.4 ms. The lower bound allows the clock
+    // offset's error.
     const double e50 = j["exposure_to_pose_us"]["p50"].get<double>();
-    CHECK(e50 > 5000.0);
+    CHECK(e50 > 15000.0);
     CHECK(e50 < 21000.0);
-    CHECK(j["exposure_to_pose_us"]["frames"].get<int>() > 2 * j["frames"].get<int>());  // a pose per part
+    CHECK(j["exposure_to_pose_us"]["frames"].get<int>() == j["frames"].get<int>());  // a pose per field
     CHECK(j["stages"]["tracking"]["p50_us"].get<double>() > 0.0);
     CHECK(j["stages"]["tissue"]["p50_us"].get<double>() > 0.0);
     CHECK(std::filesystem::exists(dir + "/report/index.html"));

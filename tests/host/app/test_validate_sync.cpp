@@ -88,11 +88,11 @@ TEST_CASE("validate --sync async: poses one field readout after exposure, figure
 TEST_CASE("validate --sync async --emit blob: each blob fused as it arrives, the pose long before the field ends",
           "[host][validate]") {
     // The device in low-latency mode sends each blob as the FPGA completes it; the filters take each part at once
-    // (at the field's exposure time, predicted from the camera's last field), and every part of the reference
-    // camera that corrected a filter gives a pose. Markers in the middle of the image are read out about 10 ms
+    // (at the field's exposure time, predicted from the camera's last field), and with --report-delay-ms 0 every
+    // part of the reference camera that corrected a filter gives a pose. Markers in the middle of the image are read out about 10 ms
     // before the field's last line.
     const nlohmann::json f = validate_json("async");
-    const nlohmann::json b = validate_json("async", " --emit blob");
+    const nlohmann::json b = validate_json("async", " --emit blob --report-delay-ms 0");
     CHECK(b["emit"] == "blob");
     CHECK(f["emit"] == "field");
     const double f50 = f["exposure_to_pose_us"]["p50"].get<double>(), b50 = b["exposure_to_pose_us"]["p50"].get<double>();
@@ -115,6 +115,34 @@ TEST_CASE("validate --sync async --emit blob: each blob fused as it arrives, the
         CHECK(b[k].get<double>() > 0.0);
         CHECK(b[k].get<double>() < 1.3 * f[k].get<double>());
     }
+}
+
+TEST_CASE("validate --sync async --emit blob: fixed-lag frames 19 ms after exposure, smoothed by the parts since",
+          "[host][validate]") {
+    // The default: each reference field's frame is reported once the clock is 19 ms past its exposure (before the
+    // field's own readout ends, 21.8 ms), its poses smoothed by the other cameras' parts exposed after it. On a 1 s
+    // `fast` recording (seed 9) against the frames given at once from each part (--report-delay-ms 0).
+    const fs::path d = recording("fast", 1, 9);
+    const nlohmann::json l = validate_dir_json(d, "async", " --emit blob");
+    const nlohmann::json z = validate_dir_json(d, "async", " --emit blob --report-delay-ms 0");
+    CHECK(l["report_delay_ms"] == 19.0);
+    const nlohmann::json &lc = l["fpga_chain"], &zc = z["fpga_chain"];
+    INFO("fixed lag: " << l.dump() << "\nat once: " << z.dump());
+    // One frame per reference field (50 in 1 s), each from a body pose smoothed by later parts.
+    CHECK(lc["frames"].get<int>() == 50);
+    CHECK(zc["frames"].get<int>() > 400);
+    CHECK(lc["smoothed_poses"].get<long>() > 100);
+    CHECK(zc["smoothed_poses"].get<long>() == 0);
+    // The issue's latency targets: p50 <= 21 ms, p99 <= 25 ms (measured 19.4 / 21.9 ms; at once 14.0 / 17.8), plus
+    // the tracking stage's compute, measured on this machine (a sanitizer build's is ten times a release build's).
+    const double compute = lc["tracking_compute_us"]["p99"].get<double>();
+    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() > 19000.0);
+    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() < 21000.0 + compute);
+    CHECK(l["exposure_to_pose_us"]["p99"].get<double>() < 25000.0 + compute);
+    // Measured: 3D over all markers 42.2 -> 24.4 um, tip 70.8 -> 53.5 um, eye 0.0414 -> 0.0319 deg.
+    CHECK(l["marker3d_all_rms_um"].get<double>() < 0.7 * z["marker3d_all_rms_um"].get<double>());
+    CHECK(l["tip_rms_um"].get<double>() < 0.85 * z["tip_rms_um"].get<double>());
+    CHECK(l["eye_rot_rms_deg"].get<double>() < 0.85 * z["eye_rot_rms_deg"].get<double>());
 }
 
 TEST_CASE("validate --sync async: the motion-model mixture holds the eye as steady as a three-view fit per frame",
@@ -201,7 +229,7 @@ TEST_CASE("validate --sync async --emit blob: an instrument pulled out faster th
     // to 0.85 m/s within three fields. The field after the pull began, its filter still put it where the cameras
     // had last seen it, 13 ms before, and reported that as measured: 1.5 mm off (tip RMS 119 um, 3D 74 um). Now the
     // camera whose field before showed it and whose field now shows none of its markers holds it.
-    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 76), "async", " --emit blob");
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 76), "async", " --emit blob --report-delay-ms 0");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured 21.9 um and 15.6 um, the injection not measured in 443 of 988 frames (434 before: it is out of
@@ -218,7 +246,7 @@ TEST_CASE("validate --sync async --emit blob: an instrument whose filter is unsu
     // A 2 s `occlusion` recording (seed 77): the injection cannula, 52 mm out of the eye (no trocar line), is
     // pushed back in at 1.3 s at up to 0.85 m/s. In the field after the push began the filter, still counted as
     // supported, put it 1.5 mm off with its position σ above 0.15 mm (tip RMS 109 um, 3D 70 um).
-    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 77), "async", " --emit blob");
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 77), "async", " --emit blob --report-delay-ms 0");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured 33.4 um and 18.3 um, 143 instrument frames not measured of 2 x 1026 (131 before).
@@ -233,7 +261,7 @@ TEST_CASE("validate --sync async --emit blob: an instrument the readout has pass
     // Camera 0's field after the push began showed none of its markers, but that was decided at the field's last
     // part: the six parts before it reported the prediction from the field before as measured, 1.6 mm off (tip RMS
     // 148 um, 3D 92 um). Now each part decides it over the markers the readout has passed.
-    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 79), "async", " --emit blob");
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 79), "async", " --emit blob --report-delay-ms 0");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured 83.8 um and 44.6 um (the pull-out at 0.6 s keeps three parts 1.4 mm off: its markers were below
@@ -250,7 +278,7 @@ TEST_CASE("validate --sync async --emit blob: an instrument only one camera give
     // 2 three markers, camera 0 one and camera 1 none. It counted as supported (another camera saw a marker) and its
     // filter, sure to 0.10-0.13 mm, put the tip 0.4-0.9 mm off for 0.2 s (tip RMS 145 um, 3D 35.7 um). Now an
     // instrument needs two cameras with two of its markers each within a field period.
-    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 171), "async", " --emit blob");
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 171), "async", " --emit blob --report-delay-ms 0");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured 50.7 um and 19.6 um, 301 instrument frames not measured of 2 x 884 (189 before).
@@ -267,7 +295,7 @@ TEST_CASE("validate --sync async --emit blob: an instrument re-found by one fit 
     // re-found at 0.72 s by a fit of the cameras' fields extrapolated to one time while it still moves fast; that
     // first fit was reported as measured, its markers 1.5-1.9 mm off (tip max 1.50 mm, 3D over all markers 39.5 um).
     // Now it is held until a second fit in a row starts the filter.
-    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 180), "async", " --emit blob");
+    const nlohmann::json j = validate_dir_json(recording("occlusion", 2, 180), "async", " --emit blob --report-delay-ms 0");
     const nlohmann::json& c = j["fpga_chain"];
     INFO(j.dump());
     // Measured: tip max 567 um (the cannula out of the eye, 0.3-0.5 mm off in two views), 3D 28.4 um, 232

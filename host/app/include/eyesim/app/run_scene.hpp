@@ -36,6 +36,7 @@ struct SceneRunRequest {
     bool precision = false;            ///< precision mode (live, capture): markers refined on the device's patches
     bool no_hints = false;             ///< precision mode without occlusion hints: every fit a whole sphere
     std::string sync = "interpolate";  ///< the tracker's camera combination: interpolate, extrapolate, nearest, async
+    double report_delay_ms = 19.0;     ///< async: fixed-lag frames this long after exposure (AsyncOptions)
     std::string title = "eyesim sim";  ///< report title
 };
 

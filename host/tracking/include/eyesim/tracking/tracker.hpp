@@ -109,8 +109,11 @@ public:
     void push(const protocol::FieldMarkers& msg, double received_host_us);
     /// Adds a pedal state (sets the instruments' opening from `opening_pedal_axis`).
     void push(const protocol::PedalState& pedal, double received_host_us);
-    /// End of stream: frames still waiting for later fields are built with what there is.
-    void finish() { sync_.finish(); }
+    /// End of stream: frames still waiting for later fields (or for their fixed lag) are built with what there is.
+    void finish() {
+        sync_.finish();
+        flush_pending_ = true;
+    }
     /// A new stream segment (the device restarted, or the stream's time jumped back): forgets the fields,
     /// pending frames and pose history of the old one (pop them first: finish(), then pop until false). Keeps
     /// the configuration, the clock offset and the counters.
@@ -156,6 +159,9 @@ public:
     /// Low-latency parts fused at their own time, before newer ones (AsyncOptions::time_order_parts), per body
     /// and part, counted since construction.
     std::uint64_t time_ordered_parts() const { return replayed_parts_; }
+    /// Body poses of fixed-lag frames smoothed by what was fused after their time (AsyncOptions::report_delay_us),
+    /// counted since construction.
+    std::uint64_t smoothed_poses() const { return smoothed_poses_; }
 
 private:
     /// Each corrects markers' views from the first fit's poses and returns whether it moved any (the caller
@@ -239,7 +245,25 @@ private:
     std::unique_ptr<ReplayHistory[]> replay_;               // one per body, with time_order_parts
     std::uint64_t replayed_parts_ = 0;
     void acquire(const CameraField& f);
-    void build_async_frame(const CameraField& f, TrackingFrame& out);
+    static constexpr int kBodies = 1 + kMaxInstruments;  ///< eye, then the instruments
+    // Fixed-lag reports (AsyncOptions::report_delay_us): a reference field's frame waits until the host clock is
+    // report_delay_us past its exposure; its poses are then smoothed from the parts history's filter at its time.
+    struct PendingFrame {
+        CameraField field;  // as its newest accepted part left it
+        bool last = false;
+    };
+    static constexpr double kMaxReportDelayUs = 40000.0;  // the error message says so
+    static constexpr int kPending = 4;  // report_delay_us is under a field period: one or two wait at a time
+    std::array<PendingFrame, kPending> pending_{};
+    int pending_head_ = 0, pending_count_ = 0;
+    std::uint32_t pending_last_reported_ = 0;
+    bool pending_reported_any_ = false;
+    bool flush_pending_ = false;  // finish(): the waiting frames go now
+    std::uint64_t smoothed_poses_ = 0;
+    void hold_frame(const CameraField& f, bool last);
+    bool report_due(TrackingFrame& out, double now_host_us);
+    /// `smooth`: a fixed-lag frame, each pose smoothed by what was fused after its time.
+    void build_async_frame(const CameraField& f, TrackingFrame& out, bool smooth = false);
 
     TrackerConfig config_;
     std::vector<CameraGeometry> cameras_;
@@ -263,7 +287,6 @@ private:
 
     // --- SyncMode::Async ---
     static constexpr int kQueue = 32;        ///< fields and low-latency parts waiting for pop()
-    static constexpr int kBodies = 1 + kMaxInstruments;  ///< eye, then the instruments
     /// Images [first, field.count) of `field` to fuse; `last`: the field is complete.
     struct QueuedField {
         CameraField field;
