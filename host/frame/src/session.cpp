@@ -128,7 +128,14 @@ void HostRun::on_pong(const proto::Reply& r, double rx_host_us) {
     if (pong1_host_ - pong0_host_ > 1e6) stats_.device_clock_rate = (pong1_dev_ - pong0_dev_) / (pong1_host_ - pong0_host_);
 }
 
+double HostRun::next_due_host_us() const { return tracker_->next_report_host_us(); }
+
 void HostRun::on_frame(const proto::DecodedFrame& f, double rx_host_us) {
+    // A replay on the modelled clock: a frame that fell due before this message went at its own time (the live
+    // loop's timer: run_live).
+    if (run_clock_ != RunClock::kHost)
+        for (double due = tracker_->next_report_host_us(); due < rx_host_us; due = tracker_->next_report_host_us())
+            drain(due);
     ++stats_.messages;
     last_rx_us_ = rx_host_us;
     push_rx_us_ = rx_host_us;
@@ -447,7 +454,10 @@ LiveResult run_live(transport::Transport& link, HostRun& run, const LiveOptions&
                 last_ping = now;
             }
         }
-        const transport::IoResult r = link.read(buf, 50);
+        // Wake for a fixed-lag frame that falls due before the next bytes (Tracker::next_report_host_us).
+        const double due_ms = (run.next_due_host_us() - host_now_us()) * 1e-3;
+        const transport::IoResult r = link.read(buf, due_ms < 50.0 ? std::max(1, int(std::ceil(due_ms))) : 50);
+        run.poll(host_now_us());
         if (r.bytes) {
             rx_us = last_rx = host_now_us();
             if (away) {  // back after an unplug: the device starts afresh and needs stream_start again

@@ -133,15 +133,17 @@ TEST_CASE("validate --sync async --emit blob: fixed-lag frames 19 ms after expos
     CHECK(zc["frames"].get<int>() > 400);
     CHECK(lc["smoothed_poses"].get<long>() > 100);
     CHECK(zc["smoothed_poses"].get<long>() == 0);
-    // The issue's latency targets: p50 <= 21 ms, p99 <= 25 ms (measured 19.4 / 21.9 ms; at once 14.0 / 17.8), plus
-    // the tracking stage's compute, measured on this machine (a sanitizer build's is ten times a release build's).
+    // The issue's latency targets: p50 <= 21 ms, p99 <= 25 ms (measured 19.0 / 21.9 ms: a frame goes when it falls
+    // due, not with the next part; at once 14.0 / 17.8), plus the tracking stage's compute, measured on this
+    // machine (a sanitizer build's is ten times a release build's).
     const double compute = lc["tracking_compute_us"]["p99"].get<double>();
-    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() > 19000.0);
-    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() < 21000.0 + compute);
+    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() > 18900.0);
+    CHECK(l["exposure_to_pose_us"]["p50"].get<double>() < 19500.0 + compute);
     CHECK(l["exposure_to_pose_us"]["p99"].get<double>() < 25000.0 + compute);
-    // Measured: 3D over all markers 42.2 -> 24.4 um, tip 70.8 -> 53.5 um, eye 0.0414 -> 0.0319 deg.
-    CHECK(l["marker3d_all_rms_um"].get<double>() < 0.7 * z["marker3d_all_rms_um"].get<double>());
-    CHECK(l["tip_rms_um"].get<double>() < 0.85 * z["tip_rms_um"].get<double>());
+    // Measured: 3D over all markers 42.2 -> 27.3 um, tip 70.8 -> 57.6 um, eye 0.0414 -> 0.0320 deg; instrument
+    // frames held 6 of 2 x 50 (at once 34 of 2 x 559; the first three of each instrument are its acquisition).
+    CHECK(l["marker3d_all_rms_um"].get<double>() < 0.75 * z["marker3d_all_rms_um"].get<double>());
+    CHECK(l["tip_rms_um"].get<double>() < 0.9 * z["tip_rms_um"].get<double>());
     CHECK(l["eye_rot_rms_deg"].get<double>() < 0.85 * z["eye_rot_rms_deg"].get<double>());
 }
 

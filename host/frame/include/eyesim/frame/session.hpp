@@ -117,6 +117,11 @@ public:
     void on_frame(const protocol::DecodedFrame& frame, double rx_host_us);
     /// End of stream: frames still waiting are built (and simulated); the latency figures are settled.
     void finish();
+    /// Host time a waiting fixed-lag frame falls due (tracking::Tracker::next_report_host_us; +∞: none): a live
+    /// loop waits for bytes no longer than this and then calls poll().
+    double next_due_host_us() const;
+    /// Releases the frames due by `now_us` (host clock) with no message arriving.
+    void poll(double now_us) { drain(now_us); }
     /// The source's stream parser counters (errors, resyncs), for the run's counters.
     void set_parser_stats(const protocol::ParserStats& s);
     /// The link dropped and came back (USB unplug): sequence numbers and field counters start again.

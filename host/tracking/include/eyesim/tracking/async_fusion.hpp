@@ -82,9 +82,10 @@ struct AsyncOptions {
     /// once the host clock is this long past the field's exposure mid, its poses smoothed by everything fused
     /// since (BodyFilter::smoothed_pose_at; needs time_order_parts' history, else the newest state carried back):
     /// the other cameras' parts exposed after it bracket the frame's time, as interpolation does without waiting
-    /// for their whole fields. 19 ms keeps exposure → pose under 21 ms at the median and 22 ms at the 99th
-    /// percentile; on held-out `fast` recordings it took the 3D error from 40 to 23 µm (docs/validation.md,
-    /// "Fixed-lag reports").
+    /// for their whole fields. The host releases a frame when it falls due (Tracker::next_report_host_us, a timer
+    /// in the live loop), not with the next message, which can come 3 ms later where markers are few. 19 ms keeps
+    /// the 21 ms median with a margin for the host's wake-up; on held-out `fast` recordings the 3D error
+    /// over all markers fell from 40 to 24 µm (docs/validation.md, "Fixed-lag frames").
     double report_delay_us = 19000.0;
     /// Rate at which the body is expected to switch between steady and agile motion (1/s, each way): the
     /// models' prior mixing (with the images' likelihoods it decides which model the pose follows).

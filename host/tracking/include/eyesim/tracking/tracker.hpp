@@ -159,6 +159,9 @@ public:
     /// Low-latency parts fused at their own time, before newer ones (AsyncOptions::time_order_parts), per body
     /// and part, counted since construction.
     std::uint64_t time_ordered_parts() const { return replayed_parts_; }
+    /// Host time the oldest waiting fixed-lag frame falls due (AsyncOptions::report_delay_us; +∞ when none waits):
+    /// a host loop whose next message comes later calls pop() at this time, as a timer would.
+    double next_report_host_us() const;
     /// Body poses of fixed-lag frames smoothed by what was fused after their time (AsyncOptions::report_delay_us),
     /// counted since construction.
     std::uint64_t smoothed_poses() const { return smoothed_poses_; }
@@ -263,7 +266,9 @@ private:
     void hold_frame(const CameraField& f, bool last);
     bool report_due(TrackingFrame& out, double now_host_us);
     /// `smooth`: a fixed-lag frame, each pose smoothed by what was fused after its time.
-    void build_async_frame(const CameraField& f, TrackingFrame& out, bool smooth = false);
+    void build_async_frame(const CameraField& f, TrackingFrame& out, const PendingFrame* smooth = nullptr);
+    /// Which bodies a frame at T reports held (coasting on the prediction, one view, unsure, missed).
+    void held_bodies(double T, std::array<bool, kBodies>& held) const;
 
     TrackerConfig config_;
     std::vector<CameraGeometry> cameras_;
