@@ -422,6 +422,41 @@ SwingMotion eye_turn(double peak_deg, double hz) {
     return m;
 }
 
+/// Fuses camera `cam`'s images of `body` at the pose (R, t) into `f`, with 0.05 px of centroid noise (twice that
+/// in y: frame rows, a field's rows being two apart).
+template <typename Camera>
+void fuse_images(BodyFilter& f, const Camera& cam, const Eigen::Quaterniond& R, const Eigen::Vector3d& t,
+                 const std::vector<Eigen::Vector3d>& body, std::mt19937_64& rng, std::normal_distribution<double>& n01) {
+    for (const Eigen::Vector3d& b : body) {
+        Eigen::Vector2d px;
+        REQUIRE(project_point(cam, R * b + t, px));
+        px += 0.05 * Eigen::Vector2d(n01(rng), 2.0 * n01(rng));
+        f.update_point(cam, b, px, 0.08, 0.12, 25.0,
+                       [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
+                           return Eigen::Vector2d::Zero().eval();
+                       });
+    }
+}
+
+/// The instruments' three constant-velocity models as the tracker builds them (densities in ang, lin); their count.
+int instrument_ladder(const AsyncOptions& ao, double* ang, double* lin) {
+    motion_model_ladder(3, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin);
+    return motion_model_ladder(3, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang);
+}
+
+/// A tilt of 0.66 rad at 3 Hz about a pivot 30 mm along the body, from rest at 0.3 s (the rig's `fast` band).
+SwingMotion tilt_from_rest() {
+    SwingMotion m;
+    m.start_us = 300000.0;
+    return m;
+}
+
+/// The same body held still.
+SwingMotion at_rest(SwingMotion m) {
+    m.amplitude_rad = 0.0;
+    return m;
+}
+
 /// RMS (µm) of the markers where `f` predicts them at each field's time before that field's images are fused (what
 /// the first low-latency part of a field is reported with), over fields after `from_us`.
 double prediction_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, double to_us, std::uint64_t seed,
@@ -443,15 +478,7 @@ double prediction_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, do
                     ss += (f.to_rig(b) - (R * b + t)).squaredNorm();
                     ++n;
                 }
-            for (const Eigen::Vector3d& b : body) {
-                Eigen::Vector2d px;
-                REQUIRE(project_point(cams[std::size_t(c)], R * b + t, px));
-                px += 0.05 * Eigen::Vector2d(n01(rng), 2.0 * n01(rng));
-                f.update_point(cams[std::size_t(c)], b, px, 0.08, 0.12, 25.0,
-                               [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
-                                   return Eigen::Vector2d::Zero().eval();
-                               });
-            }
+            fuse_images(f, cams[std::size_t(c)], R, t, body, rng, n01);
         }
     return 1e3 * std::sqrt(ss / double(std::max(n, 1L)));
 }
@@ -537,12 +564,8 @@ TEST_CASE("async filter: the agile model that turns about the pivot predicts a f
     // the tracker builds it, without and with its agile model about the pivot (RigidBodyFilter::set_pivot).
     const AsyncOptions ao;
     double ang[3], lin[3];
-    const int nm = motion_model_ladder(3, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang);
-    motion_model_ladder(3, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin);
-    SwingMotion swing;
-    swing.start_us = 300000.0;
-    SwingMotion rest = swing;
-    rest.amplitude_rad = 0.0;
+    const int nm = instrument_ladder(ao, ang, lin);
+    const SwingMotion swing = tilt_from_rest(), rest = at_rest(swing);
     for (std::uint64_t seed : {61u, 62u, 63u}) {
         double e[2], r[2];
         for (int k = 0; k < 2; ++k) {
@@ -584,15 +607,7 @@ void smoothing_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, doubl
             f.predict_to(T);
             const Eigen::Quaterniond R = m.R(T);
             const Eigen::Vector3d t = m.t(T);
-            for (const Eigen::Vector3d& b : body) {
-                Eigen::Vector2d px;
-                REQUIRE(project_point(cams[std::size_t(c)], R * b + t, px));
-                px += 0.05 * Eigen::Vector2d(n01(rng), 2.0 * n01(rng));
-                f.update_point(cams[std::size_t(c)], b, px, 0.08, 0.12, 25.0,
-                               [](const Eigen::Quaterniond&, const Eigen::Vector3d&, const Eigen::Vector3d&) {
-                                   return Eigen::Vector2d::Zero().eval();
-                               });
-            }
+            fuse_images(f, cams[std::size_t(c)], R, t, body, rng, n01);
             if (c == 0) then = f;
             if (c != 2 || field_time_us(k, 0) < from_us) continue;
             const double T0 = field_time_us(k, 0);
@@ -620,12 +635,8 @@ TEST_CASE("async filter: a pose smoothed by the fields after its time is nearer 
     // of motion models as the tracker builds it; truth from the analytic motion.
     const AsyncOptions ao;
     double ang[3], lin[3];
-    const int nm = motion_model_ladder(3, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang);
-    motion_model_ladder(3, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin);
-    SwingMotion swing;
-    swing.start_us = 300000.0;
-    SwingMotion rest = swing;
-    rest.amplitude_rad = 0.0;
+    const int nm = instrument_ladder(ao, ang, lin);
+    const SwingMotion swing = tilt_from_rest(), rest = at_rest(swing);
     // Markers on one line (an instrument's): roll about it is held by a pseudo-measurement inside each prediction,
     // which the smoothing step must leave out (with it, the step turned such a body by up to 0.9 rad).
     const std::vector<Eigen::Vector3d> line{{0, 0, 0}, {0, 0, 4}, {0, 0, 9}};
