@@ -5,6 +5,7 @@
 #include "eyesim/app/run_scene.hpp"
 #include "eyesim/rig/error.hpp"
 #include "eyesim/rig/scenario.hpp"
+#include "eyesim/tracking/async_fusion.hpp"
 #include "eyesim/rig/synth.hpp"
 #include "eyesim/sim/scenes/scene.hpp"
 
@@ -188,11 +189,8 @@ eyesim::app::Registrar reg{
                        "mode) or interpolate (whole fields, the cameras interpolated to one time)")
             ->check(CLI::IsMember({"async", "interpolate"}))
             ->capture_default_str();
-        sub.add_option("--report-delay-ms", opt->report_delay_ms,
-                       "with --sync async: report each reference field's frame this long after its exposure, its poses smoothed "
-                       "by the parts fused since (0: a frame at once from each part; at most 40)")
-            ->check(eyesim::app::finite_in(0.0, 40.0))
-            ->capture_default_str();
+        eyesim::app::add_report_delay_option(sub, opt->report_delay_ms,
+                                             eyesim::tracking::AsyncOptions::kMaxReportDelayUs * 1e-3);
         sub.add_flag("--json", opt->json, "one JSON object on stdout");
         return [opt]() -> int { return run_demo(*opt); };
     }};

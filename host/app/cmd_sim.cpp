@@ -2,6 +2,7 @@
 #include "eyesim/app/command.hpp"
 #include "eyesim/app/run_scene.hpp"
 #include "eyesim/rig/scenario.hpp"
+#include "eyesim/tracking/async_fusion.hpp"
 
 #include <memory>
 
@@ -41,11 +42,8 @@ eyesim::app::Registrar reg{
                        "filters fed each part as it arrives; with a device in its per-blob mode, --low-latency)")
             ->check(CLI::IsMember({"async", "interpolate"}))
             ->capture_default_str();
-        sub.add_option("--report-delay-ms", req->report_delay_ms,
-                       "with --sync async: report each reference field's frame this long after its exposure, its poses smoothed "
-                       "by the parts fused since (0: a frame at once from each part; at most 40)")
-            ->check(eyesim::app::finite_in(0.0, 40.0))
-            ->capture_default_str();
+        eyesim::app::add_report_delay_option(sub, req->report_delay_ms,
+                                             eyesim::tracking::AsyncOptions::kMaxReportDelayUs * 1e-3);
         sub.add_flag("--json", req->json, "one JSON object on stdout");
         return [req]() -> int { return eyesim::app::run_scene(*req); };
     }};

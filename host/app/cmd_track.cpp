@@ -234,11 +234,7 @@ eyesim::app::Registrar reg{"track", "Track instruments and eye from a device or 
                    "camera time alignment: interpolate | extrapolate | nearest | async (per-body filters updated by "
                    "each camera field at its own time)")
         ->check(CLI::IsMember({"interpolate", "extrapolate", "nearest", "async"}));
-    sub.add_option("--report-delay-ms", opt->report_delay_ms,
-                   "with --sync async: report each reference field's frame this long after its exposure, its poses smoothed "
-                   "by the parts fused since (0: a frame at once from each part; at most 40)")
-        ->check(eyesim::app::finite_in(0.0, 40.0))
-        ->capture_default_str();
+    eyesim::app::add_report_delay_option(sub, opt->report_delay_ms, tr::AsyncOptions::kMaxReportDelayUs * 1e-3);
     sub.add_option("--seconds", opt->seconds, "live: stop after this many seconds (0: until the device closes)")
         ->check(eyesim::app::finite_in(0.0, 1e6));
     sub.add_option("--stall-s", opt->stall_s, "live: end the run when the device sends nothing for this long")

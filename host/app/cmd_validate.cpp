@@ -1703,11 +1703,7 @@ eyesim::app::Registrar reg{"validate",
                    "how the modelled device sends a field's markers: field (all at the field's end) | blob (each as "
                    "soon as the FPGA emits it, the low-latency mode; with --sync async each part is fused at once)")
         ->check(CLI::IsMember({"field", "blob"}));
-    sub.add_option("--report-delay-ms", opt->report_delay_ms,
-                   "with --sync async: report each reference field's frame this long after its exposure, its poses "
-                   "smoothed by the parts fused since (0: a frame at once from each part; at most 40)")
-        ->check(eyesim::app::finite_in(0.0, 40.0))
-        ->capture_default_str();
+    eyesim::app::add_report_delay_option(sub, opt->report_delay_ms, tr::AsyncOptions::kMaxReportDelayUs * 1e-3);
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
     sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run")
         ->check(eyesim::app::finite_in(0.0, 10.0));

@@ -18,6 +18,15 @@ Registrar::Registrar(std::string name, std::string help, Setup setup) {
     registry().push_back({std::move(name), std::move(help), std::move(setup)});
 }
 
+void add_report_delay_option(CLI::App& sub, double& report_delay_ms, double max_ms) {
+    sub.add_option("--report-delay-ms", report_delay_ms,
+                   "with --sync async: report each reference field's frame this long after its exposure, its poses "
+                   "smoothed by the parts fused since (0: a frame at once from each part; at most " +
+                       std::to_string(int(max_ms)) + ")")
+        ->check(finite_in(0.0, max_ms))
+        ->capture_default_str();
+}
+
 CLI::Validator finite_in(double lo, double hi) {
     return CLI::Validator(
         [lo, hi](std::string& text) -> std::string {

@@ -493,18 +493,12 @@ void BodyFilter::merge(const std::array<double, kMaxModels>& w, int ref, RigidBo
 
 void BodyFilter::smoothed_pose_at(const BodyFilter& then, double t_us, Eigen::Quaterniond& R,
                                   Eigen::Vector3d& t) const {
-    RigidBodyFilter s;
-    if (then.tracking() && smooth_step(then, mix(), s)) s.pose_at(t_us, R, t);
-    else mix().pose_at(t_us, R, t);
-}
-
-bool BodyFilter::smooth_step(const BodyFilter& then, const RigidBodyFilter& later, RigidBodyFilter& out) {
     using Cov = RigidBodyFilter::Cov;
     using State = RigidBodyFilter::State;
+    const RigidBodyFilter& later = mix();
     const RigidBodyFilter& f = then.mix();
-    out = f;
     const double t_next = later.time_us();
-    if (!(t_next > f.time_us())) return false;
+    if (!then.tracking() || !(t_next > f.time_us())) return later.pose_at(t_us, R, t);
     BodyFilter pred = then;
     pred.predict_to(t_next);
     const RigidBodyFilter& p = pred.mix();
@@ -560,9 +554,10 @@ bool BodyFilter::smooth_step(const BodyFilter& then, const RigidBodyFilter& late
     const Cov C = f.P_ * F.transpose();
     State dx = State::Zero();
     for (int a = 0; a < n; ++a) dx += C.col(idx[std::size_t(a)]) * x(a);
-    if (!dx.allFinite()) return false;
-    out.apply(dx);
-    return true;
+    if (!dx.allFinite()) return later.pose_at(t_us, R, t);
+    RigidBodyFilter s = f;
+    s.apply(dx);
+    s.pose_at(t_us, R, t);
 }
 
 void BodyFilter::combine() const {

@@ -73,10 +73,9 @@ Tracker::Tracker(TrackerConfig config)
                                     std::to_string(config_.sync.reference_camera) + " is not a camera");
     if (!(config_.centroid_sigma_px > 0.0) || !std::isfinite(config_.centroid_sigma_px))
         throw std::invalid_argument("tracker: centroid_sigma_px: must be positive");
-    // The smoothing needs the filter as it was at the frame's time: the parts history (kReplayEpochs update times)
-    // reaches about 2.7 field periods back.
-    if (!(config_.async.report_delay_us >= 0.0 && config_.async.report_delay_us <= kMaxReportDelayUs))
-        throw std::invalid_argument("tracker: async.report_delay_us: must be 0..40000");
+    if (!(config_.async.report_delay_us >= 0.0 && config_.async.report_delay_us <= AsyncOptions::kMaxReportDelayUs))
+        throw std::invalid_argument("tracker: async.report_delay_us: must be 0.." +
+                                    std::to_string(int(AsyncOptions::kMaxReportDelayUs)));
     // correspondence_ holds a span over cameras_, which is never resized after construction.
     const AsyncOptions& ao = config_.async;
     // Constant-velocity models steadiest first (motion_model_ladder); the acceleration model after them.

@@ -51,6 +51,10 @@ CLI::Validator finite_in(double lo, double hi);
 /// unsigned option as 2^64 - 1 without a word.)
 CLI::Validator unsigned_integer();
 
+/// `--report-delay-ms` (tracking::AsyncOptions::report_delay_us, at most `max_ms`) on a command that tracks with
+/// `--sync async`.
+void add_report_delay_option(CLI::App& sub, double& report_delay_ms, double max_ms);
+
 /// True when progress lines should go to stderr: stderr is a terminal and `--json` was not given.
 bool show_progress(bool json);
 

@@ -87,6 +87,9 @@ struct AsyncOptions {
     /// the 21 ms median with a margin for the host's wake-up; on held-out `fast` recordings the 3D error
     /// over all markers fell from 40 to 24 µm (docs/validation.md, "Fixed-lag frames").
     double report_delay_us = 19000.0;
+    /// Its limit: the smoothing needs the filter as it was at the frame's time, and the parts history
+    /// (Tracker::kReplayEpochs update times) reaches about 2.7 field periods back.
+    static constexpr double kMaxReportDelayUs = 40000.0;
     /// Rate at which the body is expected to switch between steady and agile motion (1/s, each way): the
     /// models' prior mixing (with the images' likelihoods it decides which model the pose follows).
     double model_switch_per_s = 2.0;
@@ -374,10 +377,6 @@ public:
     int models() const { return n_; }
 
 private:
-    /// One Rauch–Tung–Striebel step: `out` = the state at then's time given `then` (the filter as it was there)
-    /// and `later`, the state at a later time. False (out = then's estimate) where later is not later, or the
-    /// step is not finite.
-    static bool smooth_step(const BodyFilter& then, const RigidBodyFilter& later, RigidBodyFilter& out);
     /// Error state of model i relative to model j's (δθ with R_i = exp(δθ)·R_j, then δt, δω, δv).
     static RigidBodyFilter::State difference(const RigidBodyFilter& i, const RigidBodyFilter& j);
     /// `out` = the models' states averaged with weights `w` about model `ref`'s, their covariance widened by the

@@ -255,7 +255,6 @@ private:
         CameraField field;  // as its newest accepted part left it
         bool last = false;
     };
-    static constexpr double kMaxReportDelayUs = 40000.0;  // the error message says so
     static constexpr int kPending = 4;  // report_delay_us is under a field period: one or two wait at a time
     std::array<PendingFrame, kPending> pending_{};
     int pending_head_ = 0, pending_count_ = 0;
