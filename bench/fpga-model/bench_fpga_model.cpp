@@ -464,13 +464,19 @@ int main(int argc, char** argv) {
     });
     model("pipeline_binary", "pipeline: binary centroid", [](RegisterMap& r) { r.write(reg::kWeightMode, 0); });
     model("pipeline_no_fast_path", "pipeline: reset, fast path off", [](RegisterMap& r) { r.write(reg::kFastPath, 0); });
-    // The model's own options (same output): the line scan a CPU without AVX-512 gets, and no software prefetch.
+    // The model's own options (same output): the line scan a CPU without AVX-512 gets, no software prefetch, and
+    // the prefetch into L1 at 4 lines that was the default before 2026-12-07.
     PipelineConfig avx2;
     avx2.scan_isa = ScanIsa::kAvx2;
     model("pipeline_avx2", "pipeline: reset, AVX2 line scan (a CPU without AVX-512)", [](RegisterMap&) {}, avx2);
     PipelineConfig no_prefetch;
     no_prefetch.prefetch_lines = 0;
     model("pipeline_no_prefetch", "pipeline: reset, no software prefetch", [](RegisterMap&) {}, no_prefetch);
+    PipelineConfig prefetch_l1;
+    prefetch_l1.prefetch_lines = 4;
+    prefetch_l1.prefetch_l1 = true;
+    model("pipeline_prefetch_l1", "pipeline: reset, prefetch into L1, 4 lines ahead (before 2026-12-07)", [](RegisterMap&) {},
+          prefetch_l1);
     if (!rig_mode) {
         // ROI: one window per marker around its true position (as a tracker predicting from the last field
         // would); scored on the first four markers; timed with scene 0's windows (no register writes timed).

@@ -715,8 +715,13 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
     for (int y = 0; y < lines; ++y) {
         if (ahead > 0 && y + ahead < lines) {
             const char* q = reinterpret_cast<const char*>(uyvy_field + static_cast<size_t>(y + ahead) * stride_bytes);
-            for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 3);
-            __builtin_prefetch(q + kLineBytes - 1, 0, 3);
+            if (config_.prefetch_l1) {
+                for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 3);
+                __builtin_prefetch(q + kLineBytes - 1, 0, 3);
+            } else {
+                for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 2);
+                __builtin_prefetch(q + kLineBytes - 1, 0, 2);
+            }
         }
         const uint8_t* line = uyvy_field + static_cast<size_t>(y) * stride_bytes;
         if (cells_path_ && params_.enable && y > 0 && n_runs_[0] == 0 && n_runs_[1] == 0) {
