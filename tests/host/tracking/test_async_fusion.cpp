@@ -762,10 +762,13 @@ AsyncRun run_tracker(const SyntheticScene& scene, int fields, double sigma_px, S
                 ++r.n_tip;
             }
             if (all) r.measured_frames_after.push_back(int(f.reference_field));
-            if (tracked_at) {
+            if (tracked_at) {  // every instrument's filter running (pose_at writes only the tracked bodies' poses)
                 EyePose e;
                 std::array<InstrumentPose, kMaxInstruments> ins{};
-                if (tracker.pose_at(f.time_device_us, e, ins)) tracked_at->push_back(int(f.reference_field));
+                for (auto& p : ins) p.tip_rig_mm.setConstant(std::nan(""));
+                bool every = tracker.pose_at(f.time_device_us, e, ins);
+                for (int b = 0; b < f.instrument_count; ++b) every = every && std::isfinite(ins[std::size_t(b)].tip_rig_mm.x());
+                if (every) tracked_at->push_back(int(f.reference_field));
             }
         }
     }
@@ -900,9 +903,10 @@ TEST_CASE("async tracker: a body lost in a gap is re-acquired by triangulation",
     CHECK(has(tracked, 39));        // filters running before the gap
     CHECK_FALSE(has(tracked, 50));  // lost after it
     // Re-acquisition by triangulation needs every camera's two latest fields (the synchroniser extrapolates the
-    // other cameras to the reference field's time): the first fit two frames after the gap, reported held (its
-    // fields extrapolated to one time: AsyncOptions::hold_acquisition_fit), then the second fit in a row gives pose
-    // and velocity, the filters run again, and that frame is the first measured.
+    // other cameras to the reference field's time): the first fit two frames after the gap, its instruments reported
+    // held (their fields extrapolated to one time: AsyncOptions::hold_acquisition_fit; the eye's filter starts from
+    // it, AsyncOptions::eye_filter_from_one_fit), then the second fit in a row gives the instruments' pose and
+    // velocity, their filters run again, and that frame is the first measured. `tracked`: every instrument's filter.
     int first_measured = -1;
     for (int i = 50; i < 90 && first_measured < 0; ++i)
         if (has(r.measured_frames_after, i)) first_measured = i;

@@ -77,6 +77,10 @@ struct AsyncOptions {
     /// starts its filter: the first fit, from cameras' fields extrapolated to one time, was up to 1.7 mm off where
     /// an instrument reappeared moving fast (`occlusion`, the cannula re-found after its pull-out).
     bool hold_acquisition_fit = true;
+    /// The eye's filter starts from its first acquisition fit, at rest (no rotation rate), instead of waiting for a
+    /// second fit in a row and its finite-difference rate (docs/validation.md, "The eye's filter starts from one
+    /// fit").
+    bool eye_filter_from_one_fit = true;
     /// Fixed-lag reports. 0: each part of the reference camera that corrected a filter gives a frame at once (the
     /// pose at its field's time from what has been fused so far). > 0: one frame per reference field, reported
     /// once the host clock is this long past the field's exposure mid, its poses smoothed by everything fused
