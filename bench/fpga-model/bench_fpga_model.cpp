@@ -163,6 +163,9 @@ long anon_huge_kb() {
 struct HugeFieldBuffer {
     uint8_t* data = nullptr;
     size_t bytes = 0;
+    HugeFieldBuffer() = default;
+    HugeFieldBuffer(const HugeFieldBuffer&) = delete;
+    HugeFieldBuffer& operator=(const HugeFieldBuffer&) = delete;
     ~HugeFieldBuffer() { std::free(data); }
     bool fill(std::vector<const uint8_t*>& fields, size_t field_bytes) {
         constexpr size_t kHuge = size_t{1} << 21;

@@ -701,6 +701,15 @@ PipelineStatus Pipeline::end_field() {
     return PipelineStatus::kOk;
 }
 
+namespace {
+// Requests a line's cache lines (Locality: __builtin_prefetch's, a constant there).
+template <int Locality>
+inline void prefetch_line(const char* q) {
+    for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, Locality);
+    __builtin_prefetch(q + kLineBytes - 1, 0, Locality);
+}
+}  // namespace
+
 PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uint32_t field_counter, uint8_t parity,
                                        size_t stride_bytes) {
     PipelineStatus s = begin_field(field_counter, parity);
@@ -715,13 +724,10 @@ PipelineStatus Pipeline::process_field(const uint8_t* uyvy_field, int lines, uin
     for (int y = 0; y < lines; ++y) {
         if (ahead > 0 && y + ahead < lines) {
             const char* q = reinterpret_cast<const char*>(uyvy_field + static_cast<size_t>(y + ahead) * stride_bytes);
-            if (config_.prefetch_l1) {
-                for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 3);
-                __builtin_prefetch(q + kLineBytes - 1, 0, 3);
-            } else {
-                for (size_t b = 0; b < kLineBytes; b += 64) __builtin_prefetch(q + b, 0, 2);
-                __builtin_prefetch(q + kLineBytes - 1, 0, 2);
-            }
+            if (config_.prefetch_l1)
+                prefetch_line<3>(q);  // prefetcht0
+            else
+                prefetch_line<2>(q);  // prefetcht1
         }
         const uint8_t* line = uyvy_field + static_cast<size_t>(y) * stride_bytes;
         if (cells_path_ && params_.enable && y > 0 && n_runs_[0] == 0 && n_runs_[1] == 0) {

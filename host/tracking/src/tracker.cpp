@@ -1321,13 +1321,16 @@ void Tracker::acquire(const CameraField& f) {
         const bool two_fits = measured && acquire_measured_[std::size_t(b)] && dt_us > 1.0 && dt_us < 2.5 * period;
         const bool eye_at_rest = b == 0 && measured && config_.async.eye_filter_from_one_fit;
         if (two_fits || eye_at_rest) {
-            // Two fits in a row: start with their velocity; the eye from one fit, at rest
-            // (AsyncOptions::eye_filter_from_one_fit).
-            const double dt = two_fits ? dt_us * 1e-6 : 1.0;
-            const Eigen::AngleAxisd d(R * acquire_R_[std::size_t(b)].conjugate());
-            Eigen::Vector3d w = eye_at_rest ? Eigen::Vector3d::Zero() : Eigen::Vector3d(d.axis() * d.angle() / dt);
-            if (!roll_axis.isZero()) w -= w.dot(roll_axis) * roll_axis;  // no roll rate where roll is not seen
-            const Eigen::Vector3d v = (t - acquire_t_mm_[std::size_t(b)]) / dt;
+            // The eye from one fit, at rest (AsyncOptions::eye_filter_from_one_fit); else two fits in a row: start
+            // with their velocity.
+            Eigen::Vector3d w = Eigen::Vector3d::Zero(), v = Eigen::Vector3d::Zero();
+            if (!eye_at_rest) {
+                const double dt = dt_us * 1e-6;
+                const Eigen::AngleAxisd d(R * acquire_R_[std::size_t(b)].conjugate());
+                w = d.axis() * d.angle() / dt;
+                if (!roll_axis.isZero()) w -= w.dot(roll_axis) * roll_axis;  // no roll rate where roll is not seen
+                v = (t - acquire_t_mm_[std::size_t(b)]) / dt;
+            }
             flt.init(T, R, t, w, v, 2e-3, 0.05, 0.3, 10.0);
             if (replay_) replay_[std::size_t(b)].clear();
             last_good_us_[std::size_t(b)] = T;

@@ -439,10 +439,22 @@ void fuse_images(BodyFilter& f, const Camera& cam, const Eigen::Quaterniond& R, 
 }
 
 /// The instruments' three constant-velocity models as the tracker builds them (densities in ang, lin); their count.
-int instrument_ladder(const AsyncOptions& ao, double* ang, double* lin) {
-    motion_model_ladder(3, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin);
-    return motion_model_ladder(3, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang);
-}
+/// The instruments' ladder of three motion models as the tracker builds it (the agile model last).
+struct InstrumentLadder {
+    AsyncOptions ao;
+    double ang[3], lin[3];
+    int models = 0;
+    InstrumentLadder() {
+        motion_model_ladder(3, ao.steady_accel_psd_mm2_s3, ao.accel_psd_mm2_s3, lin);
+        models = motion_model_ladder(3, ao.steady_ang_accel_psd_rad2_s3, ao.ang_accel_psd_rad2_s3, ang);
+    }
+    /// `f` with the ladder (roll about `roll_axis` held where it is nonzero), its agile model turning about `m`'s
+    /// pivot when `pivot`.
+    void configure(BodyFilter& f, const Eigen::Vector3d& roll_axis, const SwingMotion& m, bool pivot) const {
+        f.configure_rigid(roll_axis, ang, lin, models, ao.model_switch_per_s);
+        f.set_pivot(models - 1, pivot, m.pivot_body, Eigen::Vector3d::UnitZ(), ao.pivot_across_fraction);
+    }
+};
 
 /// A tilt of 0.66 rad at 3 Hz about a pivot 30 mm along the body, from rest at 0.3 s (the rig's `fast` band).
 SwingMotion tilt_from_rest() {
@@ -562,18 +574,13 @@ TEST_CASE("async filter: the agile model that turns about the pivot predicts a f
     // band): its markers move against the tip through the pivot, which independent linear and angular noise take
     // partly for a translation, and a constant-velocity origin cuts the arc's chord. The ladder of three models as
     // the tracker builds it, without and with its agile model about the pivot (RigidBodyFilter::set_pivot).
-    const AsyncOptions ao;
-    double ang[3], lin[3];
-    const int nm = instrument_ladder(ao, ang, lin);
+    const InstrumentLadder ladder;
     const SwingMotion swing = tilt_from_rest(), rest = at_rest(swing);
     for (std::uint64_t seed : {61u, 62u, 63u}) {
         double e[2], r[2];
         for (int k = 0; k < 2; ++k) {
             BodyFilter f, g;
-            for (BodyFilter* x : {&f, &g}) {
-                x->configure_rigid(Eigen::Vector3d::Zero(), ang, lin, nm, ao.model_switch_per_s);
-                x->set_pivot(nm - 1, k == 1, swing.pivot_body, Eigen::Vector3d::UnitZ(), ao.pivot_across_fraction);
-            }
+            for (BodyFilter* x : {&f, &g}) ladder.configure(*x, Eigen::Vector3d::Zero(), swing, k == 1);
             e[k] = prediction_rms_um(f, swing, 600000.0, 2000000.0, seed);
             r[k] = prediction_rms_um(g, rest, 300000.0, 1500000.0, seed);
         }
@@ -633,9 +640,8 @@ TEST_CASE("async filter: a pose smoothed by the fields after its time is nearer 
     // A fixed-lag frame (AsyncOptions::report_delay_us) reports the pose at a field's time once the other cameras'
     // next fields are in: one Rauch–Tung–Striebel step from the filter as it was then to the state now. The ladder
     // of motion models as the tracker builds it; truth from the analytic motion.
-    const AsyncOptions ao;
-    double ang[3], lin[3];
-    const int nm = instrument_ladder(ao, ang, lin);
+    const InstrumentLadder ladder;
+    const AsyncOptions& ao = ladder.ao;
     const SwingMotion swing = tilt_from_rest(), rest = at_rest(swing);
     // Markers on one line (an instrument's): roll about it is held by a pseudo-measurement inside each prediction,
     // which the smoothing step must leave out (with it, the step turned such a body by up to 0.9 rad).
@@ -646,10 +652,7 @@ TEST_CASE("async filter: a pose smoothed by the fields after its time is nearer 
             const Eigen::Vector3d roll = shape == 0 ? Eigen::Vector3d(Eigen::Vector3d::Zero()) : Eigen::Vector3d(Eigen::Vector3d::UnitZ());
             double fs, ss, fr, sr;
             BodyFilter f, g;
-            for (BodyFilter* x : {&f, &g}) {
-                x->configure_rigid(roll, ang, lin, nm, ao.model_switch_per_s);
-                x->set_pivot(nm - 1, true, swing.pivot_body, Eigen::Vector3d::UnitZ(), ao.pivot_across_fraction);
-            }
+            for (BodyFilter* x : {&f, &g}) ladder.configure(*x, roll, swing, true);
             smoothing_rms_um(f, swing, 600000.0, 2000000.0, seed, body, fs, ss);
             smoothing_rms_um(g, rest, 300000.0, 1500000.0, seed, body, fr, sr);
             INFO("seed " << seed << (shape == 0 ? ", five markers" : ", three on a line")
