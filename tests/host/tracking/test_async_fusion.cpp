@@ -469,29 +469,44 @@ SwingMotion at_rest(SwingMotion m) {
     return m;
 }
 
-/// RMS (µm) of the markers where `f` predicts them at each field's time before that field's images are fused (what
-/// the first low-latency part of a field is reported with), over fields after `from_us`.
-double prediction_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, double to_us, std::uint64_t seed,
-                         const std::vector<Eigen::Vector3d>& body = kRigidBody) {
+/// Starts `f` at `m`'s pose at rest and drives it over every camera's field before camera 0's `to_us`: at each field,
+/// predicted to its time T, `before(k, c, T)`, then the field's images of `body` at `m`'s pose fused (centroid noise
+/// from `seed`), then `after(k, c, T)`.
+template <typename Before, typename After>
+void drive_fields(BodyFilter& f, const SwingMotion& m, double to_us, std::uint64_t seed,
+                  const std::vector<Eigen::Vector3d>& body, Before before, After after) {
     const auto cams = eyesim::tracking::test::three_camera_rig();
     std::mt19937_64 rng(seed);
     std::normal_distribution<double> n01(0.0, 1.0);
     f.init(0.0, m.R(0.0), m.t(0.0), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 2e-3, 0.05, 1.0, 50.0);
-    double ss = 0.0;
-    long n = 0;
     for (int k = 0; field_time_us(k, 0) < to_us; ++k)
         for (int c = 0; c < 3; ++c) {
             const double T = field_time_us(k, c);
             f.predict_to(T);
+            before(k, c, T);
+            fuse_images(f, cams[std::size_t(c)], m.R(T), m.t(T), body, rng, n01);
+            after(k, c, T);
+        }
+}
+
+/// RMS (µm) of the markers where `f` predicts them at each field's time before that field's images are fused (what
+/// the first low-latency part of a field is reported with), over fields after `from_us`.
+double prediction_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, double to_us, std::uint64_t seed,
+                         const std::vector<Eigen::Vector3d>& body = kRigidBody) {
+    double ss = 0.0;
+    long n = 0;
+    drive_fields(
+        f, m, to_us, seed, body,
+        [&](int, int, double T) {
+            if (T < from_us) return;
             const Eigen::Quaterniond R = m.R(T);
             const Eigen::Vector3d t = m.t(T);
-            if (T >= from_us)
-                for (const Eigen::Vector3d& b : body) {
-                    ss += (f.to_rig(b) - (R * b + t)).squaredNorm();
-                    ++n;
-                }
-            fuse_images(f, cams[std::size_t(c)], R, t, body, rng, n01);
-        }
+            for (const Eigen::Vector3d& b : body) {
+                ss += (f.to_rig(b) - (R * b + t)).squaredNorm();
+                ++n;
+            }
+        },
+        [](int, int, double) {});
     return 1e3 * std::sqrt(ss / double(std::max(n, 1L)));
 }
 
@@ -601,34 +616,24 @@ namespace {
 /// ms) were fused too (BodyFilter::smoothed_pose_at), as a fixed-lag frame is.
 void smoothing_rms_um(BodyFilter& f, const SwingMotion& m, double from_us, double to_us, std::uint64_t seed,
                       const std::vector<Eigen::Vector3d>& body, double& filtered, double& smoothed) {
-    const auto cams = eyesim::tracking::test::three_camera_rig();
-    std::mt19937_64 rng(seed);
-    std::normal_distribution<double> n01(0.0, 1.0);
-    f.init(0.0, m.R(0.0), m.t(0.0), Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 2e-3, 0.05, 1.0, 50.0);
-    BodyFilter then = f;
+    BodyFilter then;
     double sf = 0.0, ss = 0.0;
     long n = 0;
-    for (int k = 0; field_time_us(k, 0) < to_us; ++k)
-        for (int c = 0; c < 3; ++c) {
-            const double T = field_time_us(k, c);
-            f.predict_to(T);
-            const Eigen::Quaterniond R = m.R(T);
-            const Eigen::Vector3d t = m.t(T);
-            fuse_images(f, cams[std::size_t(c)], R, t, body, rng, n01);
-            if (c == 0) then = f;
-            if (c != 2 || field_time_us(k, 0) < from_us) continue;
-            const double T0 = field_time_us(k, 0);
-            Eigen::Quaterniond Rf, Rs;
-            Eigen::Vector3d tf, ts;
-            then.pose_at(T0, Rf, tf);
-            f.smoothed_pose_at(then, T0, Rs, ts);
-            for (const Eigen::Vector3d& b : body) {
-                const Eigen::Vector3d X = m.R(T0) * b + m.t(T0);
-                sf += (Rf * b + tf - X).squaredNorm();
-                ss += (Rs * b + ts - X).squaredNorm();
-                ++n;
-            }
+    drive_fields(f, m, to_us, seed, body, [](int, int, double) {}, [&](int k, int c, double) {
+        if (c == 0) then = f;
+        if (c != 2 || field_time_us(k, 0) < from_us) return;
+        const double T0 = field_time_us(k, 0);
+        Eigen::Quaterniond Rf, Rs;
+        Eigen::Vector3d tf, ts;
+        then.pose_at(T0, Rf, tf);
+        f.smoothed_pose_at(then, T0, Rs, ts);
+        for (const Eigen::Vector3d& b : body) {
+            const Eigen::Vector3d X = m.R(T0) * b + m.t(T0);
+            sf += (Rf * b + tf - X).squaredNorm();
+            ss += (Rs * b + ts - X).squaredNorm();
+            ++n;
         }
+    });
     filtered = 1e3 * std::sqrt(sf / double(std::max(n, 1L)));
     smoothed = 1e3 * std::sqrt(ss / double(std::max(n, 1L)));
 }
