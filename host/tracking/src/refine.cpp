@@ -39,19 +39,26 @@ SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char*
     // Lossy coding moves the pipeline's chroma-only centroid itself by ≈ 0.1 px RMS, so a fit 0.15 px from it is
     // as often the right one as not: the shift test, which catches fits of something else, needs a wider gate.
     if (!lossless) config.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
-    // A partly hidden marker's pipeline centroid on lossy video is further off still (its chroma spread across the
-    // occluder's edge; DV: 0.31 px at the 99th percentile against 0.23 for clear markers), and a hinted fit has
-    // the occluders modelled: its gate is wider again.
-    if (!lossless) config.max_shift_hinted_px = std::max(config.max_shift_hinted_px, kLossyMaxShiftHintedPx);
+    // A partly hidden marker's pipeline centroid on lossy video, or from subsampled chroma, is further off still (its
+    // chroma spread across the occluder's edge; DV: 0.31 px at the 99th percentile against 0.23 for clear markers;
+    // FFV1 4:1:1 slivers 2.3–2.6 px), and a hinted fit has the occluders modelled: its gate is wider again.
+    const bool subsampled = c != "4:2:2";
+    if (!lossless || subsampled)
+        config.max_shift_hinted_px = std::max(config.max_shift_hinted_px, kLossyMaxShiftHintedPx);
     // There a sliver's pipeline centroid (a marker mostly hidden) can be a pixel off, and the pose, a field old,
-    // is the better anchor for its fit. Not on the camera's own fields: their sliver centroids are within tenths,
-    // and the pose's anchor refused good fits (bench_refine, sweep seeds 21–30, σ = 1: partly hidden 6–10 px
-    // markers 0.0316 → 0.0358 px with it).
-    if (!lossless) config.prediction_gate_visible = std::max(config.prediction_gate_visible, kLossyPredictionGateVisible);
+    // is the better anchor for its fit; so with 4:1:1 chroma (a sample in four columns), where it was 2.3 px off
+    // (FFV1 4:1:1 `sweep` seed 91). Not on the camera's own fields: their sliver centroids are within tenths, and
+    // the pose's anchor refused good fits (bench_refine, sweep seeds 21–30, σ = 1: partly hidden 6–10 px markers
+    // 0.0316 → 0.0358 px with it); nor with lossless 4:2:0, where it cost more than it gained (FFV1 4:2:0 seeds
+    // 91–106: geometric mean 1.00 → 1.07 × raw).
+    if (!lossless || c == "4:1:1")
+        config.prediction_gate_visible = std::max(config.prediction_gate_visible, kLossyPredictionGateVisible);
     // And there the start placed from that centroid can lead the fit into another minimum: a refused hinted fit is
     // tried again from the pose's prediction (DVCPRO25 `sweep` seed 21, an eye marker 79 % behind the eye's outline,
     // its pipeline centroid 1.6 px off: the fit ended 3 px from the prediction and was refused as implausible).
-    if (!lossless) config.restart_from_prediction = true;
+    // So with any subsampled chroma (FFV1 4:2:0 / 4:1:1 `sweep` seeds 91–106, geometric mean × raw: 1.00 → 0.94,
+    // 1.40 → 1.27).
+    if (!lossless || subsampled) config.restart_from_prediction = true;
     // Chroma coarser than 4:2:2 along a direction (4:1:1: one sample in four columns; 4:2:0: one line in two)
     // leaves the pipeline's chroma-only centroid about twice as uncertain along it.
     if (c == "4:1:1") config.shift_x_scale = 2.0;
@@ -2192,10 +2199,24 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     moment_start(blob, p, cfg, w, t);
     w.hidden_y = w.foreign_y;
     w.hidden_c = w.foreign_c;
-    if (hint && hint->radius_px > 0) {  // the pose's outline is a better start than the visible part's moments
-        t[kR] = hint->radius_px;
-        t[kE1] = hint->e1;
-        t[kE2] = hint->e2;
+    // The outline the pose predicts, held by a prior: a hint's, or, started at the prediction, a merged blob's (the
+    // other marker's pixels left out, the arc left lets the shape drift: sweep seed 135, H.264, an eye marker fitted
+    // with e = 0.43 into its neighbour's half). That blob's moments lie between the two markers: it starts at the
+    // marker's predicted centre.
+    MarkerHint shape;
+    if (hint && hint->radius_px > 0) {
+        shape = *hint;
+    } else if (start_at_hint && mask && mask->merged && mask->keep_outline_r_px > 0) {
+        shape.radius_px = mask->keep_outline_r_px;
+        shape.e1 = mask->keep_e1;
+        shape.e2 = mask->keep_e2;
+        t[kX0] = mask->keep_x_px;
+        t[kV0] = mask->keep_v_px;
+    }
+    if (shape.radius_px > 0) {  // the pose's outline is a better start than the visible part's moments
+        t[kR] = shape.radius_px;
+        t[kE1] = shape.e1;
+        t[kE2] = shape.e2;
     }
     start_behind_occluders();  // again at this radius
     // Where the centre started: with a hint, the visible part's centroid lies up to a radius from it.
@@ -2224,11 +2245,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     Vec grads[2];
     int at_t = 0;
     // The pose's prediction of the outline, as three more observations (a MarkerHint with radius_px).
-    const bool prior = hint && hint->radius_px > 0;
+    const bool prior = shape.radius_px > 0;
     auto with_prior = [&](const Vec& tt, double c, Mat& a, Vec& g) {
         if (!prior) return c;
-        const double pr[3] = {hint->radius_px, hint->e1, hint->e2};
-        const double sg[3] = {hint->radius_sigma * hint->radius_px, hint->e_sigma, hint->e_sigma};
+        const double pr[3] = {shape.radius_px, shape.e1, shape.e2};
+        const double sg[3] = {shape.radius_sigma * shape.radius_px, shape.e_sigma, shape.e_sigma};
         const int idx[3] = {kR, kE1, kE2};
         for (int k = 0; k < 3; ++k) {
             const double wgt = 1.0 / (sg[k] * sg[k]), res_k = pr[k] - tt[idx[k]];
@@ -2392,7 +2413,10 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     const double gate = (hint && cfg.max_shift_hinted_px > 0 ? cfg.max_shift_hinted_px : cfg.max_shift_px) *
                         (blob.foreign_overlap || (blob.foreign_touch && !hint) ? kForeignOverlapGateScale : 1.0);
     const double max_shift = (res.outliers > 0 ? cfg.max_shift_outliers_px : gate) / std::max(0.3, visible);
-    if (gate_distance(cfg, res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
+    // A sliver (above) is gated by the pose's prediction instead (below): the pipeline's centroid that anchors this
+    // gate is what could not be trusted (FFV1 4:1:1 `surgery` seed 145: an eye marker 93 % hidden, fitted 0.11 px
+    // from the truth and 2.7 px from the pipeline's centroid).
+    if (!sliver && gate_distance(cfg, res.cx_px - cx0, res.cy_px - cy0) > max_shift) return res;
     // A marker mostly hidden leaves the fit a sliver, and the gate above is wide for it: the fit must also lie
     // within the plain gate (not widened by the hidden share) of the visible centroid the pose predicts (the
     // hint's centre, a field old). Sweep seed 14, MPEG-2: an eye marker 77 % behind the eye's outline fitted 1.3 px

@@ -111,7 +111,7 @@ private:
 };
 
 /// Whether the fits of `fit` (recording_sphere_fit_config) take their hints moved to the field's time (HintMotion):
-/// a lossy source's, which the pose anchors.
+/// a lossy or subsampled source's, whose refused fits start again from the pose.
 inline bool hint_motion_for(const tracking::SphereFitConfig& fit) {
     return fit.restart_from_prediction || fit.prediction_gate_visible > 0.0;
 }

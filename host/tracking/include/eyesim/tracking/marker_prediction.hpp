@@ -96,6 +96,8 @@ private:
     // The marker of the blob's class predicted nearest the blob within kGatePx: its body (−1: the eye), index and
     // centre (rig). False: none.
     bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const;
+    // Whether `fit`'s centroid lies within config's shift gate of the centre of the marker nearest() the blob.
+    bool pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit, const SphereFitConfig& config) const;
     // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose,
     // then (body −1) of the eye if its pose is fresh.
     template <class F>

@@ -62,12 +62,12 @@ struct SphereFitConfig {
     /// pose: its centre may lie near the hint's predicted centre instead of near where the pipeline's centroid
     /// started it, and its centroid must lie within the shift gate, not widened by the hidden share, of the
     /// visible centroid the pose predicts as well as within the widened gate of the pipeline's. 0: never (the
-    /// camera's own fields); sphere_fit_config_for_source sets it for lossy sources.
+    /// camera's own fields); sphere_fit_config_for_source sets it for lossy and 4:1:1 sources.
     double prediction_gate_visible = 0.0;
     /// A hinted fit refused (χ², implausible, shift) is tried once more from the hint's predicted centre
     /// (MarkerHintSource::fit): on lossy video a partly hidden marker's pipeline centroid can be a pixel or more
     /// off and the fit started behind the occluders from it ends in another minimum. The retry passes the same
-    /// gates. sphere_fit_config_for_source sets it for lossy sources.
+    /// gates. sphere_fit_config_for_source sets it for lossy and subsampled sources.
     bool restart_from_prediction = false;
     /// The shift gate's reach in x and in y as multiples of max_shift_px: the pipeline's chroma-only centroid is
     /// that much less certain along a direction in which the source's chroma is coarser than the camera's 4:2:2
@@ -186,6 +186,9 @@ struct PatchMask {
     int disc_count = 0;
     std::array<ForeignDisc, kMaxDiscs> discs{};
     double keep_x_px = 0, keep_v_px = 0, keep_radius_px = 0;
+    /// The marker's outline as the pose projects it (MarkerHint::radius_px, e1, e2): a merged blob's fit holds its
+    /// shape to it.
+    double keep_outline_r_px = 0, keep_e1 = 0, keep_e2 = 0;
     /// A marker of the blob's own class lies in its box: the pipeline joined two markers into one blob (their
     /// chroma blurred together, most on lossy video), so its centroid lies between them and no longer anchors the
     /// fit's shift gate; the fitted centre is held to the marker's predicted one (keep_x_px, keep_v_px) instead,
@@ -222,7 +225,8 @@ inline constexpr double kLossyPredictionGateVisible = 0.5;
 /// (video.hpp VideoInfo), a `lossless` codec or not (a lossy one also widens max_shift_px to kLossyMaxShiftPx and
 /// max_shift_hinted_px to kLossyMaxShiftHintedPx, anchors slivers by the pose: prediction_gate_visible, and retries a
 /// refused hinted fit from the pose: restart_from_prediction; subsampled chroma stretches the gate along its coarse
-/// direction; either fits hints beside the eye's outline). Raw or lossless 4:2:2 leaves `config` unchanged.
+/// direction, widens max_shift_hinted_px and retries from the pose too, and 4:1:1 anchors slivers by the pose;
+/// either fits hints beside the eye's outline). Raw or lossless 4:2:2 leaves `config` unchanged.
 SphereFitConfig sphere_fit_config_for_source(SphereFitConfig config, const char* chroma, bool lossless);
 
 /// Why a fit was refused (the pipeline's centroid then stands).
@@ -365,9 +369,10 @@ void mark_foreign_overlaps(std::span<BlobBox> boxes);
 /// `margin_lines` more either side where the image has them.
 /// With `shaft`, the shaft's pixels are left out and cx/cy_px are the centroid of the sphere's part the shaft leaves
 /// visible (the pipeline's centroid measures that part too). With `mask`, the pixels its foreign shafts touch are
-/// left out (from the observations and from the border's levels and outline search). `start_at_hint` (with a
-/// hint): the fit starts at the hint's predicted centre instead of behind the occluders from the pipeline's centroid
-/// (its gates are the same).
+/// left out (from the observations and from the border's levels and outline search). `start_at_hint`: with a hint,
+/// the fit starts at the hint's predicted centre instead of behind the occluders from the pipeline's centroid; with
+/// a merged `mask` and no hint, at the marker's predicted centre with its outline held to the predicted one
+/// (PatchMask::keep_outline_r_px). Its gates are the same.
 SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob, const SphereFitConfig& config,
                            SphereFitWorkspace& work, const MarkerHint* hint = nullptr, const PatchMask* mask = nullptr,
                            bool start_at_hint = false);
