@@ -79,6 +79,23 @@ struct Sums {
     double rms() const { return n ? std::sqrt(se / n) : 0.0; }
 };
 
+// `eyesim synth <synth_args>` into scratch()/name, then `eyesim fpga` over it with and without --refine, each
+// writing its CSV: {refined, pipeline}.
+std::pair<fs::path, fs::path> synth_and_csvs(const std::string& synth_args, const std::string& name) {
+    const fs::path rec = scratch() / name;
+    Result r = run_eyesim("synth " + synth_args + " --out " + rec.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    const fs::path refined = scratch() / (name + "_refined.csv"), pipeline = scratch() / (name + "_pipeline.csv");
+    r = run_eyesim("fpga --recording " + rec.string() + " --refine --csv " + refined.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    r = run_eyesim("fpga --recording " + rec.string() + " --csv " + pipeline.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    return {refined, pipeline};
+}
+
 }  // namespace
 
 TEST_CASE("fpga --refine: the first fields' partly hidden markers are fitted with the poses a look ahead finds",
@@ -172,17 +189,8 @@ TEST_CASE("fpga --refine on 4:2:0 video: a marker the image's top edge cuts is f
     // Lossless FFV1 holding 4:2:0 planes: a light-pipe marker in camera 2 rises through the field's top edge (sweep
     // seed 94, fields 0–30). The writer repeats the field's first line and the reader its first chroma row, so the
     // pipeline's centroid of what is left lies up to 0.65 px low; the fit models that edge and the pose anchors it.
-    const fs::path rec = scratch() / "sweep_ffv1_420_edge";
-    Result r = run_eyesim("synth --scenario sweep --seconds 0.8 --seed 94 --format ffv1-420 --out " + rec.string());
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
-    const fs::path refined_csv = scratch() / "edge_refined.csv", pipeline_csv = scratch() / "edge_pipeline.csv";
-    r = run_eyesim("fpga --recording " + rec.string() + " --refine --csv " + refined_csv.string());
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
-    r = run_eyesim("fpga --recording " + rec.string() + " --csv " + pipeline_csv.string());
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
+    const auto [refined_csv, pipeline_csv] =
+        synth_and_csvs("--scenario sweep --seconds 0.8 --seed 94 --format ffv1-420", "sweep_ffv1_420_edge");
     // The matched blobs whose box touches the field's top or bottom line.
     auto edge_blobs = [](const fs::path& csv, std::map<std::string, int>* outcomes) {
         Sums s;
@@ -276,18 +284,9 @@ TEST_CASE("fpga --refine on video: markers whose pipeline centroid the source mo
     };
     for (const Case& c : cases) {
         DYNAMIC_SECTION(c.what) {
-            const fs::path rec = scratch() / ("far_" + std::string(c.format));
-            Result r = run_eyesim("synth --scenario sweep --seconds 2 --seed " + std::to_string(c.seed) + " --format " +
-                                  c.format + " --out " + rec.string());
-            INFO(r.err);
-            REQUIRE(r.rc == 0);
-            const fs::path refined_csv = scratch() / "far_refined.csv", pipeline_csv = scratch() / "far_pipeline.csv";
-            r = run_eyesim("fpga --recording " + rec.string() + " --refine --csv " + refined_csv.string());
-            INFO(r.err);
-            REQUIRE(r.rc == 0);
-            r = run_eyesim("fpga --recording " + rec.string() + " --csv " + pipeline_csv.string());
-            INFO(r.err);
-            REQUIRE(r.rc == 0);
+            const auto [refined_csv, pipeline_csv] = synth_and_csvs(
+                "--scenario sweep --seconds 2 --seed " + std::to_string(c.seed) + " --format " + c.format,
+                "far_" + std::string(c.format));
             const FarBlobs far = far_blobs(refined_csv, pipeline_csv, c.camera, c.body, c.marker);
             INFO(far.pipeline.n << " blobs > 0.25 px off: pipeline RMS " << far.pipeline.rms() << " px, refined "
                                 << far.refined.rms() << " px, " << far.fitted << " fitted");
