@@ -203,11 +203,12 @@ void MarkerHintSource::predict(const EyePose& eye, std::span<const InstrumentPos
 }
 
 bool MarkerHintSource::pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit,
-                                    const SphereFitConfig& config) const {
+                                    const SphereFitConfig& config, int field_lines) const {
     int b = -1, m = -1;
     Eigen::Vector3d centre;
     Eigen::Vector2d px;  // frame px
-    if (!nearest(camera, blob, b, m, centre) || !project_point(cams_[static_cast<std::size_t>(camera)], centre, px))
+    if (!nearest(camera, blob, b, m, centre, field_lines) ||
+        !project_point(cams_[static_cast<std::size_t>(camera)], centre, px))
         return false;
     const double dx = fit.cx_px - px.x(), dy = fit.cy_px - 0.5 * (px.y() - (blob.parity & 1));
     return std::hypot(dx / config.shift_x_scale, dy / config.shift_y_scale) <= config.max_shift_px;
@@ -218,7 +219,7 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
                                       SphereFitWorkspace& work, bool& hinted) {
     MarkerHint hint;
     PatchMask mask;
-    hinted = source && source->hint(camera, blob, hint, config.hint_with_outline);
+    hinted = source && source->hint(camera, blob, hint, config.hint_with_outline, height);
     const SphereFitResult r = fit_sphere(field, height, blob, config, work, hinted ? &hint : nullptr);
     // Another instrument's shaft in the patch: its pixels left out only when the fit without that fails (the
     // strip, from poses a field or two old, is wider than the shaft, and it takes marker pixels where it passes
@@ -226,7 +227,7 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
     const bool retry = !r.ok && (r.refusal == FitRefusal::kChi2 || r.refusal == FitRefusal::kOutliers ||
                                  r.refusal == FitRefusal::kShift || r.refusal == FitRefusal::kImplausible);
     SphereFitResult out = r;
-    if (retry && source && source->patch_mask(camera, blob, mask)) {
+    if (retry && source && source->patch_mask(camera, blob, mask, height)) {
         // The pipeline's centroid beside another shaft takes some of its chroma: the shift gate widens as on video.
         SphereFitConfig wide = config;
         wide.max_shift_px = std::max(config.max_shift_px, kLossyMaxShiftPx);
@@ -243,7 +244,7 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
     // right: a fit refused for that shift alone stands where it lies within the same gate of the centre the pose
     // predicts.
     if (config.restart_from_prediction && !out.ok && out.refusal == FitRefusal::kShift && !out.hinted && !mask.merged &&
-        source && source->pose_anchors(camera, blob, out, config)) {
+        source && source->pose_anchors(camera, blob, out, config, height)) {
         out.ok = true;
         out.refusal = FitRefusal::kNone;
         return out;
@@ -266,11 +267,14 @@ bool MarkerHintSource::ready() const {
     return false;
 }
 
-bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const {
+bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre,
+                               int field_lines) const {
     if (camera < 0 || camera >= ncam_) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
-    double best = kGatePx;
+    const bool on_edge = blob.y_min == 0 || blob.x_min == 0 || blob.x_max == kImageColumns - 1 ||
+                         (field_lines > 0 && blob.y_max == field_lines - 1);
+    double best = kGatePx + (on_edge ? kEdgeGatePx : 0.0);
     body = -1;
     marker = -1;
     // A marker of the blob's class at `c` (rig), nearer the blob than the best so far, becomes the best.
@@ -293,10 +297,10 @@ bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& 
     return marker >= 0;
 }
 
-bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bool eye_in_front) const {
+bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bool eye_in_front, int field_lines) const {
     int b = -1, m = -1;
     Eigen::Vector3d centre;
-    if (!nearest(camera, blob, b, m, centre)) return false;
+    if (!nearest(camera, blob, b, m, centre, field_lines)) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     if (b < 0)
         return predict_eye_hint(cam, centre, bodies_.eye.markers[static_cast<std::size_t>(m)].radius_mm,
@@ -369,11 +373,11 @@ bool MarkerHintSource::hint(int camera, const BlobBox& blob, MarkerHint& out, bo
     return true;
 }
 
-bool MarkerHintSource::patch_mask(int camera, const BlobBox& blob, PatchMask& out) const {
+bool MarkerHintSource::patch_mask(int camera, const BlobBox& blob, PatchMask& out, int field_lines) const {
     out = PatchMask{};
     int own = -1, m = -1;
     Eigen::Vector3d centre;
-    if (!nearest(camera, blob, own, m, centre)) return false;
+    if (!nearest(camera, blob, own, m, centre, field_lines)) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const double marker_r_mm = own < 0 ? bodies_.eye.markers[static_cast<std::size_t>(m)].radius_mm
                                        : bodies_.instruments[static_cast<std::size_t>(own)].markers[static_cast<std::size_t>(m)].radius_mm;

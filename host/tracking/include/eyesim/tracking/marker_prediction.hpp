@@ -52,6 +52,11 @@ public:
     /// A blob further than this from every predicted marker of its class gets no hint (frame px): a pose one or
     /// two fields old, and the visible part's centroid up to a radius from the centre.
     static constexpr double kGatePx = 6.0;
+    /// A blob on the image's edge (its first or last line or column): the gate is this much wider, the visible
+    /// part's centroid of a marker the edge cuts lying further from its centre (sweep seed 153, a pick marker's
+    /// centre above the image 4–5.3 px from the centroid of its sliver on 4:2:0 video, whose chroma holds it 0.7 px
+    /// low: beyond the gate with a pose one or two fields old, its fit was plain and refused).
+    static constexpr double kEdgeGatePx = 4.0;
     /// A pose not measured for this many updates gives no hints.
     static constexpr int kMaxAgeFrames = 5;
 
@@ -68,17 +73,18 @@ public:
     void predict(const EyePose& eye, std::span<const InstrumentPose> instruments);
 
     /// The hint for `blob` of camera `camera` (its class, parity and centroid): the marker of its class predicted
-    /// nearest, within kGatePx. An instrument marker's hint holds its shaft; an eye marker's the eye's sphere, and
+    /// nearest, within kGatePx (and kEdgeGatePx more on the image's edge: `field_lines` > 0, the field's height,
+    /// for its last line). An instrument marker's hint holds its shaft; an eye marker's the eye's sphere, and
     /// only where the eye hides part of it. False: no marker near, or nothing hides it (a plain fit).
     /// An instrument marker's occluding sphere is the eye where the eye hides part of it and `eye_in_front` (the
     /// eye's outline crosses the patch: SphereFitConfig::hint_with_outline), else the nearest marker in front.
-    bool hint(int camera, const BlobBox& blob, MarkerHint& out, bool eye_in_front = true) const;
+    bool hint(int camera, const BlobBox& blob, MarkerHint& out, bool eye_in_front = true, int field_lines = 0) const;
 
     /// What else the poses put in `blob`'s patch (camera `camera`), for the fit to leave out: the other instruments'
     /// shafts and the other markers within kForeignReachPx of the blob's marker, none in front of it where it
     /// crosses it (a shaft hiding part of the marker is not modelled; a marker doing so is the hint's occluder).
     /// False: nothing.
-    bool patch_mask(int camera, const BlobBox& blob, PatchMask& out) const;
+    bool patch_mask(int camera, const BlobBox& blob, PatchMask& out, int field_lines = 0) const;
     /// A foreign shaft's strip is widened by this much each side (frame px): its pose is a field or two old.
     static constexpr double kForeignMarginPx = 1.0;
     /// Shafts further than this from the marker's image are outside any patch (frame px).
@@ -93,11 +99,13 @@ public:
                                int camera, const SphereFitConfig& config, SphereFitWorkspace& work, bool& hinted);
 
 private:
-    // The marker of the blob's class predicted nearest the blob within kGatePx: its body (−1: the eye), index and
-    // centre (rig). False: none.
-    bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre) const;
+    // The marker of the blob's class predicted nearest the blob within kGatePx (kEdgeGatePx more on the image's
+    // edge; field_lines 0: its last line unknown): its body (−1: the eye), index and centre (rig). False: none.
+    bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre,
+                 int field_lines) const;
     // Whether `fit`'s centroid lies within config's shift gate of the centre of the marker nearest() the blob.
-    bool pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit, const SphereFitConfig& config) const;
+    bool pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit, const SphereFitConfig& config,
+                      int field_lines) const;
     // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose,
     // then (body −1) of the eye if its pose is fresh.
     template <class F>

@@ -264,6 +264,9 @@ struct SphereFitResult {
     int hidden_pixels = 0;        ///< luma observations the hint's occluders left out
 };
 
+/// A field's width in pixels (UYVY, 720 × its lines).
+inline constexpr int kImageColumns = 720;
+
 /// Largest patch the fit accepts: wider or taller blobs keep the pipeline's centroid.
 inline constexpr int kFitMaxCols = 40;
 inline constexpr int kFitMaxLines = 18;
