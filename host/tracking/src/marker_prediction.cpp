@@ -272,8 +272,9 @@ bool MarkerHintSource::nearest(int camera, const BlobBox& blob, int& body, int& 
     if (camera < 0 || camera >= ncam_) return false;
     const CameraGeometry& cam = cams_[static_cast<std::size_t>(camera)];
     const Eigen::Vector2d seen(blob.cx_px, 2.0 * blob.cy_px + (blob.parity & 1));  // frame px
-    const bool on_edge = blob.y_min == 0 || blob.x_min == 0 || blob.x_max == kImageColumns - 1 ||
-                         (field_lines > 0 && blob.y_max == field_lines - 1);
+    const bool has_box = blob.x_max >= blob.x_min && blob.y_max >= blob.y_min;  // BlobBox's default has none
+    const bool on_edge = has_box && (blob.y_min == 0 || blob.x_min == 0 || blob.x_max == kImageColumns - 1 ||
+                                     (field_lines > 0 && blob.y_max == field_lines - 1));
     double best = kGatePx + (on_edge ? kEdgeGatePx : 0.0);
     body = -1;
     marker = -1;
