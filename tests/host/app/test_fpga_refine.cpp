@@ -111,6 +111,20 @@ std::pair<fs::path, fs::path> synth_and_csvs(const std::string& synth_args, cons
     return {refined, pipeline};
 }
 
+// edge_blobs() of a recording `eyesim synth <synth_args>` makes, refined and the pipeline's (the same blobs).
+struct EdgeFigures {
+    Sums refined, pipeline;
+    std::map<std::string, int> outcomes;  // of the refined blobs
+};
+EdgeFigures edge_figures(const std::string& synth_args, const std::string& name) {
+    const auto [refined_csv, pipeline_csv] = synth_and_csvs(synth_args, name);
+    EdgeFigures e;
+    e.refined = edge_blobs(refined_csv, &e.outcomes);
+    e.pipeline = edge_blobs(pipeline_csv, nullptr);
+    REQUIRE(e.pipeline.n == e.refined.n);
+    return e;
+}
+
 }  // namespace
 
 TEST_CASE("fpga --refine: the first fields' partly hidden markers are fitted with the poses a look ahead finds",
@@ -204,14 +218,12 @@ TEST_CASE("fpga --refine on 4:2:0 video: a marker the image's top edge cuts is f
     // Lossless FFV1 holding 4:2:0 planes: a light-pipe marker in camera 2 rises through the field's top edge (sweep
     // seed 94, fields 0–30). The writer repeats the field's first line and the reader its first chroma row, so the
     // pipeline's centroid of what is left lies up to 0.65 px low; the fit models that edge and the pose anchors it.
-    const auto [refined_csv, pipeline_csv] =
-        synth_and_csvs("--scenario sweep --seconds 0.8 --seed 94 --format ffv1-420", "sweep_ffv1_420_edge");
-    std::map<std::string, int> outcomes;
-    const Sums refined = edge_blobs(refined_csv, &outcomes), pipeline = edge_blobs(pipeline_csv, nullptr);
+    EdgeFigures e = edge_figures("--scenario sweep --seconds 0.8 --seed 94 --format ffv1-420", "sweep_ffv1_420_edge");
+    const Sums &refined = e.refined, &pipeline = e.pipeline;
+    std::map<std::string, int>& outcomes = e.outcomes;
     INFO("edge blobs: " << refined.n << ", refined RMS " << refined.rms() << " px, pipeline " << pipeline.rms()
                         << " px; fitted with the pose " << outcomes["hinted"]);
     REQUIRE(refined.n >= 20);
-    REQUIRE(pipeline.n == refined.n);
     // Before the edge taps 8 of 29 were refused (implausible: no chain, so the chroma at σ 8 DN) and the edge
     // blobs were at 0.28 px against the pipeline's 0.32.
     CHECK(outcomes["hinted"] >= 0.9 * refined.n);
@@ -306,15 +318,12 @@ TEST_CASE("fpga --refine on H.264: a marker the image's top edge cuts gets its h
     // Sweep seed 153, camera 1: a pick marker 85–94 % above the image, its centre 4–5 px from its sliver's
     // centroid, which the video's chroma holds 0.7 px low: with the plain hint gate its blobs got no hint and their
     // plain fits were refused (χ²). On the image's edge the gate is wider (MarkerHintSource::kEdgeGatePx).
-    const auto [refined_csv, pipeline_csv] =
-        synth_and_csvs("--scenario sweep --seconds 2 --seed 153 --format h264", "sweep_h264_top_edge");
-    std::map<std::string, int> outcomes;
-    const Sums refined = edge_blobs(refined_csv, &outcomes), pipeline = edge_blobs(pipeline_csv, nullptr);
-    const int hinted = outcomes["hinted"];
+    EdgeFigures e = edge_figures("--scenario sweep --seconds 2 --seed 153 --format h264", "sweep_h264_top_edge");
+    const Sums &refined = e.refined, &pipeline = e.pipeline;
+    const int hinted = e.outcomes["hinted"];
     INFO("edge blobs: " << refined.n << ", refined RMS " << refined.rms() << " px, pipeline " << pipeline.rms()
                         << " px; fitted with the pose " << hinted);
     REQUIRE(refined.n >= 30);
-    REQUIRE(pipeline.n == refined.n);
     // With the plain gate: 30 of 47 hinted, 0.394 px against the pipeline's 0.479.
     CHECK(hinted >= 0.75 * refined.n);
     CHECK(refined.rms() < 0.65 * pipeline.rms());
