@@ -283,18 +283,22 @@ TEST_CASE("fpga --refine on video: markers whose pipeline centroid the source mo
         const char* body;
         const char* marker;
         double max_refined_rms_px;
+        double min_fitted_share;
     };
     // Each from a 2 s sweep where it held the recording beyond twice the raw fields' centroid error:
     const Case cases[] = {
         // two eye markers joined into one blob in every field (its centroid 1.2–2 px off): two of its fits started
         // between them and were refused; now once more from the marker's predicted centre and outline.
-        {"H.264, two eye markers in one blob", 135, "h264", "1", "eye", "3", 0.1},
+        {"H.264, two eye markers in one blob", 135, "h264", "1", "eye", "3", 0.1, 1.0},
         // an eye marker 87 % behind the eye's outline, its 4:1:1 chroma (a sample in four columns) putting the
         // pipeline's centroid 2.3 px off in x: its fit (0.05 px off) was refused as not anchored there.
-        {"FFV1 4:1:1, an eye marker mostly hidden", 91, "ffv1-411", "2", "eye", "2", 0.2},
+        {"FFV1 4:1:1, an eye marker mostly hidden", 91, "ffv1-411", "2", "eye", "2", 0.2, 1.0},
         // a clear eye marker whose DV chroma sits in the same DCT blocks field after field, its pipeline centroid
         // 0.3 px off: every fit (0.03 px off) was refused as shifted beyond the 0.25 px gate.
-        {"DV, a clear eye marker shifted by the codec", 133, "dv", "1", "eye", "6", 0.1},
+        {"DV, a clear eye marker shifted by the codec", 133, "dv", "1", "eye", "6", 0.1, 1.0},
+        // a light-pipe marker 17–24 % hidden, its DVCPRO25 pipeline centroid 1.0–1.3 px off in x: its hinted fits were
+        // refused as shifted beyond the hinted gate (0.88 px RMS kept); now anchored by the pose's visible centroid.
+        {"DVCPRO25, a partly hidden marker shifted by the codec", 147, "dv411", "1", "light_pipe", "0", 0.25, 0.9},
     };
     for (const Case& c : cases) {
         DYNAMIC_SECTION(c.what) {
@@ -305,7 +309,7 @@ TEST_CASE("fpga --refine on video: markers whose pipeline centroid the source mo
             INFO(far.pipeline.n << " blobs > 0.25 px off: pipeline RMS " << far.pipeline.rms() << " px, refined "
                                 << far.refined.rms() << " px, " << far.fitted << " fitted");
             REQUIRE(far.pipeline.n >= 10);
-            CHECK(far.fitted == far.pipeline.n);
+            CHECK(far.fitted >= c.min_fitted_share * far.pipeline.n);
             CHECK(far.refined.rms() < c.max_refined_rms_px);
             CHECK(far.refined.rms() < 0.3 * far.pipeline.rms());
         }
