@@ -202,16 +202,24 @@ void MarkerHintSource::predict(const EyePose& eye, std::span<const InstrumentPos
         if (instruments[b].measured() && age_[b] <= kMaxAgeFrames) poses_[b] = instruments[b];
 }
 
-bool MarkerHintSource::pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit,
-                                    const SphereFitConfig& config, int field_lines) const {
-    int b = -1, m = -1;
-    Eigen::Vector3d centre;
+bool MarkerHintSource::predicted_centroid(int camera, const BlobBox& blob, const MarkerHint* hint,
+                                          const SphereFitConfig& config, int field_lines, double& cx_px,
+                                          double& cy_px) const {
     Eigen::Vector2d px;  // frame px
-    if (!nearest(camera, blob, b, m, centre, field_lines) ||
-        !project_point(cams_[static_cast<std::size_t>(camera)], centre, px))
-        return false;
-    const double dx = fit.cx_px - px.x(), dy = fit.cy_px - 0.5 * (px.y() - (blob.parity & 1));
-    return std::hypot(dx / config.shift_x_scale, dy / config.shift_y_scale) <= config.max_shift_px;
+    if (hint) {
+        double dx = 0, dv = 0, visible = 0;
+        if (!hinted_centroid_offset(config, *hint, blob.parity, dx, dv, visible)) return false;
+        px = Eigen::Vector2d(hint->centre_x_px + dx, hint->centre_v_px + dv);
+    } else {
+        int b = -1, m = -1;
+        Eigen::Vector3d centre;
+        if (!nearest(camera, blob, b, m, centre, field_lines) ||
+            !project_point(cams_[static_cast<std::size_t>(camera)], centre, px))
+            return false;
+    }
+    cx_px = px.x();
+    cy_px = 0.5 * (px.y() - (blob.parity & 1));
+    return true;
 }
 
 SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint8_t* field, int height,
@@ -239,28 +247,19 @@ SphereFitResult MarkerHintSource::fit(const MarkerHintSource* source, const uint
         const SphereFitResult again = fit_sphere(field, height, blob, config, work, &hint, nullptr, true);
         if (again.ok) return again;
     }
-    // A clear marker's pipeline centroid on lossy video can sit 0.3 px off field after field (DV `sweep` seeds 133,
-    // 135: an eye marker of camera 1, its chroma in the same DCT blocks), beyond the shift gate, while its fit is
-    // right: a fit refused for that shift alone stands where it lies within the same gate of the centre the pose
-    // predicts.
-    if (config.restart_from_prediction && !out.ok && out.refusal == FitRefusal::kShift && !out.hinted && !mask.merged &&
-        source && source->pose_anchors(camera, blob, out, config, height)) {
+    // A marker's pipeline centroid on lossy video can sit 0.3 px or more off field after field (DV `sweep` seeds 133,
+    // 135: a clear eye marker of camera 1, its chroma in the same DCT blocks; DVCPRO25 seed 147: a light-pipe marker
+    // 17–24 % hidden, 1.0–1.3 px off in x), beyond the shift gate, while its fit is right: a fit refused for that
+    // shift alone stands where it lies within the plain gate of the centroid the pose predicts (a clear marker's
+    // centre, a hinted one's visible part).
+    double px = 0, py = 0;
+    if (config.restart_from_prediction && !out.ok && out.refusal == FitRefusal::kShift && !mask.merged && source &&
+        source->predicted_centroid(camera, blob, out.hinted ? &hint : nullptr, config, height, px, py) &&
+        std::hypot((out.cx_px - px) / config.shift_x_scale, (out.cy_px - py) / config.shift_y_scale) <=
+            config.max_shift_px) {
         out.ok = true;
         out.refusal = FitRefusal::kNone;
         return out;
-    }
-    // So for a hinted fit, against the visible part's centroid the pose predicts (DVCPRO25 `sweep` seed 147: a
-    // light-pipe marker 17–24 % hidden, its pipeline centroid 1.0–1.3 px off in x, beyond even the hinted gate).
-    double dx = 0, dv = 0, visible = 0;
-    if (config.restart_from_prediction && !out.ok && out.refusal == FitRefusal::kShift && out.hinted && !mask.merged &&
-        hinted_centroid_offset(config, hint, blob.parity, dx, dv, visible)) {
-        const double px = hint.centre_x_px + dx, py = 0.5 * (hint.centre_v_px + dv - (blob.parity & 1));
-        if (std::hypot((out.cx_px - px) / config.shift_x_scale, (out.cy_px - py) / config.shift_y_scale) <=
-            config.max_shift_px) {
-            out.ok = true;
-            out.refusal = FitRefusal::kNone;
-            return out;
-        }
     }
     // Two markers of one class in one blob: its moments, and so the fit's start, lie between them; once more from
     // the marker's predicted centre and outline (sweep seed 135, DV and H.264: an eye marker joined with its

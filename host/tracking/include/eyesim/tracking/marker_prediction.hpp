@@ -103,9 +103,10 @@ private:
     // edge; field_lines 0: its last line unknown): its body (−1: the eye), index and centre (rig). False: none.
     bool nearest(int camera, const BlobBox& blob, int& body, int& marker, Eigen::Vector3d& centre,
                  int field_lines) const;
-    // Whether `fit`'s centroid lies within config's shift gate of the centre of the marker nearest() the blob.
-    bool pose_anchors(int camera, const BlobBox& blob, const SphereFitResult& fit, const SphereFitConfig& config,
-                      int field_lines) const;
+    // Where the pose predicts the blob's centroid (field px): with `hint`, its marker's visible part's; else the
+    // centre of the marker nearest() the blob. False: no prediction.
+    bool predicted_centroid(int camera, const BlobBox& blob, const MarkerHint* hint, const SphereFitConfig& config,
+                            int field_lines, double& cx_px, double& cy_px) const;
     // f(body, marker, its BodyMarker, its centre in the rig) for every marker of every instrument with a fresh pose,
     // then (body −1) of the eye if its pose is fresh.
     template <class F>
