@@ -177,6 +177,12 @@ MarkerHintSource::MarkerHintSource(std::span<const CameraGeometry> cameras, cons
 void MarkerHintSource::update(const TrackingFrame& frame) {
     update(frame.eye,
            std::span<const InstrumentPose>(frame.instruments.data(), static_cast<std::size_t>(frame.instrument_count)));
+    // An instrument one camera alone sees: its image there is what the hints need (TrackingFrame::one_view).
+    for (int b = 0; b < frame.instrument_count && b < static_cast<int>(poses_.size()); ++b)
+        if ((frame.one_view_mask >> b) & 1u) {
+            poses_[static_cast<std::size_t>(b)] = frame.one_view[static_cast<std::size_t>(b)];
+            age_[static_cast<std::size_t>(b)] = 0;
+        }
 }
 
 void MarkerHintSource::update(const EyePose& eye, std::span<const InstrumentPose> instruments) {

@@ -2,6 +2,9 @@
 
 #include "eyesim/tracking/rigid_fit.hpp"
 
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 
@@ -185,6 +188,94 @@ bool fit_instrument(const InstrumentModel& model, std::span<const Eigen::Vector3
     pose.markers_used = int(n);
     pose.flags = kPoseNoRoll;
     return true;
+}
+
+bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& model, const Eigen::Vector3d& trocar_rig_mm,
+                             std::span<const Eigen::Vector2d> xn, std::span<const int> which,
+                             const InstrumentPose& start, InstrumentPose& pose, double& rms_px) {
+    const std::size_t n = xn.size();
+    if (n < 3 || which.size() != n || n > std::size_t(kMaxBodyMarkers) || !trocar_rig_mm.allFinite()) return false;
+    const Eigen::Vector3d a_body = model.axis_body.normalized();
+    std::array<double, kMaxBodyMarkers> s{};  // each marker's distance from the tip along the shaft
+    for (std::size_t k = 0; k < n; ++k) {
+        if (which[k] < 0 || which[k] >= model.marker_count || !xn[k].allFinite()) return false;
+        s[k] = (model.markers[std::size_t(which[k])].pos_body_mm - model.tip_body_mm).dot(a_body);
+    }
+    const double f = cam.mean_focal_px();
+    // Marker k at P + (s_k − d)·A: A the unit axis (tip → handle), d the tip's depth behind the trocar P.
+    Eigen::Vector3d A = start.axis_rig.normalized();
+    double d = (trocar_rig_mm - start.tip_rig_mm).dot(A);
+    if (!A.allFinite() || !std::isfinite(d)) return false;
+    // Residuals (px) and, with J, their derivatives by (u, v, d), A moved to normalise(A + u·e1 + v·e2).
+    auto residuals = [&](const Eigen::Vector3d& axis, double depth, Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1>& r,
+                         Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3>* J, const Eigen::Vector3d& e1,
+                         const Eigen::Vector3d& e2) -> bool {
+        for (std::size_t k = 0; k < n; ++k) {
+            const Eigen::Vector3d X = trocar_rig_mm + (s[k] - depth) * axis;
+            const Eigen::Vector3d c = cam.R_cam_rig * X + cam.t_cam_rig_mm;
+            if (!(c.z() > 1e-6)) return false;
+            const double iz = 1.0 / c.z();
+            r(Eigen::Index(2 * k)) = f * (c.x() * iz - xn[k].x());
+            r(Eigen::Index(2 * k + 1)) = f * (c.y() * iz - xn[k].y());
+            if (!J) continue;
+            Eigen::Matrix<double, 2, 3> dp;
+            dp << iz, 0.0, -c.x() * iz * iz, 0.0, iz, -c.y() * iz * iz;
+            const Eigen::Matrix<double, 2, 3> dpx = f * dp * cam.R_cam_rig;  // ∂r/∂X
+            J->block<2, 1>(Eigen::Index(2 * k), 0) = dpx * ((s[k] - depth) * e1);
+            J->block<2, 1>(Eigen::Index(2 * k), 1) = dpx * ((s[k] - depth) * e2);
+            J->block<2, 1>(Eigen::Index(2 * k), 2) = dpx * (-axis);
+        }
+        return true;
+    };
+    const Eigen::Index m = Eigen::Index(2 * n);
+    Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1> r = Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1>::Zero(), r_try = r;
+    Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3> J = Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3>::Zero();
+    auto basis = [](const Eigen::Vector3d& a, Eigen::Vector3d& e1, Eigen::Vector3d& e2) {
+        e1 = a.unitOrthogonal();
+        e2 = a.cross(e1);
+    };
+    Eigen::Vector3d e1, e2;
+    basis(A, e1, e2);
+    if (!residuals(A, d, r, &J, e1, e2)) return false;
+    double cost = r.head(m).squaredNorm(), lambda = 1e-3;
+    bool converged = false;
+    for (int it = 0; it < 30 && !converged; ++it) {
+        const Eigen::Matrix3d H = J.topRows(m).transpose() * J.topRows(m);
+        const Eigen::Vector3d g = J.topRows(m).transpose() * r.head(m);
+        // The shaft along the line of sight leaves its direction unobservable.
+        const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(H, Eigen::EigenvaluesOnly);
+        if (!(eig.eigenvalues()(0) > 1e-9 * eig.eigenvalues()(2))) return false;
+        bool stepped = false;
+        for (int tries = 0; tries < 10 && !stepped; ++tries) {
+            Eigen::Matrix3d Hd = H;
+            Hd.diagonal() *= 1.0 + lambda;
+            const Eigen::Vector3d step = Hd.ldlt().solve(-g);
+            if (!step.allFinite()) return false;
+            const Eigen::Vector3d A_try = (A + step(0) * e1 + step(1) * e2).normalized();
+            const double d_try = d + step(2);
+            if (residuals(A_try, d_try, r_try, nullptr, e1, e2) && r_try.head(m).squaredNorm() < cost) {
+                converged = step.head<2>().norm() < 1e-10 && std::abs(step(2)) < 1e-8;
+                A = A_try;
+                d = d_try;
+                cost = r_try.head(m).squaredNorm();
+                lambda = std::max(lambda * 0.1, 1e-9);
+                stepped = true;
+            } else {
+                lambda *= 10.0;
+            }
+        }
+        if (!stepped) converged = true;  // no step lowers the cost: at the minimum to rounding
+        basis(A, e1, e2);
+        if (!residuals(A, d, r, &J, e1, e2)) return false;
+    }
+    rms_px = std::sqrt(cost / double(n));
+    pose.axis_rig = A;
+    pose.tip_rig_mm = trocar_rig_mm - d * A;
+    pose.rotation_body_to_rig = Eigen::Quaterniond::FromTwoVectors(a_body, A).normalized();
+    pose.fit_rms_mm = 0.0;
+    pose.markers_used = int(n);
+    pose.flags = kPoseNoRoll | kPoseSingleView;
+    return std::isfinite(rms_px) && pose.tip_rig_mm.allFinite();
 }
 
 void instrument_in_eye(const InstrumentModel& model, const EyePose& eye, InstrumentPose& pose) {

@@ -114,6 +114,8 @@ void Tracker::restart() {
     sync_ = FrameSync(int(cameras_.size()), config_.sync);
     last_eye_ = EyePose{};
     last_instruments_.fill(InstrumentPose{});
+    unmeasured_frames_ = make_unmeasured();
+    one_view_mask_ = 0;
     for (BodyFilter& f : filters_) f.reset();
     missed_us_.fill(kNever);
     for (auto& s : supported_us_) s.fill(kNever);
@@ -276,8 +278,13 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
     bool corrected = config_.eye_occlusion_correction && correct_eye_occlusion(out);
     corrected = (config_.shaft_occlusion_correction && correct_shaft_occlusion(out)) || corrected;
     if (corrected) fit();
+    single_view_instruments(out);
     last_eye_ = out.eye;
-    for (int b = 0; b < out.instrument_count; ++b) last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
+    for (int b = 0; b < out.instrument_count; ++b) {
+        last_instruments_[std::size_t(b)] = out.instruments[std::size_t(b)];
+        int& age = unmeasured_frames_[std::size_t(b)];
+        age = out.instruments[std::size_t(b)].measured() ? 0 : std::min(age + 1, 1 << 20);
+    }
     out.markers_unassigned = 0;
     for (int k = 0; k < out.markers.count; ++k)
         if (out.assignment.body[std::size_t(k)] < 0) ++out.markers_unassigned;
@@ -396,6 +403,112 @@ std::uint8_t views_left_out(const MatchedMarker& m, const std::array<int, kMaxCa
 }
 
 }  // namespace
+
+void Tracker::single_view_instruments(TrackingFrame& out) {
+    const std::uint8_t before = one_view_mask_;
+    one_view_mask_ = 0;
+    out.one_view_mask = 0;
+    const PoseOptions& opt = config_.pose;
+    if (!opt.single_view || !opt.trocar_constraint || !out.eye.measured()) return;
+    const int ncam = int(cameras_.size());
+    const ImagesUsed used = images_used(out.markers, ncam);
+    const Eigen::Matrix3d Re = out.eye.rotation_eye_to_rig.toRotationMatrix();
+    for (int b = 0; b < out.instrument_count; ++b) {
+        const InstrumentModel& model = config_.bodies.instruments[std::size_t(b)];
+        const int nm = model.marker_count;
+        // The fit starts from the last frame's one-view pose, else from the last measured one (a held pose keeps
+        // its values) up to kSingleViewMaxHeldFrames old.
+        const bool chained = (before >> b) & 1u;
+        const InstrumentPose& last = chained ? one_view_[std::size_t(b)] : last_instruments_[std::size_t(b)];
+        if (out.instruments[std::size_t(b)].measured() || !model.has_trocar || nm < 3 || nm > kMaxBodyMarkers ||
+            (!chained && unmeasured_frames_[std::size_t(b)] > kSingleViewMaxHeldFrames))
+            continue;
+        const Eigen::Vector3d trocar = Re * model.trocar_eye_mm + out.eye.centre_rig_mm;
+        const Eigen::Vector3d a_body = model.axis_body.normalized();
+        // Markers in the order of their distance from the tip: their images lie on the shaft's image line through
+        // the trocar's image, in that order from it (the trocar lies on the tip's side of every marker, the tip
+        // inside the eye or withdrawn).
+        std::array<int, kMaxBodyMarkers> order{};
+        for (int i = 0; i < nm; ++i) order[std::size_t(i)] = i;
+        std::sort(order.begin(), order.begin() + nm, [&](int x, int y) {
+            return (model.markers[std::size_t(x)].pos_body_mm - model.tip_body_mm).dot(a_body) <
+                   (model.markers[std::size_t(y)].pos_body_mm - model.tip_body_mm).dot(a_body);
+        });
+        InstrumentPose best;
+        double best_rms = HUGE_VAL, second_rms = HUGE_VAL;
+        for (int c = 0; c < ncam; ++c) {
+            const CameraObservations& v = views_[std::size_t(c)];
+            const CameraGeometry& g = cameras_[std::size_t(c)];
+            const Eigen::Vector3d tc = g.R_cam_rig * trocar + g.t_cam_rig_mm;
+            if (!v.present || !(tc.z() > 0.0)) continue;
+            const Eigen::Vector2d pt = tc.head<2>() / tc.z();  // the trocar's image (undistorted, normalised)
+            const double f = g.mean_focal_px();
+            // Candidates per marker: unused images of its class.
+            std::array<std::array<int, kMaxImagesPerClass>, kMaxBodyMarkers> cand{};
+            std::array<int, kMaxBodyMarkers> nc{};
+            bool any_missing = false;
+            for (int i = 0; i < nm; ++i) {
+                const std::uint8_t cls = model.markers[std::size_t(order[std::size_t(i)])].colour_class;
+                for (int j = 0; j < v.count && nc[std::size_t(i)] < kMaxImagesPerClass; ++j)
+                    if (v.points[std::size_t(j)].colour_class == cls && !used[std::size_t(c)][std::size_t(j)])
+                        cand[std::size_t(i)][std::size_t(nc[std::size_t(i)]++)] = j;
+                any_missing = any_missing || nc[std::size_t(i)] == 0;
+            }
+            if (any_missing) continue;
+            // Every combination (one image per marker, odometer order) that lies on a line through the trocar's
+            // image, in the markers' order from it, is fitted.
+            std::array<int, kMaxBodyMarkers> pick{};
+            for (bool more = true; more;) {
+                std::array<Eigen::Vector2d, kMaxBodyMarkers> xn{};
+                std::array<int, kMaxBodyMarkers> which{};
+                bool distinct = true;
+                for (int i = 0; i < nm; ++i) {
+                    const int j = cand[std::size_t(i)][std::size_t(pick[std::size_t(i)])];
+                    for (int k = 0; k < i; ++k)
+                        distinct = distinct && cand[std::size_t(k)][std::size_t(pick[std::size_t(k)])] != j;
+                    xn[std::size_t(i)] = v.points[std::size_t(j)].xn;
+                    which[std::size_t(i)] = order[std::size_t(i)];
+                }
+                // Next combination.
+                more = false;
+                for (int i = 0; i < nm && !more; ++i) {
+                    if (++pick[std::size_t(i)] < nc[std::size_t(i)]) more = true;
+                    else pick[std::size_t(i)] = 0;
+                }
+                if (!distinct) continue;
+                const Eigen::Vector2d dir = (xn[std::size_t(nm - 1)] - pt).normalized();
+                bool on_line = dir.allFinite();
+                double along = 0.0;
+                for (int i = 0; i < nm && on_line; ++i) {
+                    const Eigen::Vector2d q = xn[std::size_t(i)] - pt;
+                    const double t = q.dot(dir);
+                    on_line = std::abs(q.x() * dir.y() - q.y() * dir.x()) * f <= kSingleViewLinePx && t > along;
+                    along = t;
+                }
+                if (!on_line) continue;
+                InstrumentPose fitted = last;
+                double rms = 0.0;
+                if (!fit_instrument_one_view(g, model, trocar, std::span<const Eigen::Vector2d>(xn.data(), std::size_t(nm)),
+                                             std::span<const int>(which.data(), std::size_t(nm)), last, fitted, rms))
+                    continue;
+                if (rms < best_rms) {
+                    second_rms = best_rms;
+                    best_rms = rms;
+                    best = fitted;
+                } else {
+                    second_rms = std::min(second_rms, rms);
+                }
+            }
+        }
+        // One combination fits; another one nearly as well is an ambiguity, not a pose.
+        if (!(best_rms <= opt.single_view_max_rms_px) || second_rms <= opt.single_view_max_rms_px) continue;
+        instrument_in_eye(model, out.eye, best);
+        out.one_view[std::size_t(b)] = best;
+        out.one_view_mask = std::uint8_t(out.one_view_mask | (1u << b));
+        one_view_[std::size_t(b)] = best;
+    }
+    one_view_mask_ = out.one_view_mask;
+}
 
 bool Tracker::shifted_observation(int c, const ImagePoint& p, double dx_px, double dv_px, Observation& o) const {
     const CameraGeometry& g = cameras_[std::size_t(c)];
@@ -1378,6 +1491,7 @@ void Tracker::build_async_frame(const CameraField& f, TrackingFrame& out, const 
     const int ncam = int(cameras_.size());
     const int nb = 1 + bodies.instrument_count;
     out.index = async_frames_++;
+    out.one_view_mask = 0;
     out.reference_field = f.field_counter;
     out.time_device_us = T;
     out.flags = kFrameOk;

@@ -11,6 +11,8 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <random>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -351,4 +353,57 @@ TEST_CASE("interpolation bends with the image's acceleration and keeps a parity 
         CHECK(still_bent[i].second == Approx(still_line[i].second).margin(1e-9));
         CHECK(still_bent[i].second == Approx(still_bent[i].first).margin(1e-9));  // the bias cancels at the midpoint
     }
+}
+
+TEST_CASE("one camera's images and the trocar place an instrument's shaft, inside the eye or withdrawn",
+          "[tracking][pose]") {
+    // Truth: a shaft through the trocar (DeepShaft's), the markers projected exactly by one camera of the test rig.
+    DeepShaft d;
+    const InstrumentModel& im = d.bodies.instruments[0];
+    const CameraGeometry cam = eyesim::tracking::test::three_camera_rig()[0];
+    auto images = [&](const Eigen::Vector3d& tip, const Eigen::Vector3d& axis, std::array<Eigen::Vector2d, 3>& xn) {
+        for (int k = 0; k < 3; ++k) {
+            const Eigen::Vector3d c = cam.R_cam_rig * (tip + d.s[k] * axis) + cam.t_cam_rig_mm;
+            xn[std::size_t(k)] = c.head<2>() / c.z();
+        }
+    };
+    const std::array<int, 3> which{0, 1, 2};
+    InstrumentPose start;
+    start.tip_rig_mm = Eigen::Vector3d(0.5, -0.3, -6.0);  // the last pose: 3–40 mm and a few degrees away
+    start.axis_rig = (d.trocar - start.tip_rig_mm).normalized();
+    for (const double depth_mm : {9.0, 2.0, -30.0}) {  // inside the eye, just past the trocar, withdrawn
+        CAPTURE(depth_mm);
+        const Eigen::Vector3d axis = Eigen::Vector3d(0.12, -0.08, 1.0).normalized();
+        const Eigen::Vector3d tip = d.trocar - depth_mm * axis;
+        std::array<Eigen::Vector2d, 3> xn;
+        images(tip, axis, xn);
+        InstrumentPose pose;
+        double rms_px = -1.0;
+        REQUIRE(fit_instrument_one_view(cam, im, d.trocar, xn, which, start, pose, rms_px));
+        CHECK(rms_px < 1e-6);
+        CHECK((pose.tip_rig_mm - tip).norm() < 1e-6);
+        CHECK(pose.axis_rig.dot(axis) > 1.0 - 1e-12);
+        CHECK(pose.flags == (kPoseNoRoll | kPoseSingleView));
+        // Noise of 0.05 px moves the shaft's line little across the line of sight; the reprojection stays at the
+        // noise's level.
+        std::mt19937_64 rng(7);
+        std::normal_distribution<double> n(0.0, 0.05 / cam.mean_focal_px());
+        for (auto& x : xn) x += Eigen::Vector2d(n(rng), n(rng));
+        REQUIRE(fit_instrument_one_view(cam, im, d.trocar, xn, which, start, pose, rms_px));
+        CHECK(rms_px < 0.1);
+        CHECK(pose.axis_rig.dot(axis) > std::cos(0.5 * 3.14159265358979 / 180.0));
+    }
+    // Two markers, or a shaft along the line of sight (every marker on the trocar's image), place nothing.
+    std::array<Eigen::Vector2d, 3> xn;
+    const Eigen::Vector3d ray = (d.trocar - cam.centre_rig_mm()).normalized();
+    images(d.trocar + 5.0 * ray, -ray, xn);
+    InstrumentPose pose;
+    double rms_px = 0.0;
+    InstrumentPose along = start;
+    along.axis_rig = -ray;
+    along.tip_rig_mm = d.trocar + 5.0 * ray;
+    CHECK_FALSE(fit_instrument_one_view(cam, im, d.trocar, xn, which, along, pose, rms_px));
+    images(d.trocar - 9.0 * Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ(), xn);
+    CHECK_FALSE(fit_instrument_one_view(cam, im, d.trocar, std::span<const Eigen::Vector2d>(xn.data(), 2),
+                                        std::span<const int>(which.data(), 2), start, pose, rms_px));
 }

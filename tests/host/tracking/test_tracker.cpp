@@ -7,6 +7,8 @@
 
 #include <cmath>
 #include <limits>
+#include <span>
+#include <vector>
 
 using namespace eyesim::tracking;
 using eyesim::tracking::test::SyntheticScene;
@@ -168,4 +170,64 @@ TEST_CASE("synchronisation modes by the command lines' names; any other name is 
     CHECK(sync_mode_from_name("async") == SyncMode::Async);
     CHECK_THROWS_AS(sync_mode_from_name("later"), std::invalid_argument);
     CHECK_THROWS_AS(sync_mode_from_name(""), std::invalid_argument);
+}
+
+TEST_CASE("an instrument one camera alone sees is placed for the hints from that view and its trocar, and stays held",
+          "[tracking][tracker]") {
+    const SyntheticScene scene(1.0);
+    TrackerConfig cfg = scene.tracker_config();
+    Tracker tracker(cfg);
+    const int ncam = int(cfg.cameras.size());
+    const int n_eye = int(scene.bodies().eye.markers.size());
+    // The frame's images: every marker's exact projection, the forceps' (instrument 0, markers n_eye .. n_eye + 2)
+    // in camera 0 only where `forceps_in_one`.
+    auto frame = [&](const eyesim::tracking::test::SceneTruth& truth, bool forceps_in_one, TrackingFrame& out) {
+        std::vector<CameraField> fields(static_cast<std::size_t>(ncam));
+        for (int c = 0; c < ncam; ++c) {
+            CameraField& f = fields[std::size_t(c)];
+            f.camera = c;
+            for (std::size_t k = 0; k < truth.markers_rig_mm.size(); ++k) {
+                const bool forceps = int(k) >= n_eye && int(k) < n_eye + 3;
+                Eigen::Vector2d px;
+                if ((forceps && forceps_in_one && c != 0) ||
+                    !project_point(cfg.cameras[std::size_t(c)], truth.markers_rig_mm[k], px))
+                    continue;
+                FieldImage& im = f.images[std::size_t(f.count++)];
+                im.colour_class = std::uint8_t(truth.marker_class[k]);
+                im.frame_px = px;
+            }
+        }
+        const bool present[kMaxCameras] = {true, true, true, true};
+        tracker.track_images(fields, std::span<const bool>(present, std::size_t(ncam)), out);
+    };
+    TrackingFrame out;
+    frame(scene.at(0.0), false, out);
+    REQUIRE(out.instruments[0].measured());
+    CHECK(out.one_view_mask == 0);
+    // 20 ms later only camera 0 sees the forceps: no 3D markers, so held, but placed from camera 0 for the hints.
+    eyesim::tracking::test::SceneTruth truth = scene.at(20000.0);
+    frame(truth, true, out);
+    CHECK_FALSE(out.instruments[0].measured());
+    CHECK(out.instruments[1].measured());
+    REQUIRE((out.one_view_mask & 1u) != 0);
+    CHECK((out.one_view_mask & 2u) == 0);  // the light pipe is measured: not placed from one view
+    const InstrumentPose& one = out.one_view[0];
+    CHECK((one.flags & kPoseSingleView) != 0);
+    CHECK((one.tip_rig_mm - truth.tip_rig_mm[0]).norm() < 1e-3);  // exact images: q16-free, a Newton tolerance
+    CHECK(one.axis_rig.dot(truth.axis_rig[0]) > 1.0 - 1e-9);
+    // Withdrawn 25 mm along its line, still seen by camera 0 alone: followed from the last one-view pose.
+    for (std::size_t k = std::size_t(n_eye); k < std::size_t(n_eye + 3); ++k)
+        truth.markers_rig_mm[k] += 25.0 * truth.axis_rig[0];
+    const Eigen::Vector3d tip = truth.tip_rig_mm[0] + 25.0 * truth.axis_rig[0];
+    frame(truth, true, out);
+    CHECK_FALSE(out.instruments[0].measured());
+    REQUIRE((out.one_view_mask & 1u) != 0);
+    CHECK((out.one_view[0].tip_rig_mm - tip).norm() < 1e-3);
+    CHECK(out.one_view[0].insertion_depth_mm == Approx(truth.insertion_mm[0] - 25.0).margin(1e-3));
+    // Off the trocar's line across camera 0's view (an instrument moved freely once out of the eye): nothing placed.
+    const Eigen::Vector3d ray = tip - cfg.cameras[0].centre_rig_mm();
+    const Eigen::Vector3d aside = 2.5 * truth.axis_rig[0].cross(ray).normalized();
+    for (std::size_t k = std::size_t(n_eye); k < std::size_t(n_eye + 3); ++k) truth.markers_rig_mm[k] += aside;
+    frame(truth, true, out);
+    CHECK((out.one_view_mask & 1u) == 0);
 }

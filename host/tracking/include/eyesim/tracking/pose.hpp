@@ -26,6 +26,7 @@ enum PoseFlag : std::uint32_t {
     kPoseNoEye = 1u << 4,          ///< eye pose not available: eye-frame values use the last eye pose
     kPoseJumpRejected = 1u << 5,   ///< a fit jumped implausibly from the last frame (misassigned markers): held
     kPoseSingleMarker = 1u << 6,   ///< kept from one marker and the trocar (the shaft's line; measured)
+    kPoseSingleView = 1u << 7,     ///< from one camera's images and the trocar (fit_instrument_one_view; hints only)
 };
 
 /// Eye pose: rotation about its fixed centre.
@@ -75,11 +76,31 @@ struct PoseOptions {
     /// An instrument measured last frame is kept from a single marker (and its trocar) when that marker lies
     /// this close to where the last pose puts it.
     double single_marker_gate_mm = 1.5;
+    /// An instrument not measured now (measured within the last second, or placed so in the last frame), which one
+    /// camera alone sees whole, is placed from that camera's images and its trocar for the refinement's hints
+    /// (fit_instrument_one_view, TrackingFrame::one_view; the other cameras' view blocked, or the instrument
+    /// withdrawn along its trocar's line, `occlusion`): of the images no triangulated marker took, one per marker on
+    /// a line through the trocar's image in the markers' order; it stands where exactly one such combination
+    /// reprojects within single_view_max_rms_px.
+    bool single_view = true;
+    double single_view_max_rms_px = 1.0;
     /// 1σ of a marker the correspondence flagged partly hidden with fewer than two clean views (MatchedMarker::
     /// occluded): its point is the visible parts' centroid, up to a few tenths of a mm from the centre. Instrument
     /// fits weight it by that, so the clean markers and the trocar carry the pose and it only fills in.
     double occluded_sigma_mm = 0.3;
 };
+
+/// Fits an instrument's shaft through its trocar to one camera's images of its markers: the line's direction
+/// through `trocar_rig_mm` (two parameters) and the tip's depth behind it (one) that reproject body markers
+/// `which[k]` nearest the undistorted normalised points `xn[k]` of camera `cam` (Gauss–Newton from `start`'s axis
+/// and tip). For an instrument only one camera sees (the others' view blocked): its markers alone are no 3D points,
+/// but three images on the line and the trocar fix the shaft. Sets pose's tip, axis, rotation (no roll) and
+/// flags kPoseNoRoll | kPoseSingleView; `rms_px` is the reprojection RMS (pixels by the mean focal). False with
+/// fewer than three markers, a degenerate geometry (the shaft along the line of sight) or no convergence.
+/// Allocation-free.
+bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& model, const Eigen::Vector3d& trocar_rig_mm,
+                             std::span<const Eigen::Vector2d> xn, std::span<const int> which,
+                             const InstrumentPose& start, InstrumentPose& pose, double& rms_px);
 
 /// Which body (and which of its markers) each triangulated marker was assigned to.
 struct MarkerAssignment {

@@ -93,6 +93,13 @@ struct TrackingFrame {
     int images_in = 0;                    ///< marker images entering correspondence
     int images_dropped_sync = 0;          ///< images lost in time alignment (unpaired between fields)
     int markers_unassigned = 0;           ///< triangulated markers no body claimed
+    /// Instruments not measured in this frame that one camera alone sees whole (bit b: instrument b), placed from
+    /// that camera's images and the trocar (PoseOptions::single_view; SyncMode::Interpolate, Extrapolate and Nearest
+    /// frames). For the refinement's occlusion hints only, which need the marker's image and the shaft's direction
+    /// across it: from one view the depth along the line of sight is poorly determined (on `occlusion` seed 155 a
+    /// withdrawn injection needle's tip 1–9 mm off), so the instrument stays reported held.
+    std::uint8_t one_view_mask = 0;
+    std::array<InstrumentPose, kMaxInstruments> one_view{};
 };
 
 /// The tracker (see the file comment).
@@ -171,6 +178,13 @@ private:
     /// refits the bodies once).
     bool correct_shaft_occlusion(TrackingFrame& out);
     bool correct_eye_occlusion(TrackingFrame& out);
+    // Instruments not measured now that one camera alone sees: placed from its images and the trocar for the
+    // hints (TrackingFrame::one_view, PoseOptions::single_view).
+    void single_view_instruments(TrackingFrame& out);
+    // How long an instrument may have been held for a single view to take it up again (frames: its last pose only
+    // starts the fit), and how far off the line through the trocar's image a candidate image may lie (px).
+    static constexpr int kSingleViewMaxHeldFrames = 50;
+    static constexpr double kSingleViewLinePx = 3.0;
     /// Camera c's observation of image p with its centroid moved back by (dx_px, dv_px) (frame px, the share of the
     /// marker something hides) and σ grown by kEyeCorrectionRelError of that; false when it does not undistort.
     bool shifted_observation(int c, const ImagePoint& p, double dx_px, double dv_px, Observation& o) const;
@@ -279,6 +293,15 @@ private:
     std::uint64_t frames_ = 0;
     EyePose last_eye_;
     std::array<InstrumentPose, kMaxInstruments> last_instruments_{};
+    // Frames since each instrument was last measured (single_view_instruments; large: never).
+    std::array<int, kMaxInstruments> unmeasured_frames_ = make_unmeasured();
+    std::array<InstrumentPose, kMaxInstruments> one_view_{};  // the last frame's TrackingFrame::one_view
+    std::uint8_t one_view_mask_ = 0;
+    static std::array<int, kMaxInstruments> make_unmeasured() {
+        std::array<int, kMaxInstruments> a{};
+        a.fill(1 << 20);
+        return a;
+    }
     // Per-frame scratch (kept as members: no allocation, no large stack frames).
     std::array<CameraField, kMaxCameras> aligned_{};
     std::array<CameraObservations, kMaxCameras> views_{};
