@@ -190,33 +190,38 @@ bool fit_instrument(const InstrumentModel& model, std::span<const Eigen::Vector3
     return true;
 }
 
-bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& model, const Eigen::Vector3d& trocar_rig_mm,
-                             std::span<const Eigen::Vector2d> xn, std::span<const int> which,
-                             const InstrumentPose& start, InstrumentPose& pose, double& rms_px) {
-    const std::size_t n = xn.size();
-    if (n < 3 || which.size() != n || n > std::size_t(kMaxBodyMarkers) || !trocar_rig_mm.allFinite()) return false;
+bool fit_instrument_images(std::span<const ShaftImage> images, const InstrumentModel& model,
+                           const Eigen::Vector3d& trocar_rig_mm, const InstrumentPose& start, InstrumentPose& pose,
+                           double& rms_px) {
+    constexpr std::size_t kMax = kMaxShaftImages;
+    const std::size_t n = images.size();
+    if (n < 3 || n > kMax || !trocar_rig_mm.allFinite()) return false;
     const Eigen::Vector3d a_body = model.axis_body.normalized();
-    std::array<double, kMaxBodyMarkers> s{};  // each marker's distance from the tip along the shaft
+    std::array<double, kMax> s{};  // each image's marker's distance from the tip along the shaft
     for (std::size_t k = 0; k < n; ++k) {
-        if (which[k] < 0 || which[k] >= model.marker_count || !xn[k].allFinite()) return false;
-        s[k] = (model.markers[std::size_t(which[k])].pos_body_mm - model.tip_body_mm).dot(a_body);
+        const ShaftImage& im = images[k];
+        if (!im.camera || im.marker < 0 || im.marker >= model.marker_count || !im.xn.allFinite()) return false;
+        s[k] = (model.markers[std::size_t(im.marker)].pos_body_mm - model.tip_body_mm).dot(a_body);
     }
-    const double f = cam.mean_focal_px();
     // Marker k at P + (s_k − d)·A: A the unit axis (tip → handle), d the tip's depth behind the trocar P.
     Eigen::Vector3d A = start.axis_rig.normalized();
     double d = (trocar_rig_mm - start.tip_rig_mm).dot(A);
     if (!A.allFinite() || !std::isfinite(d)) return false;
     // Residuals (px) and, with J, their derivatives by (u, v, d), A moved to normalise(A + u·e1 + v·e2).
-    auto residuals = [&](const Eigen::Vector3d& axis, double depth, Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1>& r,
-                         Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3>* J, const Eigen::Vector3d& e1,
+    using Residuals = Eigen::Matrix<double, 2 * kMax, 1>;
+    using Jacobian = Eigen::Matrix<double, 2 * kMax, 3>;
+    auto residuals = [&](const Eigen::Vector3d& axis, double depth, Residuals& r, Jacobian* J, const Eigen::Vector3d& e1,
                          const Eigen::Vector3d& e2) -> bool {
         for (std::size_t k = 0; k < n; ++k) {
+            const CameraGeometry& cam = *images[k].camera;
+            const Eigen::Vector2d& xn = images[k].xn;
+            const double f = cam.mean_focal_px();
             const Eigen::Vector3d X = trocar_rig_mm + (s[k] - depth) * axis;
             const Eigen::Vector3d c = cam.R_cam_rig * X + cam.t_cam_rig_mm;
             if (!(c.z() > 1e-6)) return false;
             const double iz = 1.0 / c.z();
-            r(Eigen::Index(2 * k)) = f * (c.x() * iz - xn[k].x());
-            r(Eigen::Index(2 * k + 1)) = f * (c.y() * iz - xn[k].y());
+            r(Eigen::Index(2 * k)) = f * (c.x() * iz - xn.x());
+            r(Eigen::Index(2 * k + 1)) = f * (c.y() * iz - xn.y());
             if (!J) continue;
             Eigen::Matrix<double, 2, 3> dp;
             dp << iz, 0.0, -c.x() * iz * iz, 0.0, iz, -c.y() * iz * iz;
@@ -228,8 +233,8 @@ bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& m
         return true;
     };
     const Eigen::Index m = Eigen::Index(2 * n);
-    Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1> r = Eigen::Matrix<double, 2 * kMaxBodyMarkers, 1>::Zero(), r_try = r;
-    Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3> J = Eigen::Matrix<double, 2 * kMaxBodyMarkers, 3>::Zero();
+    Residuals r = Residuals::Zero(), r_try = r;
+    Jacobian J = Jacobian::Zero();
     auto basis = [](const Eigen::Vector3d& a, Eigen::Vector3d& e1, Eigen::Vector3d& e2) {
         e1 = a.unitOrthogonal();
         e2 = a.cross(e1);
@@ -276,6 +281,16 @@ bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& m
     pose.markers_used = int(n);
     pose.flags = kPoseNoRoll | kPoseSingleView;
     return std::isfinite(rms_px) && pose.tip_rig_mm.allFinite();
+}
+
+bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& model, const Eigen::Vector3d& trocar_rig_mm,
+                             std::span<const Eigen::Vector2d> xn, std::span<const int> which,
+                             const InstrumentPose& start, InstrumentPose& pose, double& rms_px) {
+    if (xn.size() != which.size() || xn.size() > std::size_t(kMaxBodyMarkers)) return false;
+    std::array<ShaftImage, kMaxBodyMarkers> images{};
+    for (std::size_t k = 0; k < xn.size(); ++k) images[k] = ShaftImage{&cam, xn[k], which[k]};
+    return fit_instrument_images(std::span<const ShaftImage>(images.data(), xn.size()), model, trocar_rig_mm, start, pose,
+                                 rms_px);
 }
 
 void instrument_in_eye(const InstrumentModel& model, const EyePose& eye, InstrumentPose& pose) {

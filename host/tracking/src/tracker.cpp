@@ -411,7 +411,16 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
     const PoseOptions& opt = config_.pose;
     if (!opt.single_view || !opt.trocar_constraint || !out.eye.measured()) return;
     const int ncam = int(cameras_.size());
-    const ImagesUsed used = images_used(out.markers, ncam);
+    // Images a body's marker took; those of markers no body claimed are free (a codec's bias on small blobs can put
+    // the triangulated points of a distant instrument beyond the assignment's distance tolerance).
+    ImagesUsed used{};
+    for (int k = 0; k < out.markers.count; ++k) {
+        if (out.assignment.body[std::size_t(k)] < 0) continue;
+        for (int c = 0; c < ncam; ++c) {
+            const int i = out.markers.markers[std::size_t(k)].image_index[std::size_t(c)];
+            if (i >= 0 && i < kMaxMarkersPerCamera) used[std::size_t(c)][std::size_t(i)] = true;
+        }
+    }
     const Eigen::Matrix3d Re = out.eye.rotation_eye_to_rig.toRotationMatrix();
     for (int b = 0; b < out.instrument_count; ++b) {
         const InstrumentModel& model = config_.bodies.instruments[std::size_t(b)];
@@ -434,9 +443,16 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
             return (model.markers[std::size_t(x)].pos_body_mm - model.tip_body_mm).dot(a_body) <
                    (model.markers[std::size_t(y)].pos_body_mm - model.tip_body_mm).dot(a_body);
         });
+        // Per camera the one combination that fits (another one in the same camera nearly as well is an ambiguity:
+        // none from that camera), then one fit over every such camera's images.
+        std::array<ShaftImage, kMaxShaftImages> joint{};
+        std::size_t n_joint = 0;
         InstrumentPose best;
-        double best_rms = HUGE_VAL, second_rms = HUGE_VAL;
+        double best_rms = HUGE_VAL;
         for (int c = 0; c < ncam; ++c) {
+            InstrumentPose cam_best;
+            double cam_rms = HUGE_VAL, second_rms = HUGE_VAL;
+            std::array<int, kMaxBodyMarkers> cam_pick{};
             const CameraObservations& v = views_[std::size_t(c)];
             const CameraGeometry& g = cameras_[std::size_t(c)];
             const Eigen::Vector3d tc = g.R_cam_rig * trocar + g.t_cam_rig_mm;
@@ -461,6 +477,7 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
             for (bool more = true; more;) {
                 std::array<Eigen::Vector2d, kMaxBodyMarkers> xn{};
                 std::array<int, kMaxBodyMarkers> which{};
+                const std::array<int, kMaxBodyMarkers> combo = pick;
                 bool distinct = true;
                 for (int i = 0; i < nm; ++i) {
                     const int j = cand[std::size_t(i)][std::size_t(pick[std::size_t(i)])];
@@ -491,17 +508,34 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
                 if (!fit_instrument_one_view(g, model, trocar, std::span<const Eigen::Vector2d>(xn.data(), std::size_t(nm)),
                                              std::span<const int>(which.data(), std::size_t(nm)), last, fitted, rms))
                     continue;
-                if (rms < best_rms) {
-                    second_rms = best_rms;
-                    best_rms = rms;
-                    best = fitted;
+                if (rms < cam_rms) {
+                    second_rms = cam_rms;
+                    cam_rms = rms;
+                    cam_best = fitted;
+                    for (int i = 0; i < nm; ++i)
+                        cam_pick[std::size_t(i)] = cand[std::size_t(i)][std::size_t(combo[std::size_t(i)])];
                 } else {
                     second_rms = std::min(second_rms, rms);
                 }
             }
+            if (!(cam_rms <= opt.single_view_max_rms_px) || second_rms <= opt.single_view_max_rms_px) continue;
+            for (int i = 0; i < nm; ++i)
+                joint[n_joint++] = ShaftImage{&g, v.points[std::size_t(cam_pick[std::size_t(i)])].xn, order[std::size_t(i)]};
+            if (cam_rms < best_rms) {
+                best_rms = cam_rms;
+                best = cam_best;
+            }
         }
-        // One combination fits; another one nearly as well is an ambiguity, not a pose.
-        if (!(best_rms <= opt.single_view_max_rms_px) || second_rms <= opt.single_view_max_rms_px) continue;
+        if (n_joint == 0) continue;
+        if (n_joint > std::size_t(nm)) {  // two cameras or more: one fit over all (they must agree)
+            InstrumentPose both = best;
+            double rms = 0.0;
+            if (!fit_instrument_images(std::span<const ShaftImage>(joint.data(), n_joint), model, trocar, best, both,
+                                       rms) ||
+                !(rms <= opt.single_view_max_rms_px))
+                continue;
+            best = both;
+        }
         instrument_in_eye(model, out.eye, best);
         out.one_view[std::size_t(b)] = best;
         out.one_view_mask = std::uint8_t(out.one_view_mask | (1u << b));

@@ -76,12 +76,13 @@ struct PoseOptions {
     /// An instrument measured last frame is kept from a single marker (and its trocar) when that marker lies
     /// this close to where the last pose puts it.
     double single_marker_gate_mm = 1.5;
-    /// An instrument not measured now (measured within the last second, or placed so in the last frame), which one
-    /// camera alone sees whole, is placed from that camera's images and its trocar for the refinement's hints
-    /// (fit_instrument_one_view, TrackingFrame::one_view; the other cameras' view blocked, or the instrument
-    /// withdrawn along its trocar's line, `occlusion`): of the images no triangulated marker took, one per marker on
-    /// a line through the trocar's image in the markers' order; it stands where exactly one such combination
-    /// reprojects within single_view_max_rms_px.
+    /// An instrument not measured now (measured within the last second, or placed so in the last frame) whose
+    /// markers a camera sees whole is placed from its images and its trocar for the refinement's hints
+    /// (TrackingFrame::one_view; the other cameras' view blocked, or the instrument withdrawn along its trocar's
+    /// line, `occlusion`): in each camera, of the images no body's marker took, one per marker on a line through the
+    /// trocar's image in the markers' order, where exactly one such combination reprojects within
+    /// single_view_max_rms_px (fit_instrument_one_view); with two cameras or more, one fit over all their images
+    /// (fit_instrument_images) within the same.
     bool single_view = true;
     double single_view_max_rms_px = 1.0;
     /// 1σ of a marker the correspondence flagged partly hidden with fewer than two clean views (MatchedMarker::
@@ -101,6 +102,23 @@ struct PoseOptions {
 bool fit_instrument_one_view(const CameraGeometry& cam, const InstrumentModel& model, const Eigen::Vector3d& trocar_rig_mm,
                              std::span<const Eigen::Vector2d> xn, std::span<const int> which,
                              const InstrumentPose& start, InstrumentPose& pose, double& rms_px);
+
+/// One image of an instrument's marker for fit_instrument_images: the camera, the undistorted normalised point, the
+/// body marker.
+struct ShaftImage {
+    const CameraGeometry* camera = nullptr;
+    Eigen::Vector2d xn = Eigen::Vector2d::Zero();
+    int marker = -1;
+};
+/// Most images fit_instrument_images takes.
+inline constexpr int kMaxShaftImages = kMaxCameras * kMaxBodyMarkers;
+
+/// fit_instrument_one_view over the images of one or more cameras (each residual in its camera's pixels): where two
+/// cameras see the markers but their images do not triangulate (a codec's bias on 2–10 px blobs beyond the
+/// correspondence's residual gate), the second view fixes the depth the first leaves loose.
+bool fit_instrument_images(std::span<const ShaftImage> images, const InstrumentModel& model,
+                           const Eigen::Vector3d& trocar_rig_mm, const InstrumentPose& start, InstrumentPose& pose,
+                           double& rms_px);
 
 /// Which body (and which of its markers) each triangulated marker was assigned to.
 struct MarkerAssignment {

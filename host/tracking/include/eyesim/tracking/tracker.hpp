@@ -93,11 +93,12 @@ struct TrackingFrame {
     int images_in = 0;                    ///< marker images entering correspondence
     int images_dropped_sync = 0;          ///< images lost in time alignment (unpaired between fields)
     int markers_unassigned = 0;           ///< triangulated markers no body claimed
-    /// Instruments not measured in this frame that one camera alone sees whole (bit b: instrument b), placed from
-    /// that camera's images and the trocar (PoseOptions::single_view; SyncMode::Interpolate, Extrapolate and Nearest
-    /// frames). For the refinement's occlusion hints only, which need the marker's image and the shaft's direction
-    /// across it: from one view the depth along the line of sight is poorly determined (on `occlusion` seed 155 a
-    /// withdrawn injection needle's tip 1–9 mm off), so the instrument stays reported held.
+    /// Instruments not measured in this frame whose markers a camera sees whole (bit b: instrument b) — one camera
+    /// alone, or two whose images do not triangulate to the body — placed from those images and the trocar
+    /// (PoseOptions::single_view; SyncMode::Interpolate, Extrapolate and Nearest frames). For the refinement's
+    /// occlusion hints only, which need the marker's image and the shaft's direction across it: from one view the
+    /// depth along the line of sight is poorly determined (on `occlusion` seed 155 a withdrawn injection needle's
+    /// tip 1–9 mm off), so the instrument stays reported held.
     std::uint8_t one_view_mask = 0;
     std::array<InstrumentPose, kMaxInstruments> one_view{};
 };
@@ -178,7 +179,7 @@ private:
     /// refits the bodies once).
     bool correct_shaft_occlusion(TrackingFrame& out);
     bool correct_eye_occlusion(TrackingFrame& out);
-    // Instruments not measured now that one camera alone sees: placed from its images and the trocar for the
+    // Instruments not measured now whose markers a camera sees whole: placed from the images and the trocar for the
     // hints (TrackingFrame::one_view, PoseOptions::single_view).
     void single_view_instruments(TrackingFrame& out);
     // How long an instrument may have been held for a single view to take it up again (frames: its last pose only
