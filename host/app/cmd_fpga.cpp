@@ -191,7 +191,8 @@ int run(const FpgaOptions& opt) {
         csv.open(opt.csv);
         if (!csv) throw eyesim::app::Error(fmt::format("{}: cannot create CSV file", opt.csv));
         csv << "camera,field,parity,index,class,x_px,y_px,area_px,sum_w,bbox_x0,bbox_y0,bbox_x1,bbox_y1,flags,"
-               "complete_us,emit_us,latency_us,refine,truth_body,truth_marker,error_x_px,error_y_px,occluded_fraction\n";
+               "complete_us,emit_us,latency_us,refine,truth_body,truth_marker,error_x_px,error_y_px,occluded_fraction,"
+               "refine_hint\n";
     }
 
     // One pipeline per camera with the reset register map, as the device powers up, plus any --reg writes.
@@ -201,6 +202,7 @@ int run(const FpgaOptions& opt) {
     for (int c : cams) stats.push_back(CameraStats{c});
     std::vector<BlobTruth> blob_truth;  // per blob of the current field, reused
     const std::vector<const char*> no_outcomes;
+    const std::vector<std::uint8_t> no_hints;
     std::array<uint8_t, proto::kMaxFrameBytes> frame{};
     // Receive times. There is no host on this path: the capture uses the device clock as the host clock (offset 0)
     // and stamps each record with the modelled time its frame has left the device (docs/protocol.md section 6):
@@ -311,11 +313,14 @@ int run(const FpgaOptions& opt) {
                     // Truth columns: empty where the recording has no truth or the blob matched no marker.
                     if (bi < blob_truth.size() && blob_truth[bi].marker) {
                         const BlobTruth& t = blob_truth[bi];
-                        csv << fmt::format(",{},{},{:.6f},{:.6f},{:.4f}\n", t.marker->body, t.marker->id,
+                        csv << fmt::format(",{},{},{:.6f},{:.6f},{:.4f}", t.marker->body, t.marker->id,
                                            t.error_px.x(), t.error_px.y(), t.occluded_fraction);
                     } else {
-                        csv << ",,,,,\n";
+                        csv << ",,,,,";
                     }
+                    // With --refine: 1 where the poses gave the blob's fit a hint, 0 where not.
+                    const auto& hints = refiner ? refiner->last_hinted() : no_hints;
+                    csv << ',' << (bi < hints.size() ? (hints[bi] ? "1" : "0") : "") << '\n';
                 }
             }
             if (!capture_on && !hint_tracker) return;

@@ -53,6 +53,7 @@ int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob
     for (const fpga::Blob& b : blobs) boxes_.push_back(tracking::blob_box(b));
     tracking::mark_foreign_overlaps(boxes_);
     outcomes_.assign(blobs.size(), "kept");
+    hinted_.assign(blobs.size(), 0);
     int refined = 0;
     for (std::size_t i = 0; i < blobs.size(); ++i) {
         fpga::Blob& b = blobs[i];
@@ -60,6 +61,7 @@ int BlobRefiner::refine(const uint8_t* field, int height, std::vector<fpga::Blob
         const tracking::SphereFitResult r =
             tracking::MarkerHintSource::fit(hints_, field, height, boxes_[i], camera, config_, *work_, hinted);
         hinted_fits_ += hinted;
+        hinted_[i] = hinted ? 1 : 0;
         if (!r.ok) {
             ++refusals_[static_cast<size_t>(r.refusal)];
             outcomes_[i] = tracking::to_string(r.refusal);

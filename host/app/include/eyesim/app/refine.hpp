@@ -55,6 +55,10 @@ public:
     /// occluders left out), the refusal's name (tracking::to_string), or "kept" (a fit the wire's unsigned
     /// coordinates cannot hold), in the blobs' order.
     const std::vector<const char*>& last_outcomes() const { return outcomes_; }
+    /// Whether the poses gave each blob of the last field a hint (MarkerHintSource: what hides part of its marker),
+    /// whatever the outcome, in the blobs' order: a refused fit with one failed on the pose's model, one without on
+    /// the whole sphere's.
+    const std::vector<std::uint8_t>& last_hinted() const { return hinted_; }
 
 private:
     tracking::SphereFitConfig config_;
@@ -64,6 +68,7 @@ private:
     int64_t hinted_fits_ = 0;
     std::vector<tracking::BlobBox> boxes_;  // the field's blobs as the fit takes them (reused)
     std::vector<const char*> outcomes_;     // per blob of the last field (reused)
+    std::vector<std::uint8_t> hinted_;      // per blob of the last field (reused)
 };
 
 /// Hints for a recording's first fields, for the offline tools. A field's hints come from the poses of the fields
