@@ -94,6 +94,7 @@ FrameScore score_frame(const TrackingFrame& frame, const BodySet& bodies, const 
         fs.insertion_error_mm.push_back(ok && bodies.instruments[std::size_t(b)].has_trocar
                                             ? std::abs(p.insertion_depth_mm - t->insertion_mm)
                                             : -1.0);
+        fs.tip_in_eye.push_back(t && bodies.instruments[std::size_t(b)].has_trocar && t->insertion_mm > 0.0);
     }
     if (frame.eye.measured())
         fs.eye_error_deg = rotation_angle_deg(frame.eye.rotation_eye_to_rig.toRotationMatrix(),

@@ -50,6 +50,9 @@ struct FrameScore {
     std::vector<double> tip_eye_error_mm;     ///< per instrument, tip in the eye frame (−1 when not measured)
     std::vector<double> axis_error_deg;       ///< per instrument (−1 when not measured)
     std::vector<double> insertion_error_mm;   ///< per instrument (−1 when not measured or no trocar)
+    /// Per instrument: the truth's tip is past its trocar (inside the eye, where the instrument meets tissue); false
+    /// for a withdrawn one or one without a trocar.
+    std::vector<bool> tip_in_eye;
     double eye_error_deg = -1;                ///< eye rotation error (−1 when not measured)
     int truth_markers_visible2 = 0;           ///< truth markers visible in ≥ 2 cameras (what could be found)
 };
