@@ -3,7 +3,8 @@
 # durations × scenarios (default: seeds 21–30, on which no parameter was tuned; 2 s and 10 s; sweep, fast,
 # occlusion, surgery), two runs at a time, and prints one Markdown table with a row per scenario and duration: the
 # median and the worst over the seeds of the 3D RMS over all matched markers (flagged partly occluded ones
-# included), the 3D RMS of the reliable markers alone (the flagged ones left out), tip RMS, eye rotation RMS and
+# included), the 3D RMS of the reliable markers alone (the flagged ones left out), tip RMS (all measured poses, and
+# those whose truth has the tip inside the eye), eye rotation RMS and
 # exposure mid → pose p50 / p99, with the seeds behind each row. A seed whose figure is null (never measured) is
 # named in the row's last column and left out of that figure; a failed run is an error.
 #
@@ -98,6 +99,7 @@ def ms(j, q):
 cols = [("3D all matched µm", lambda j: j.get("marker3d_all_rms_um"), "{:.1f}"),
         ("3D reliable only µm", lambda j: j.get("marker3d_rms_um"), "{:.1f}"),
         ("tip µm", lambda j: j.get("tip_rms_um"), "{:.1f}"),
+        ("tip in the eye µm", lambda j: j.get("tip_in_eye_rms_um"), "{:.1f}"),
         ("eye °", lambda j: j.get("eye_rot_rms_deg"), "{:.4f}"),
         ("exposure→pose p50 ms", lambda j: ms(j, "p50"), "{:.1f}"),
         ("exposure→pose p99 ms", lambda j: ms(j, "p99"), "{:.1f}")]
