@@ -351,11 +351,12 @@ bool behind_eye(const Eigen::Vector3d& o, const Eigen::Vector3d& X, const Eigen:
 
 using ImagesUsed = std::array<std::array<bool, kMaxMarkersPerCamera>, kMaxCameras>;
 
-// Images some marker of `markers` took, per camera.
-ImagesUsed images_used(const CorrespondenceResult& markers, int ncam) {
+// Images some marker of `markers` took, per camera; with `assigned`, only the markers some body claimed.
+ImagesUsed images_used(const CorrespondenceResult& markers, int ncam, const MarkerAssignment* assigned = nullptr) {
     ImagesUsed used{};
     for (int k = 0; k < markers.count; ++k)
         for (int c = 0; c < ncam; ++c) {
+            if (assigned && assigned->body[std::size_t(k)] < 0) break;
             const int i = markers.markers[std::size_t(k)].image_index[std::size_t(c)];
             if (i >= 0 && i < kMaxMarkersPerCamera) used[std::size_t(c)][std::size_t(i)] = true;
         }
@@ -410,17 +411,13 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
     out.one_view_mask = 0;
     const PoseOptions& opt = config_.pose;
     if (!opt.single_view || !opt.trocar_constraint || !out.eye.measured()) return;
+    bool any_held = false;  // the usual frame: every instrument measured, nothing to place
+    for (int b = 0; b < out.instrument_count; ++b) any_held = any_held || !out.instruments[std::size_t(b)].measured();
+    if (!any_held) return;
     const int ncam = int(cameras_.size());
     // Images a body's marker took; those of markers no body claimed are free (a codec's bias on small blobs can put
     // the triangulated points of a distant instrument beyond the assignment's distance tolerance).
-    ImagesUsed used{};
-    for (int k = 0; k < out.markers.count; ++k) {
-        if (out.assignment.body[std::size_t(k)] < 0) continue;
-        for (int c = 0; c < ncam; ++c) {
-            const int i = out.markers.markers[std::size_t(k)].image_index[std::size_t(c)];
-            if (i >= 0 && i < kMaxMarkersPerCamera) used[std::size_t(c)][std::size_t(i)] = true;
-        }
-    }
+    const ImagesUsed used = images_used(out.markers, ncam, &out.assignment);
     const Eigen::Matrix3d Re = out.eye.rotation_eye_to_rig.toRotationMatrix();
     for (int b = 0; b < out.instrument_count; ++b) {
         const InstrumentModel& model = config_.bodies.instruments[std::size_t(b)];
@@ -476,15 +473,13 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
             std::array<int, kMaxBodyMarkers> pick{};
             for (bool more = true; more;) {
                 std::array<Eigen::Vector2d, kMaxBodyMarkers> xn{};
-                std::array<int, kMaxBodyMarkers> which{};
-                const std::array<int, kMaxBodyMarkers> combo = pick;
+                std::array<int, kMaxBodyMarkers> img{};  // the combination's image per marker
                 bool distinct = true;
                 for (int i = 0; i < nm; ++i) {
                     const int j = cand[std::size_t(i)][std::size_t(pick[std::size_t(i)])];
-                    for (int k = 0; k < i; ++k)
-                        distinct = distinct && cand[std::size_t(k)][std::size_t(pick[std::size_t(k)])] != j;
+                    for (int k = 0; k < i; ++k) distinct = distinct && img[std::size_t(k)] != j;
+                    img[std::size_t(i)] = j;
                     xn[std::size_t(i)] = v.points[std::size_t(j)].xn;
-                    which[std::size_t(i)] = order[std::size_t(i)];
                 }
                 // Next combination.
                 more = false;
@@ -506,14 +501,13 @@ void Tracker::single_view_instruments(TrackingFrame& out) {
                 InstrumentPose fitted = last;
                 double rms = 0.0;
                 if (!fit_instrument_one_view(g, model, trocar, std::span<const Eigen::Vector2d>(xn.data(), std::size_t(nm)),
-                                             std::span<const int>(which.data(), std::size_t(nm)), last, fitted, rms))
+                                             std::span<const int>(order.data(), std::size_t(nm)), last, fitted, rms))
                     continue;
                 if (rms < cam_rms) {
                     second_rms = cam_rms;
                     cam_rms = rms;
                     cam_best = fitted;
-                    for (int i = 0; i < nm; ++i)
-                        cam_pick[std::size_t(i)] = cand[std::size_t(i)][std::size_t(combo[std::size_t(i)])];
+                    cam_pick = img;
                 } else {
                     second_rms = std::min(second_rms, rms);
                 }
