@@ -83,6 +83,12 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
                            const std::vector<fpga::RegisterMap>& maps, const tracking::SphereFitConfig& fit,
                            tracking::TrackerConfig tracker, int64_t max_fields, tracking::MarkerHintSource& hints);
 
+/// One-view placements HintMotion takes the velocity of (the newest; two at least).
+inline constexpr int kOneViewTrack = 2;
+/// Longest gap between two one-view placements, and furthest from the newer one, that HintMotion moves an
+/// instrument over at their velocity (three fields).
+inline constexpr double kOneViewMotionMaxUs = 60000.0;
+
 /// The instruments' hints moved to each field's own time. The hint tracker's newest frame is about 1.7 fields older
 /// than the next field to be fitted (the frames of the interpolating tracker wait for the other cameras), and on
 /// `sweep` an instrument marker moves about 0.6 px a field: the pose's prediction then refused good fits of
@@ -90,7 +96,11 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
 /// messages; before a field is fitted, each instrument pose of the hint tracker's frame is moved by the motion its
 /// filter predicts from that frame's time to the field's exposure time. The eye's hint stays the frame's: it moves
 /// a tenth of that, and its predicted motion moved the fits of eye markers 90 % behind the eye's outline more
-/// than it placed them (raw `sweep` seed 91: 0.0229 → 0.0241 px over all blobs). For lossy sources only
+/// than it placed them (raw `sweep` seed 91: 0.0229 → 0.0241 px over all blobs). An instrument the hint tracker
+/// only placed from one camera's view (tracking::TrackingFrame::one_view: no two cameras triangulate it, so the
+/// motion tracker does not follow it) moves on at the velocity of its last two placements, within
+/// kOneViewMotionMaxUs: withdrawn along its trocar it crossed 2.5 px a field while its hint, a frame old, held it
+/// 1.3–2.5 px behind (`occlusion` seed 184). For lossy sources only
 /// (hint_motion_for): their fits lean on the pose (tracking::SphereFitConfig::prediction_gate_visible,
 /// restart_from_prediction); on raw and lossless fields, whose fits start from an accurate pipeline centroid and take
 /// only the occluders from the hint, `fast` lost by it (raw seeds 125–130: +1 … +22 %). Fixed storage after
@@ -113,7 +123,17 @@ private:
     std::array<tracking::InstrumentPose, tracking::kMaxInstruments> at_frame_{}, at_field_{}, moved_{};
     double frame_pose_us_ = 0;    // the frame time at_frame_ holds the poses of
     bool frame_pose_ok_ = false;  // at_frame_ is valid for it
+    // Per instrument its last kOneViewTrack one-view placements of consecutive frames, oldest first.
+    struct OneViewTrack {
+        std::array<tracking::InstrumentPose, kOneViewTrack> pose{};
+        std::array<double, kOneViewTrack> t_us{};
+        int n = 0;
+    };
+    std::array<OneViewTrack, tracking::kMaxInstruments> one_view_{};
+    void follow_one_view(const tracking::TrackingFrame& frame, int n);
+    bool move_one_view(int body, double field_us, tracking::InstrumentPose& out) const;
 };
+
 
 /// Whether the fits of `fit` (recording_sphere_fit_config) take their hints moved to the field's time (HintMotion):
 /// a lossy or subsampled source's, whose refused fits start again from the pose.
