@@ -2204,9 +2204,11 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     // with e = 0.43 into its neighbour's half). That blob's moments lie between the two markers: it starts at the
     // marker's predicted centre.
     MarkerHint shape;
+    const bool merged_start =
+        !(hint && hint->radius_px > 0) && start_at_hint && mask && mask->merged && mask->keep_outline_r_px > 0;
     if (hint && hint->radius_px > 0) {
         shape = *hint;
-    } else if (start_at_hint && mask && mask->merged && mask->keep_outline_r_px > 0) {
+    } else if (merged_start) {
         shape.radius_px = mask->keep_outline_r_px;
         shape.e1 = mask->keep_e1;
         shape.e2 = mask->keep_e2;
@@ -2403,7 +2405,8 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     res.refusal = FitRefusal::kShift;
     // Two markers of one class joined into this blob: its centroid lies between them; the prediction anchors the gate.
     if (merged) {
-        if (std::hypot(t[kX0] - mask->keep_x_px, 0.5 * (t[kV0] - mask->keep_v_px)) > kMergedMaxShiftPx) return res;
+        const double merged_gate = merged_start ? kMergedStartMaxShiftPx : kMergedMaxShiftPx;
+        if (std::hypot(t[kX0] - mask->keep_x_px, 0.5 * (t[kV0] - mask->keep_v_px)) > merged_gate) return res;
         res.refusal = FitRefusal::kNone;
         res.ok = true;
         return res;
