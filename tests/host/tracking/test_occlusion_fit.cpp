@@ -868,6 +868,42 @@ TEST_CASE("a marker another class's blob overlaps is fitted though the neighbour
     CHECK(se_fit < 0.5 * se_unflagged);
 }
 
+namespace {
+
+// Every clear marker whose blob the pipeline joined with another marker of its class (PatchMask::merged) in the
+// first 20 fields, fitted as the refiner fits it, against the truth; the hint source takes the true poses of
+// `pose_lag_fields` fields before.
+struct JoinedFits {
+    int merged = 0, fitted = 0, not_eye = 0;
+    double se_pipe = 0, se_fit = 0;
+    double rms_pipe() const { return std::sqrt(se_pipe / std::max(1, merged)); }
+    double rms_fit() const { return std::sqrt(se_fit / std::max(1, merged)); }
+};
+
+JoinedFits joined_blob_fits(VideoFitCase& vc, int64_t pose_lag_fields) {
+    JoinedFits j;
+    for_each_matched_blob(
+        vc.written, 20, vc.source, vc.f,
+        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction == 0; },
+        [&](const rig::FieldTruth&, int cam, const Blob& b, const rig::MarkerMatch& m, const BlobBox& box) {
+            PatchMask mask;
+            if (!vc.source.patch_mask(cam, box, mask) || !mask.merged) return;
+            ++j.merged;
+            j.not_eye += m.marker->body != "eye";
+            const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
+            bool hinted = false;
+            const SphereFitResult r =
+                MarkerHintSource::fit(&vc.source, vc.f.bytes.data(), vc.f.height, box, cam, vc.cfg, *vc.work, hinted);
+            j.se_pipe += (pipe - t).squaredNorm();
+            j.se_fit += ((r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe) - t).squaredNorm();
+            j.fitted += r.ok;
+        },
+        pose_lag_fields);
+    return j;
+}
+
+}  // namespace
+
 TEST_CASE("two markers of one class joined into one blob on video: the fit finds the one the pose predicts",
           "[tracking][rig][refine]") {
     // Sweep seed 19, camera 1: eye markers 3 (clear) and 2 (two thirds behind the eye's outline, 6 px below it)
@@ -878,30 +914,14 @@ TEST_CASE("two markers of one class joined into one blob on video: the fit finds
     // held the fit to the joined centroid. Now a marker partly past the eye's outline is a disc, and a blob with
     // another marker of its class in its box is held to the pose's prediction instead.
     VideoFitCase vc("eyesim_merged_h264", 19, "h264", "4:2:0");
-    int merged = 0, fitted = 0;
-    double se_pipe = 0, se_fit = 0;
-    for_each_matched_blob(
-        vc.written, 20, vc.source, vc.f,
-        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction == 0; },
-        [&](const rig::FieldTruth&, int cam, const Blob& b, const rig::MarkerMatch& m, const BlobBox& box) {
-            PatchMask mask;
-            if (!vc.source.patch_mask(cam, box, mask) || !mask.merged) return;
-            ++merged;
-            CHECK(m.marker->body == "eye");
-            const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
-            bool hinted = false;
-            const SphereFitResult r =
-                MarkerHintSource::fit(&vc.source, vc.f.bytes.data(), vc.f.height, box, cam, vc.cfg, *vc.work, hinted);
-            se_pipe += (pipe - t).squaredNorm();
-            se_fit += ((r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe) - t).squaredNorm();
-            fitted += r.ok;
-        });
-    const double rms_pipe = std::sqrt(se_pipe / std::max(1, merged)), rms_fit = std::sqrt(se_fit / std::max(1, merged));
-    INFO("joined blobs " << merged << ", fitted " << fitted << ": RMS pipeline " << rms_pipe << " px, fit " << rms_fit);
-    REQUIRE(merged >= 18);  // camera 1, nearly every field
-    CHECK(rms_pipe > 0.5);
-    CHECK(fitted >= 0.9 * merged);
-    CHECK(rms_fit < 0.1);
+    const JoinedFits j = joined_blob_fits(vc, 0);
+    INFO("joined blobs " << j.merged << ", fitted " << j.fitted << ": RMS pipeline " << j.rms_pipe() << " px, fit "
+                         << j.rms_fit());
+    REQUIRE(j.merged >= 18);  // camera 1, nearly every field
+    CHECK(j.not_eye == 0);
+    CHECK(j.rms_pipe() > 0.5);
+    CHECK(j.fitted >= 0.9 * j.merged);
+    CHECK(j.rms_fit() < 0.1);
 }
 
 TEST_CASE("a joined blob's fit from the predicted centre stands though the pose is fields old",
@@ -912,30 +932,13 @@ TEST_CASE("a joined blob's fit from the predicted centre stands though the pose 
     // fit started at the predicted centre lands within a few hundredths of the truth but 0.5–0.6 px from the
     // prediction, and the merged gate of a fit from the blob's moments (kMergedMaxShiftPx, 0.25 px) refused it.
     VideoFitCase vc("eyesim_merged_late_ffv1", 193, "ffv1-420", "4:2:0", "occlusion");
-    int merged = 0, fitted = 0;
-    double se_pipe = 0, se_fit = 0;
-    for_each_matched_blob(
-        vc.written, 20, vc.source, vc.f,
-        [](const rig::MarkerTruth&, const rig::MarkerCameraTruth& v) { return v.visible && v.occluded_fraction == 0; },
-        [&](const rig::FieldTruth&, int cam, const Blob& b, const rig::MarkerMatch& m, const BlobBox& box) {
-            PatchMask mask;
-            if (!vc.source.patch_mask(cam, box, mask) || !mask.merged) return;
-            ++merged;
-            const Eigen::Vector2d t = m.view->centroid_px, pipe(b.cx_px(), b.cy_px());
-            bool hinted = false;
-            const SphereFitResult r =
-                MarkerHintSource::fit(&vc.source, vc.f.bytes.data(), vc.f.height, box, cam, vc.cfg, *vc.work, hinted);
-            se_pipe += (pipe - t).squaredNorm();
-            se_fit += ((r.ok ? Eigen::Vector2d(r.cx_px, r.cy_px) : pipe) - t).squaredNorm();
-            fitted += r.ok;
-        },
-        1);
-    const double rms_pipe = std::sqrt(se_pipe / std::max(1, merged)), rms_fit = std::sqrt(se_fit / std::max(1, merged));
-    INFO("joined blobs " << merged << ", fitted " << fitted << ": RMS pipeline " << rms_pipe << " px, fit " << rms_fit);
-    REQUIRE(merged >= 8);
-    CHECK(rms_pipe > 1.0);
-    CHECK(fitted >= 0.9 * merged);
-    CHECK(rms_fit < 0.1);
+    const JoinedFits j = joined_blob_fits(vc, 1);
+    INFO("joined blobs " << j.merged << ", fitted " << j.fitted << ": RMS pipeline " << j.rms_pipe() << " px, fit "
+                         << j.rms_fit());
+    REQUIRE(j.merged >= 8);
+    CHECK(j.rms_pipe() > 1.0);
+    CHECK(j.fitted >= 0.9 * j.merged);
+    CHECK(j.rms_fit() < 0.1);
 }
 
 TEST_CASE("a marker whose blob touches another class's blob on 4:2:0 video is fitted with the wider gate",
