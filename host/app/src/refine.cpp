@@ -197,48 +197,31 @@ void HintMotion::follow_one_view(const tracking::TrackingFrame& frame, int n) {
             t.n = 0;  // measured (the filters take it), or not placed: the track ends
             continue;
         }
-        if (t.n > 0 && t.t_us[static_cast<size_t>(t.n - 1)] == frame.time_device_us) continue;  // taken already
-        if (t.n > 0 && !(frame.time_device_us - t.t_us[static_cast<size_t>(t.n - 1)] <= kOneViewMotionMaxUs)) t.n = 0;
-        if (t.n == kOneViewTrack) {
-            std::move(t.pose.begin() + 1, t.pose.end(), t.pose.begin());
-            std::move(t.t_us.begin() + 1, t.t_us.end(), t.t_us.begin());
-            --t.n;
-        }
-        t.pose[static_cast<size_t>(t.n)] = frame.one_view[static_cast<size_t>(b)];
-        t.t_us[static_cast<size_t>(t.n)] = frame.time_device_us;
-        ++t.n;
+        if (t.n > 0 && t.last_us == frame.time_device_us) continue;  // this frame's placement is taken already
+        if (t.n > 0 && !(frame.time_device_us - t.last_us <= kOneViewMotionMaxUs)) t.n = 0;
+        t.prev = t.last;
+        t.prev_us = t.last_us;
+        t.last = frame.one_view[static_cast<size_t>(b)];
+        t.last_us = frame.time_device_us;
+        t.n = std::min(t.n + 1, 2);
     }
 }
 
 bool HintMotion::move_one_view(int body, double field_us, tracking::InstrumentPose& out) const {
     const OneViewTrack& t = one_view_[static_cast<size_t>(body)];
-    if (t.n < 2) return false;
-    const auto newest = static_cast<size_t>(t.n - 1);
-    if (std::fabs(field_us - t.t_us[newest]) > kOneViewMotionMaxUs) return false;
-    // The velocity of the placements (least squares against time) from the newest one on. Two placements: over
-    // three or four, `occlusion` seeds 155, 169, 171, 172 and 184 lost (the needle's withdrawal speeds up and slows).
-    double tm = 0;
-    for (int i = 0; i < t.n; ++i) tm += t.t_us[static_cast<size_t>(i)];
-    tm /= t.n;
-    double stt = 0;
-    Eigen::Vector3d tip_s = Eigen::Vector3d::Zero(), axis_s = Eigen::Vector3d::Zero();
-    for (int i = 0; i < t.n; ++i) {
-        const auto k = static_cast<size_t>(i);
-        const double d = t.t_us[k] - tm;
-        stt += d * d;
-        tip_s += d * t.pose[k].tip_rig_mm;
-        axis_s += d * t.pose[k].axis_rig;
-    }
-    if (!(stt > 0)) return false;
-    const double ahead = field_us - t.t_us[newest];
-    const Eigen::Vector3d axis = t.pose[newest].axis_rig + (ahead / stt) * axis_s;
+    const double dt_us = t.last_us - t.prev_us;
+    if (t.n < 2 || !(dt_us > 0) || std::fabs(field_us - t.last_us) > kOneViewMotionMaxUs) return false;
+    // The velocity of the last two placements from the newer one on: through three or four, `occlusion` seeds 155,
+    // 169, 171, 172 and 184 lost (the needle's withdrawal speeds up and slows).
+    const double s = (field_us - t.last_us) / dt_us;
+    const Eigen::Vector3d axis = t.last.axis_rig + s * (t.last.axis_rig - t.prev.axis_rig);
     if (!(axis.norm() > 0.5)) return false;
-    // One-view poses have no roll: the newest one's orientation turned onto the moved axis.
-    const Eigen::Quaterniond turn = Eigen::Quaterniond::FromTwoVectors(t.pose[newest].axis_rig, axis.normalized());
-    out = t.pose[newest];
-    out.tip_rig_mm = t.pose[newest].tip_rig_mm + (ahead / stt) * tip_s;
+    // One-view poses have no roll: the newer one's orientation turned onto the moved axis.
+    const Eigen::Quaterniond turn = Eigen::Quaterniond::FromTwoVectors(t.last.axis_rig, axis.normalized());
+    out = t.last;
+    out.tip_rig_mm = t.last.tip_rig_mm + s * (t.last.tip_rig_mm - t.prev.tip_rig_mm);
     out.axis_rig = axis.normalized();
-    out.rotation_body_to_rig = (turn * t.pose[newest].rotation_body_to_rig).normalized();
+    out.rotation_body_to_rig = (turn * t.last.rotation_body_to_rig).normalized();
     return out.tip_rig_mm.allFinite() && out.axis_rig.allFinite();
 }
 

@@ -83,8 +83,6 @@ int64_t prime_marker_hints(const std::string& dir, const std::vector<int>& cams,
                            const std::vector<fpga::RegisterMap>& maps, const tracking::SphereFitConfig& fit,
                            tracking::TrackerConfig tracker, int64_t max_fields, tracking::MarkerHintSource& hints);
 
-/// One-view placements HintMotion takes the velocity of (the newest; two at least).
-inline constexpr int kOneViewTrack = 2;
 /// Longest gap between two one-view placements, and furthest from the newer one, that HintMotion moves an
 /// instrument over at their velocity (three fields).
 inline constexpr double kOneViewMotionMaxUs = 60000.0;
@@ -123,17 +121,16 @@ private:
     std::array<tracking::InstrumentPose, tracking::kMaxInstruments> at_frame_{}, at_field_{}, moved_{};
     double frame_pose_us_ = 0;    // the frame time at_frame_ holds the poses of
     bool frame_pose_ok_ = false;  // at_frame_ is valid for it
-    // Per instrument its last kOneViewTrack one-view placements of consecutive frames, oldest first.
+    // Per instrument its last two one-view placements of consecutive frames (frame times; n: how many hold one).
     struct OneViewTrack {
-        std::array<tracking::InstrumentPose, kOneViewTrack> pose{};
-        std::array<double, kOneViewTrack> t_us{};
+        tracking::InstrumentPose prev, last;
+        double prev_us = 0, last_us = 0;
         int n = 0;
     };
     std::array<OneViewTrack, tracking::kMaxInstruments> one_view_{};
     void follow_one_view(const tracking::TrackingFrame& frame, int n);
     bool move_one_view(int body, double field_us, tracking::InstrumentPose& out) const;
 };
-
 
 /// Whether the fits of `fit` (recording_sphere_fit_config) take their hints moved to the field's time (HintMotion):
 /// a lossy or subsampled source's, whose refused fits start again from the pose.
