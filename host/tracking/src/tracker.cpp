@@ -1223,12 +1223,19 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
         // centimetres within 0.1 s when the other views are occluded) while its images still fit. It supports the
         // body only while another camera has seen one of its markers within about a field period. The eye turns
         // about a known centre, which one view determines.
+        // After a miss (hold_on_miss, below) only another camera's image since the miss counts: an instrument
+        // pulled along its shaft can move nearly along one camera's line of sight, whose images then still fit the
+        // prediction that is a millimetre or more behind (`occlusion` seed 269: one camera's images rejected, the
+        // next camera's accepted, the frame reported measured 1.5 mm behind the needle).
+        const bool missed = missed_us_[std::size_t(b)] > last_good_us_[std::size_t(b)];
         bool other_view = b == 0;
         for (int c2 = 0; c2 < int(cameras_.size()) && !other_view; ++c2) {
             if (c2 == c) continue;
-            for (int k = 0; k < mc && !other_view; ++k)
-                other_view = T - seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c2)] <=
-                             ao.other_view_fields * config_.sync.field_period_us;
+            for (int k = 0; k < mc && !other_view; ++k) {
+                const double seen = seen_us_[std::size_t(b)][std::size_t(k)][std::size_t(c2)];
+                other_view = T - seen <= ao.other_view_fields * config_.sync.field_period_us &&
+                             !(missed && seen <= missed_us_[std::size_t(b)]);
+            }
         }
         if (field_used >= ao.min_markers_good)
             supported_us_[std::size_t(b)][std::size_t(c)] = std::max(supported_us_[std::size_t(b)][std::size_t(c)], T);
