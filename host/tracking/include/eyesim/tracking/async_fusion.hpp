@@ -66,8 +66,10 @@ struct AsyncOptions {
     /// An instrument that a camera's field before supported and whose next field of that camera shows none of the
     /// two or more markers the filter puts in that image is reported held until a field supports it again (it has
     /// moved out of the gate: pulled out, pushed in; Tracker::fuse_field). With low-latency parts it is decided at
-    /// each part over the markers the readout has passed. After such a miss only another camera's images since the
-    /// miss count as the second view of a supporting field (one camera may look along the motion that caused it).
+    /// each part over the markers the readout has passed. A field in which the filter refused one of the
+    /// instrument's images inside the gate (NIS above nis_gate) is a miss too, and supports nothing. After a miss
+    /// only another camera's images since the miss count as the second view of a supporting field (one camera may
+    /// look along the motion that caused it).
     bool hold_on_miss = true;
     /// An instrument is reported measured only while two cameras have each given at least `min_markers_good` of its
     /// images within `other_view_fields` periods: two markers in one camera and a single one in another leave its

@@ -347,6 +347,8 @@ private:
     // Images each body's filter accepted from each camera's current field so far (over its parts).
     std::array<std::array<int, kMaxCameras>, kBodies> field_used_{};
     std::array<std::array<int, kMaxCameras>, kBodies> prev_field_used_{};  // the same over that camera's field before
+    /// Images of each body within the gate that its filter refused (NIS) in each camera's current field so far.
+    std::array<std::array<int, kMaxCameras>, kBodies> field_refused_{};
     std::array<std::uint32_t, kMaxCameras> field_images_tried_{};  // bit i: image i was offered to a filter
     static_assert(kMaxMarkersPerCamera <= 32, "field_images_tried_ holds one bit per image");
     std::uint32_t ref_reported_counter_ = 0;  // the reference field a frame was last reported for
