@@ -1242,8 +1242,8 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
                              !(missed && seen <= missed_us_[std::size_t(b)]);
             }
         }
-        // An instrument's field in which the filter refused an image inside the gate (normalised innovation above
-        // nis_gate) while it took others is a miss as well, and supports nothing: at the onset of a fast push or
+        // An instrument's field in which the filter refused any image inside the gate (normalised innovation above
+        // nis_gate) is a miss as well, and supports nothing, though it took others: at the onset of a fast push or
         // pull, the images taken each pull the filter part of the way, and the frame went out measured a millimetre
         // behind (`occlusion` seed 275 with the refinement stage: one of camera 0's three images refused, two taken,
         // the tip 1.05 mm off).
