@@ -88,11 +88,9 @@ struct Out {
     int iterations = 0;
 };
 
-int g_fit_repeats = 1;  // --fit-repeats
-
 std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, const std::vector<fpga::Blob>& blobs,
                             tracking::SphereFitWorkspace& work, std::vector<double>& all_us,
-                            const tracking::MarkerHintSource* hints = nullptr, int camera = -1) {
+                            int fit_repeats, const tracking::MarkerHintSource* hints = nullptr, int camera = -1) {
     std::vector<Out> out;
     out.reserve(blobs.size());
     for (const fpga::Blob& b : blobs) {
@@ -103,9 +101,9 @@ std::vector<Out> run_method(const Method& m, const uint8_t* field, int height, c
             // The hint's prediction is part of the fit's cost.
             bool hinted = false;
             tracking::SphereFitResult r;
-            for (int k = 0; k < g_fit_repeats; ++k)
+            for (int k = 0; k < fit_repeats; ++k)
                 r = tracking::MarkerHintSource::fit(m.hints ? hints : nullptr, field, height, box, camera, m.cfg, work, hinted);
-            o.us = 1e6 * (eyesim::bench::thread_cpu_s() - t0) / g_fit_repeats;
+            o.us = 1e6 * (eyesim::bench::thread_cpu_s() - t0) / fit_repeats;
             all_us.push_back(o.us);
             o.iterations = r.iterations;
             if (r.ok) {
@@ -138,7 +136,7 @@ std::vector<fpga::Blob> blobs_of(fpga::Pipeline& p, const uint8_t* field, int he
 }  // namespace
 
 int main(int argc, char** argv) {
-    int seeds = 6, disc_fields = 20, first_seed = 1;
+    int seeds = 6, disc_fields = 20, first_seed = 1, fit_repeats = 1;
     double seconds = 0.4;
     std::string scenario = "sweep", data_set = "all";
     bool json = false, reference = true;
@@ -151,7 +149,7 @@ int main(int argc, char** argv) {
         else if (!std::strcmp(argv[i], "--seconds") && has) seconds = std::atof(argv[++i]);
         else if (!std::strcmp(argv[i], "--scenario") && has) scenario = argv[++i];
         else if (!std::strcmp(argv[i], "--disc-fields") && has) disc_fields = std::max(1, std::atoi(argv[++i]));
-        else if (!std::strcmp(argv[i], "--fit-repeats") && has) g_fit_repeats = std::max(1, std::atoi(argv[++i]));
+        else if (!std::strcmp(argv[i], "--fit-repeats") && has) fit_repeats = std::max(1, std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--data") && has) {
             data_set = argv[++i];
             if (data_set != "all" && data_set != "rig" && data_set != "discs") {
@@ -277,7 +275,7 @@ int main(int argc, char** argv) {
                             Row& row = row_for("rig " + scenario, noise, m.name);
                             Row& hidden = row_for("rig " + scenario + ", partly hidden", noise, m.name);
                             const std::vector<Out> out =
-                                run_method(m, field.data(), rig::kFieldHeight, blobs, *work, row.all_us, &hints, cam);
+                                run_method(m, field.data(), rig::kFieldHeight, blobs, *work, row.all_us, fit_repeats, &hints, cam);
                             for (const auto& [d, v] : matched) {
                                 const int bin = size_bin(2.0 * v->radius_px);
                                 if (bin < 0) continue;
@@ -324,7 +322,7 @@ int main(int argc, char** argv) {
                     const std::vector<fpga::Blob> blobs = blobs_of(pipe, f.bytes.data(), f.height);
                     for (const Method& m : ms) {
                         Row& row = row_for("discs", noise, m.name);
-                        const std::vector<Out> out = run_method(m, f.bytes.data(), f.height, blobs, *work, row.all_us);
+                        const std::vector<Out> out = run_method(m, f.bytes.data(), f.height, blobs, *work, row.all_us, fit_repeats);
                         for (size_t i = 0; i < markers.size(); ++i) {
                             int best = -1;
                             double bd = 2.0;
@@ -358,7 +356,7 @@ int main(int argc, char** argv) {
     j["seconds"] = seconds;
     j["disc_fields_per_seed_and_size"] = disc_fields;
     j["data"] = data_set;
-    j["fit_repeats"] = g_fit_repeats;
+    j["fit_repeats"] = fit_repeats;
     j["rows"] = nlohmann::json::array();
     if (!json)
         std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched markers, unoccluded and partly "
