@@ -432,17 +432,44 @@ inline Anti anti(double rho, double r, double inv_r) {
     return o;
 }
 
+// The same for the coverage alone (a flat disc): no square root, no arcsine.
+inline void anti_cov(double rho, double r, double& s1, double& s2) {
+    const double a = std::fabs(rho), sg = rho < 0 ? -1.0 : 1.0;
+    if (a >= r) {
+        s1 = sg * r;
+        s2 = r * a - 0.5 * r * r;
+    } else {
+        s1 = sg * a;
+        s2 = 0.5 * a * a;
+    }
+}
+
+// How far past the outline (in ρ) a pixel's centre may lie and the pixel still reach the marker: |∇ρ| ≤ √(1 + |e|)
+// ≤ 1.307 (|e1|, |e2| ≤ 0.5) times the half diagonal of the pixel, 1 × ap frame px.
+inline double pixel_reach(double ap) { return 1.31 * std::sqrt(0.25 + 0.25 * ap * ap); }
+
 // Mean of c, q and of their ρ-derivatives over the pixel whose centre is (dx, dv) from the marker's centre.
-// Returns false when the pixel is wholly outside the marker.
-template <bool kDeriv>
-bool pixel_integral(double dx, double dv, double r, double e1, double e2, double ap, PixelIntegral& o) {
+// Returns false when the pixel is wholly outside the marker. kShade false (a model without shading, whose q the
+// caller multiplies by 0): q and its derivatives are left 0 and not computed — the shading's square roots and
+// arcsines were most of a flat disc's render; c and its derivatives are the same to the bit.
+template <bool kDeriv, bool kShade = true>
+bool pixel_integral(double dx, double dv, double r, double e1, double e2, double ap, PixelIntegral& o, double reach) {
     const double mx = (1.0 + e1) * dx + e2 * dv, mv = e2 * dx + (1.0 - e1) * dv;  // M·x
     const double w = dx * mx + dv * mv;                                            // ρ²
+    // Outside, tested on ρ² (no square root for the box's corners). Such a pixel fails the test below as well: ρ_eff
+    // ≥ ρ (ρ is a norm: its Hessian is positive semidefinite) and α + β ≤ |∇ρ|·(the half diagonal).
+    if (w > (r + reach) * (r + reach)) return false;
     const double rho = std::sqrt(w);
-    // |∇ρ| ≤ √(1 + |e|) ≤ 1.23 (|e| ≤ 0.5): a pixel whose centre is past r + its half diagonal is outside.
-    if (rho > r + 0.62 * (1.0 + ap)) return false;
     const double inv_r = 1.0 / r, inv_r2 = inv_r * inv_r;
     if (rho + 0.62 * (1.0 + ap) < 0.8 * r) {
+        if constexpr (!kShade) {
+            o.inside = true;
+            o.cov = 1.0;
+            o.q = o.dcov = o.dq = 0.0;
+            if constexpr (kDeriv)
+                for (double& d : o.dq_dp) d = 0.0;
+            return true;
+        }
         // Interior: ρ² = w + 2(Mx)·u + uᵀMu over the pixel; mean and variance of that, q = ψ(ρ²) to second order.
         const double wm = w + ((1.0 + e1) + (1.0 - e1) * ap * ap) / 12.0;
         const double var = 4.0 * (mx * mx + mv * mv * ap * ap) / 12.0;
@@ -470,7 +497,27 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
     double al = 0.5 * std::fabs(gx), be = 0.5 * ap * std::fabs(gv);
     if (al < be) std::swap(al, be);
     if (re - al - be >= r) return false;
-    if (be > 1e-4) {
+    if constexpr (!kShade) {
+        o.q = o.dq = 0.0;
+        if (be > 1e-4) {
+            double a1, a2, b1, b2, c1, c2, d1, d2;
+            anti_cov(re + al + be, r, a1, a2);
+            anti_cov(re + al - be, r, b1, b2);
+            anti_cov(re - al + be, r, c1, c2);
+            anti_cov(re - al - be, r, d1, d2);
+            const double k = 1.0 / (4.0 * al * be);
+            o.cov = (a2 - b2 - c2 + d2) * k;
+            o.dcov = (a1 - b1 - c1 + d1) * k;
+        } else {
+            double a1, a2, b1, b2;
+            anti_cov(re + al, r, a1, a2);
+            anti_cov(re - al, r, b1, b2);
+            const double k = 0.5 / al;
+            o.cov = (a1 - b1) * k;
+            const double hi = std::fabs(re + al), lo = std::fabs(re - al);
+            o.dcov = ((hi < r ? 1.0 : 0.0) - (lo < r ? 1.0 : 0.0)) * k;
+        }
+    } else if (be > 1e-4) {
         const Anti a = anti(re + al + be, r, inv_r), b = anti(re + al - be, r, inv_r),
                    c = anti(re - al + be, r, inv_r), d = anti(re - al - be, r, inv_r);
         const double k = 1.0 / (4.0 * al * be);
@@ -756,8 +803,16 @@ public:
         }
     }
 
-    // raster() with per-pixel analytic integrals (SphereFitModel::kAnalytic); the same outputs.
+    // raster() with per-pixel analytic integrals (SphereFitModel::kAnalytic); the same outputs. A model without
+    // shading (flat discs) renders its coverage alone.
     template <bool kDeriv>
+    void raster_analytic(const Vec& t, double* cov, double* shade) const {
+        if (cfg_.shade_diffuse == 0.0)
+            raster_analytic<kDeriv, false>(t, cov, shade);
+        else
+            raster_analytic<kDeriv, true>(t, cov, shade);
+    }
+    template <bool kDeriv, bool kShade>
     void raster_analytic(const Vec& t, double* cov, double* shade) const {
         const int n = p_.lines * p_.cols;
         const double x0 = t[kX0], v0 = t[kV0], r = std::max(t[kR], 0.25);
@@ -766,7 +821,7 @@ public:
         double* dc = w_.dcov.data();
         double* ds = w_.dshade.data();
         // Only the box the marker can reach is visited: ρ ≥ √(1 − |e|)·|d|, and pixel_integral() refuses
-        // ρ > r + 0.62·(1 + ap). Everything else is zero: each pixel of the new box is written, zero where the
+        // ρ > r + pixel_reach(ap). Everything else is zero: each pixel of the new box is written, zero where the
         // marker does not reach it, and of the previous render's box only what lies outside the new one is cleared
         // (consecutive renders' boxes nearly coincide; clearing all of it first was an eighth of the render).
         std::array<int, 4>& box = written_[kDeriv ? 0 : 1];
@@ -778,7 +833,8 @@ public:
                 for (int m = 0; m < kShapePar; ++m) dc[m * n + k] = ds[m * n + k] = 0.0;
             }
         };
-        const double reach = (r + 0.62 * (1.0 + ap)) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
+        const double px_reach = pixel_reach(ap);
+        const double reach = (r + px_reach) / std::sqrt(1.0 - std::hypot(e1, e2)) + 1e-9;
         box = {0, -1, 0, -1};
         if (std::isfinite(x0) && std::isfinite(v0) && std::isfinite(reach)) {
             // Clamped before the conversion: a wild trial point may lie far outside the patch.
@@ -805,12 +861,12 @@ public:
             for (int i = i_lo; i <= i_hi; ++i) {
                 const int k = j * p_.cols + i;
                 const double dx = (p_.x0 - 1 + i) - x0;
-                if (!pixel_integral<kDeriv>(dx, dv, r, e1, e2, ap, pi)) {
+                if (!pixel_integral<kDeriv, kShade>(dx, dv, r, e1, e2, ap, pi, px_reach)) {
                     clear(k);
                     continue;
                 }
                 cov[k] = pi.cov;
-                shade[k] = amb * pi.cov + dif * pi.q;
+                shade[k] = kShade ? amb * pi.cov + dif * pi.q : amb * pi.cov;
                 if constexpr (kDeriv) {
                     w_.touch[k] = 1;
                     if (pi.inside) {
@@ -820,10 +876,15 @@ public:
                         }
                     } else {
                         // ∂/∂r of c(ρ; r) = [ρ < r] is −∂/∂ρ; q(ρ; r) = φ(ρ/r) gives ∂q/∂r = −(ρ/r)·∂q/∂ρ.
-                        const double dsh = amb * pi.dcov + dif * pi.dq;
+                        const double dsh = kShade ? amb * pi.dcov + dif * pi.dq : amb * pi.dcov;
                         for (int m = 0; m < kShapePar; ++m) {
                             dc[m * n + k] = pi.dcov * pi.drho[m];
                             ds[m * n + k] = dsh * pi.drho[m];
+                        }
+                        if constexpr (!kShade) {
+                            dc[2 * n + k] = -pi.dcov;
+                            ds[2 * n + k] = -amb * pi.dcov;
+                            continue;
                         }
                         const double rho_r = std::sqrt(std::max(0.0, dx * dx * (1.0 + e1) + 2.0 * e2 * dx * dv +
                                                                        dv * dv * (1.0 - e1))) / r;
@@ -1013,17 +1074,18 @@ public:
             return kOffset[ch] + am[ch] * shade[k] + open * under;
         };
         // Rows of an observation the marker wholly covers end at the amplitude (q1 = 6): the background's
-        // entries are multiplied by the open fraction, 0.
-        auto add = [&]<int q1>(std::integral_constant<int, q1>, int ch, const double* row, double r, double wgt, double x,
-                               double vj, double o) {
+        // entries are multiplied by the open fraction, 0. Without shading such a row's shape entries are 0 too
+        // (q0 = 5): only the amplitude's are added.
+        auto add = [&]<int q0, int q1>(std::integer_sequence<int, q0, q1>, int ch, const double* row, double r,
+                                       double wgt, double x, double vj, double o) {
             double* m = acc[ch];
             double* gg = acc_g[ch];
             chi2 += wgt * r * r;
-            for (int q = 0; q < q1; ++q) {
+            for (int q = q0; q < q1; ++q) {
                 const double wq = wgt * row[q];
                 gg[q] += wq * r;
                 // The lower triangle rounded up to whole pairs (row[nr] is 0).
-                for (int u = 0; u <= q; u += 2) {
+                for (int u = q0 & ~1; u <= q; u += 2) {
                     m[q * ns + u] += wq * row[u];
                     m[q * ns + u + 1] += wq * row[u + 1];
                 }
@@ -1040,8 +1102,11 @@ public:
             mo[8] += wgt * o * vj;
             mo[9] += wgt * o * o;
         };
-        constexpr std::integral_constant<int, nr> kFull;
-        constexpr std::integral_constant<int, 6> kCovered;
+        constexpr std::integer_sequence<int, 0, nr> kFull;
+        constexpr std::integer_sequence<int, 0, 6> kCovered;
+        constexpr std::integer_sequence<int, 5, 6> kCoveredFlat;
+        // A flat model's wholly covered pixel has no shape derivatives: coverage 1 exactly and no shading.
+        const bool flat = cfg_.shade_diffuse == 0.0 && cfg_.model == SphereFitModel::kAnalytic;
         double row[ns], crow[2][SphereFitWorkspace::kCols][ns], cval[2][SphereFitWorkspace::kCols];
         for (int j = 0; j < p_.lines; ++j) {
             const double vj = vrel_[static_cast<size_t>(j)];
@@ -1050,7 +1115,10 @@ public:
                 const int o = j * nx + x, i = x + 1;
                 if (!tl[i] || !w_.keep_y[o]) continue;
                 const double mod = pixel(0, i, j * p_.cols + i, vj, row);
-                if (cov[j * p_.cols + i] == 1.0)
+                if (cov[j * p_.cols + i] == 1.0 && flat)
+                    add(kCoveredFlat, 0, row, w_.obs_y[o] - mod, wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(i)],
+                        vj, w_.obs_y[o]);
+                else if (cov[j * p_.cols + i] == 1.0)
                     add(kCovered, 0, row, w_.obs_y[o] - mod, wy_[static_cast<size_t>(o)], xrel_[static_cast<size_t>(i)], vj,
                         w_.obs_y[o]);
                 else
@@ -1078,7 +1146,9 @@ public:
                     for (int q = 0; q < ns; ++q) row[q] = 0.25 * (q0[q] + q2[q]) + 0.5 * q1[q];
                     const double mod = 0.25 * (cval[c][i - 1] + cval[c][i + 1]) + 0.5 * cval[c][i];
                     const double obs = c == 0 ? w_.obs_cb[o] : w_.obs_cr[o];
-                    if (covered)
+                    if (covered && flat)
+                        add(kCoveredFlat, 1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
+                    else if (covered)
                         add(kCovered, 1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
                     else
                         add(kFull, 1 + c, row, obs - mod, wc, xrel_[static_cast<size_t>(i)], vj, obs);
@@ -1657,6 +1727,7 @@ private:
 void intensity_centroid_analytic(const SphereFitConfig& cfg, const Vec& t, int parity, double& cx, double& cy) {
     const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2], ap = cfg.aperture_lines_px;
     const double reach = r / std::sqrt(1.0 - std::hypot(e1, e2)) + 1.5;
+    const double px_reach = 0.62 * (1.0 + ap);  // t's ellipticity is not clamped here: the wider bound
     double si = 0, sx = 0, sv = 0;
     PixelIntegral pi;
     int lo_v = static_cast<int>(std::floor(v0 - reach));
@@ -1665,7 +1736,7 @@ void intensity_centroid_analytic(const SphereFitConfig& cfg, const Vec& t, int p
     const int lo_x = static_cast<int>(std::floor(x0 - reach)), hi_x = static_cast<int>(std::ceil(x0 + reach));
     for (int v = lo_v; v <= hi_v; v += 2)
         for (int x = lo_x; x <= hi_x; ++x) {
-            if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi)) continue;
+            if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi, px_reach)) continue;
             const double in = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
             si += in;
             sx += in * x;
@@ -1733,6 +1804,7 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
                       double& cy, double* visible_fraction = nullptr, int n = 8, int frame_lines = 0) {
     const double x0 = t[kX0], v0 = t[kV0], r = t[kR], e1 = t[kE1], e2 = t[kE2], ap = cfg.aperture_lines_px;
     const double reach = r / std::sqrt(1.0 - std::min(0.9, std::hypot(e1, e2))) + 1.5, inv_r2 = 1.0 / (r * r);
+    const double px_reach = 0.62 * (1.0 + ap);  // t's ellipticity is not clamped here: the wider bound
     const OutlineNorm nm(predicted, r, e1, e2);
     const MarkerHint hint = hint_at(predicted, nm, x0, v0);
     double si = 0, sx = 0, sv = 0, whole = 0;
@@ -1751,7 +1823,7 @@ void visible_centroid(const SphereFitConfig& cfg, const Vec& t, int parity, cons
             const bool off = off_line || (frame_lines > 0 && (x < 0 || x >= 720));
             double in = 0, whole_px = 0;
             if (state[k] != 1) {  // clear, or wholly covered: the analytic integral
-                if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi)) continue;
+                if (!pixel_integral<false>(x - x0, v - v0, r, e1, e2, ap, pi, px_reach)) continue;
                 const double full = cfg.shade_ambient * pi.cov + cfg.shade_diffuse * pi.q;
                 whole += full;
                 if (state[k] == 0 && !off) in = full;

@@ -141,6 +141,11 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
     cfg.shade_diffuse = 0.0;
     cfg.shot_gain = 0.0;
     cfg.aperture_lines_px = 2.0;
+    // The same model rendered the general way: a diffuse term far below rounding takes the shaded render (square
+    // roots and arcsines), where shading 0 renders the coverage alone. The fits must be the same.
+    SphereFitConfig shaded = cfg;
+    shaded.shade_diffuse = 1e-300;
+    int same = 0;
     auto work = std::make_unique<SphereFitWorkspace>();
     Pipeline p{RegisterMap{}};
     std::mt19937 rng(17);
@@ -168,6 +173,10 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
             }
             REQUIRE(best != nullptr);
             const SphereFitResult r = fit_sphere(f.bytes.data(), f.height, blob_box(*best), cfg, *work);
+            const SphereFitResult rs = fit_sphere(f.bytes.data(), f.height, blob_box(*best), shaded, *work);
+            same += rs.ok == r.ok && rs.iterations == r.iterations && std::abs(rs.cx_px - r.cx_px) < 1e-9 &&
+                    std::abs(rs.cy_px - r.cy_px) < 1e-9 && std::abs(rs.radius_px - r.radius_px) < 1e-9 &&
+                    std::abs(rs.reduced_chi2 - r.reduced_chi2) < 1e-9 * r.reduced_chi2;
             const double fx = r.ok ? r.cx_px : best->cx_px(), fy = r.ok ? r.cy_px : best->cy_px();
             se_model += bd * bd;
             se_fit += std::pow(fx - truth[i][0], 2) + std::pow(fy - truth[i][1], 2);
@@ -182,6 +191,7 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
     const double rms_model = std::sqrt(se_model / n), rms_fit = std::sqrt(se_fit / n);
     INFO("markers " << n << " refined " << refined << "; RMS pipeline " << rms_model << " disc fit " << rms_fit);
     CHECK(refined * 10 >= n * 9);
+    CHECK(same == n);  // the coverage-only render is the general render without its shading
     CHECK(rms_fit < 0.02);  // docs/bench/fpga-model.md: 0.0112 px at 6 px (bench_fpga_model)
     CHECK(rms_fit < 0.7 * rms_model);
 }
