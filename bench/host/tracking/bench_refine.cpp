@@ -12,9 +12,10 @@
 // are up to a field off, as old as the live chain's poses).
 //
 // Usage: bench_refine [--seeds N=6] [--first-seed K=1] [--seconds S=0.4] [--scenario sweep] [--disc-fields F=20]
-//                     [--data all|rig|discs] [--fit-repeats R=1] [--no-reference] [--json]
+//                     [--data all|rig|discs] [--fit-repeats R=1] [--first-step-px P=0.05] [--no-reference] [--json]
 // --fit-repeats R fits each blob R times in a row and takes the mean time of one (steadier per-blob times on a
 // loaded machine; the patch is then in the cache, as it is in the live path, which fits a blob as it arrives).
+// --first-step-px P: the faster setting's threshold (SphereFitConfig::first_step_unverified_px), a row of its own.
 // Seeds K .. K + N − 1 (a range no parameter was tuned on: --first-seed 21).
 #include "field_gen.hpp"
 
@@ -137,7 +138,7 @@ std::vector<fpga::Blob> blobs_of(fpga::Pipeline& p, const uint8_t* field, int he
 
 int main(int argc, char** argv) {
     int seeds = 6, disc_fields = 20, first_seed = 1, fit_repeats = 1;
-    double seconds = 0.4;
+    double seconds = 0.4, first_step_px = 0.05;
     std::string scenario = "sweep", data_set = "all";
     bool json = false, reference = true;
     for (int i = 1; i < argc; ++i) {
@@ -150,6 +151,7 @@ int main(int argc, char** argv) {
         else if (!std::strcmp(argv[i], "--scenario") && has) scenario = argv[++i];
         else if (!std::strcmp(argv[i], "--disc-fields") && has) disc_fields = std::max(1, std::atoi(argv[++i]));
         else if (!std::strcmp(argv[i], "--fit-repeats") && has) fit_repeats = std::max(1, std::atoi(argv[++i]));
+        else if (!std::strcmp(argv[i], "--first-step-px") && has) first_step_px = std::atof(argv[++i]);
         else if (!std::strcmp(argv[i], "--data") && has) {
             data_set = argv[++i];
             if (data_set != "all" && data_set != "rig" && data_set != "discs") {
@@ -161,6 +163,10 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "eyesim: error: bench_refine: unknown or incomplete option %s\n", argv[i]);
             return 2;
         }
+    }
+    if (!(first_step_px > 0) || first_step_px > 1) {
+        std::fprintf(stderr, "eyesim: error: bench_refine: --first-step-px must be in (0, 1]\n");
+        return 2;
     }
     if (!(seconds > 0) || seconds > 60) {
         std::fprintf(stderr, "eyesim: error: bench_refine: --seconds must be in (0, 60]\n");
@@ -182,7 +188,7 @@ int main(int argc, char** argv) {
     disc_cfg.shade_diffuse = 0.0;
     disc_cfg.shot_gain = 0.0;
     disc_cfg.aperture_lines_px = 2.0;
-    auto methods_for = [reference](const tracking::SphereFitConfig& base, double noise) {
+    auto methods_for = [reference, first_step_px](const tracking::SphereFitConfig& base, double noise) {
         std::vector<Method> ms;
         ms.push_back({"pipeline", false, base});
         tracking::SphereFitConfig ref = base;
@@ -192,6 +198,10 @@ int main(int argc, char** argv) {
         tracking::SphereFitConfig fast = base;
         fast.noise_dn = noise;
         ms.push_back({"sphere fit, analytic coverage (default)", true, fast});
+        // The faster setting: a small first step taken unconfirmed (SphereFitConfig::first_step_unverified_px).
+        tracking::SphereFitConfig quick = fast;
+        quick.first_step_unverified_px = first_step_px;
+        ms.push_back({"sphere fit, first step unverified (--first-step-px)", true, quick});
         return ms;
     };
     auto rig_methods = [&](double noise) {
@@ -357,6 +367,7 @@ int main(int argc, char** argv) {
     j["disc_fields_per_seed_and_size"] = disc_fields;
     j["data"] = data_set;
     j["fit_repeats"] = fit_repeats;
+    j["first_step_px"] = first_step_px;
     j["rows"] = nlohmann::json::array();
     if (!json)
         std::printf("Blob refinement: thread CPU per blob against centroid RMS (matched markers, unoccluded and partly "

@@ -2310,6 +2310,13 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
     auto small_step = [](const Vec& d) {
         return std::fabs(d[kX0]) < 5e-3 && std::fabs(d[kV0]) < 1e-2 && std::fabs(d[kR]) < 5e-3;
     };
+    // The first step itself, where the configuration takes it unconfirmed (SphereFitConfig::
+    // first_step_unverified_px; x in frame px, v in frame lines: two a field line).
+    const double first_px = cfg.first_step_unverified_px;
+    auto small_first = [first_px](const Vec& d) {
+        return first_px > 0 && std::fabs(d[kX0]) < first_px && std::fabs(d[kV0]) < 2.0 * first_px &&
+               std::fabs(d[kR]) < first_px;
+    };
     // Levenberg–Marquardt from t; with give_up, stops early on a fit that stays hopeless (another object in the
     // patch).
     // Each trial point is linearised at once: its χ² comes with its normal equations, which an accepted step
@@ -2350,8 +2357,9 @@ SphereFitResult fit_sphere(const uint8_t* field, int height, const BlobBox& blob
                                 : solve_damped_blocks(a, g, kLayoutOutline, lambda, d)) {
                     Vec tt = t;
                     for (int q = 0; q < np; ++q) tt[q] += d[q];
-                    if (k > 0 && tries == 0 && small_step(d)) {
-                        // The step after an accepted one is already below the noise's reach: take it unverified
+                    if (tries == 0 && (k > 0 ? small_step(d) : small_first(d))) {
+                        // The step after an accepted one is already below the noise's reach (or a first step the
+                        // configuration takes unconfirmed, small_first): take it unverified
                         // (its χ² change is far below one) instead of rendering once more to confirm it. Its χ² is
                         // the linear model's, χ² − 2dᵀg + dᵀAd, for the refusal test (no render for that either).
                         double dad = 0, dg = 0;

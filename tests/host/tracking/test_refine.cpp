@@ -146,6 +146,11 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
     SphereFitConfig shaded = cfg;
     shaded.shade_diffuse = 1e-300;
     int same = 0;
+    // The faster setting: a first step under 0.05 px taken unconfirmed (SphereFitConfig::first_step_unverified_px).
+    SphereFitConfig quick = cfg;
+    quick.first_step_unverified_px = 0.05;
+    double se_quick = 0;
+    int it_default = 0, it_quick = 0;
     auto work = std::make_unique<SphereFitWorkspace>();
     Pipeline p{RegisterMap{}};
     std::mt19937 rng(17);
@@ -177,6 +182,10 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
             same += rs.ok == r.ok && rs.iterations == r.iterations && std::abs(rs.cx_px - r.cx_px) < 1e-9 &&
                     std::abs(rs.cy_px - r.cy_px) < 1e-9 && std::abs(rs.radius_px - r.radius_px) < 1e-9 &&
                     std::abs(rs.reduced_chi2 - r.reduced_chi2) < 1e-9 * r.reduced_chi2;
+            const SphereFitResult rq = fit_sphere(f.bytes.data(), f.height, blob_box(*best), quick, *work);
+            it_default += r.iterations;
+            it_quick += rq.iterations;
+            se_quick += rq.ok ? std::pow(rq.cx_px - truth[i][0], 2) + std::pow(rq.cy_px - truth[i][1], 2) : bd * bd;
             const double fx = r.ok ? r.cx_px : best->cx_px(), fy = r.ok ? r.cy_px : best->cy_px();
             se_model += bd * bd;
             se_fit += std::pow(fx - truth[i][0], 2) + std::pow(fy - truth[i][1], 2);
@@ -192,6 +201,10 @@ TEST_CASE("disc fit: flat 6 px discs at sigma 1 against the generator's coverage
     INFO("markers " << n << " refined " << refined << "; RMS pipeline " << rms_model << " disc fit " << rms_fit);
     CHECK(refined * 10 >= n * 9);
     CHECK(same == n);  // the coverage-only render is the general render without its shading
+    // The faster setting confirms fewer steps and stays within the refinement's 0.012 px (docs/bench/refine.md).
+    INFO("iterations default " << it_default << " quick " << it_quick << "; RMS quick " << std::sqrt(se_quick / n));
+    CHECK(it_quick < 0.8 * it_default);
+    CHECK(std::sqrt(se_quick / n) < 0.012);
     CHECK(rms_fit < 0.02);  // docs/bench/fpga-model.md: 0.0112 px at 6 px (bench_fpga_model)
     CHECK(rms_fit < 0.7 * rms_model);
 }

@@ -49,6 +49,11 @@ struct SphereFitConfig {
     int supersample = 4;                   ///< kSupersampled: sub-samples per pixel side for coverage and shading
     bool fit_ellipse = true;               ///< fit the outline's ellipticity (pixel aspect, perspective); else a circle
     int max_iterations = 12;
+    /// When > 0: the first Gauss–Newton step is taken without a second linearisation to confirm it where the
+    /// centre and radius move less than this (px) — a faster, slightly less accurate fit (docs/bench/refine.md,
+    /// "The first step unverified"). 0 (the default): every step but a small one after an accepted one is
+    /// confirmed.
+    double first_step_unverified_px = 0.0;
     double max_reduced_chi2 = 5.0;         ///< a worse fit is refused (another object in the patch, occlusion)
     double outline_step_dn = 40.0;         ///< luma range on the patch border that adds the outline (limb) term
     double max_shift_px = 0.15;            ///< a fit further than this from the pipeline's centroid is refused
