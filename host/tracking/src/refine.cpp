@@ -410,10 +410,12 @@ inline double asin_01(double t, double s) {
     return t <= 0.7071067811865476 ? asin_small(t) : kHalfPi - asin_small(s);
 }
 
-// Second antiderivatives (and first) of c and q in ρ, extended evenly to ρ < 0 (c, q even; S1, Q1 odd).
+// Second antiderivatives (and first) of c and q in ρ, extended evenly to ρ < 0 (c, q even; S1, Q1 odd). kShade
+// false: c's alone (q1, q2 left 0), piecewise quadratic — no square root, no arcsine.
 struct Anti {
-    double s1, s2, q1, q2;
+    double s1, s2, q1 = 0, q2 = 0;
 };
+template <bool kShade = true>
 inline Anti anti(double rho, double r, double inv_r) {
     const double a = std::fabs(rho), sg = rho < 0 ? -1.0 : 1.0;
     constexpr double kQuarterPi = 0.78539816339744831;
@@ -421,28 +423,20 @@ inline Anti anti(double rho, double r, double inv_r) {
     if (a >= r) {
         o.s1 = sg * r;
         o.s2 = r * a - 0.5 * r * r;
-        o.q1 = sg * r * kQuarterPi;
-        o.q2 = r * r * kQuarterPi + r * kQuarterPi * (a - r);
+        if constexpr (kShade) {
+            o.q1 = sg * r * kQuarterPi;
+            o.q2 = r * r * kQuarterPi + r * kQuarterPi * (a - r);
+        }
         return o;
     }
-    const double t = a * inv_r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = asin_01(t, s);
     o.s1 = sg * a;
     o.s2 = 0.5 * a * a;
-    o.q1 = sg * 0.5 * r * (t * s + as);
-    o.q2 = 0.5 * r * r * (s - s * s * s / 3.0 + t * as);
-    return o;
-}
-
-// The same for the coverage alone (a flat disc): no square root, no arcsine.
-inline void anti_cov(double rho, double r, double& s1, double& s2) {
-    const double a = std::fabs(rho), sg = rho < 0 ? -1.0 : 1.0;
-    if (a >= r) {
-        s1 = sg * r;
-        s2 = r * a - 0.5 * r * r;
-    } else {
-        s1 = sg * a;
-        s2 = 0.5 * a * a;
+    if constexpr (kShade) {
+        const double t = a * inv_r, s = std::sqrt(std::max(0.0, 1.0 - t * t)), as = asin_01(t, s);
+        o.q1 = sg * 0.5 * r * (t * s + as);
+        o.q2 = 0.5 * r * r * (s - s * s * s / 3.0 + t * as);
     }
+    return o;
 }
 
 // How far past the outline (in ρ) a pixel's centre may lie and the pixel still reach the marker: |∇ρ| ≤ √(1 + |e|)
@@ -498,29 +492,9 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
     double al = 0.5 * std::fabs(gx), be = 0.5 * ap * std::fabs(gv);
     if (al < be) std::swap(al, be);
     if (re - al - be >= r) return false;
-    if constexpr (!kShade) {
-        o.q = o.dq = 0.0;
-        if (be > 1e-4) {
-            double a1, a2, b1, b2, c1, c2, d1, d2;
-            anti_cov(re + al + be, r, a1, a2);
-            anti_cov(re + al - be, r, b1, b2);
-            anti_cov(re - al + be, r, c1, c2);
-            anti_cov(re - al - be, r, d1, d2);
-            const double k = 1.0 / (4.0 * al * be);
-            o.cov = (a2 - b2 - c2 + d2) * k;
-            o.dcov = (a1 - b1 - c1 + d1) * k;
-        } else {
-            double a1, a2, b1, b2;
-            anti_cov(re + al, r, a1, a2);
-            anti_cov(re - al, r, b1, b2);
-            const double k = 0.5 / al;
-            o.cov = (a1 - b1) * k;
-            const double hi = std::fabs(re + al), lo = std::fabs(re - al);
-            o.dcov = ((hi < r ? 1.0 : 0.0) - (lo < r ? 1.0 : 0.0)) * k;
-        }
-    } else if (be > 1e-4) {
-        const Anti a = anti(re + al + be, r, inv_r), b = anti(re + al - be, r, inv_r),
-                   c = anti(re - al + be, r, inv_r), d = anti(re - al - be, r, inv_r);
+    if (be > 1e-4) {
+        const Anti a = anti<kShade>(re + al + be, r, inv_r), b = anti<kShade>(re + al - be, r, inv_r),
+                   c = anti<kShade>(re - al + be, r, inv_r), d = anti<kShade>(re - al - be, r, inv_r);
         const double k = 1.0 / (4.0 * al * be);
         o.cov = (a.s2 - b.s2 - c.s2 + d.s2) * k;
         o.q = (a.q2 - b.q2 - c.q2 + d.q2) * k;
@@ -528,14 +502,14 @@ bool pixel_integral(double dx, double dv, double r, double e1, double e2, double
         o.dq = (a.q1 - b.q1 - c.q1 + d.q1) * k;
     } else {
         // One uniform variable: first differences of the first antiderivatives.
-        const Anti a = anti(re + al, r, inv_r), b = anti(re - al, r, inv_r);
+        const Anti a = anti<kShade>(re + al, r, inv_r), b = anti<kShade>(re - al, r, inv_r);
         const double k = 0.5 / al;
         o.cov = (a.s1 - b.s1) * k;
         o.q = (a.q1 - b.q1) * k;
         const double hi = std::fabs(re + al), lo = std::fabs(re - al);
         auto qv = [&](double x) { return x < r ? std::sqrt(1.0 - x * x * inv_r2) : 0.0; };
         o.dcov = ((hi < r ? 1.0 : 0.0) - (lo < r ? 1.0 : 0.0)) * k;
-        o.dq = (qv(hi) - qv(lo)) * k;
+        o.dq = kShade ? (qv(hi) - qv(lo)) * k : 0.0;
     }
     if (re + al + be <= r) {
         // Wholly inside the outline: covered, exactly (not to rounding), so that its normal-equation rows end at
