@@ -112,7 +112,7 @@ void FrameSync::add(const CameraField& f) {
             std::move(pending_.begin() + 1, pending_.end(), pending_.begin());
             --pending_count_;
         }
-        pending_[std::size_t(pending_count_++)] = {T, counter};
+        pending_[std::size_t(pending_count_++)] = {T, counter, f.field_end_device_us};
     };
     if (have_ref_) {
         const std::uint32_t gap = f.field_counter - last_ref_counter_;
@@ -128,15 +128,25 @@ void FrameSync::add(const CameraField& f) {
 }
 
 bool FrameSync::decided(int cam, double T) const {
-    if (opt_.mode != SyncMode::Interpolate) return true;  // uses only fields already received
     const Ring& r = rings_[std::size_t(cam)];
-    return r.count > 0 && r.latest_sample_us > T - 1.0;
+    if (r.count > 0 && r.latest_sample_us > T - 1.0) return true;  // a field at T or after it
+    if (opt_.mode == SyncMode::Interpolate) return false;
+    // The other modes use fields at or before T only, so they wait for no later field; but a field exposed with
+    // T's (a genlocked rig: every camera's field ends with the reference camera's and arrives just after it) is
+    // the one they need. Wait for this camera only where its next field is due within max_skew_us of T.
+    if (r.count == 0 || cam == opt_.reference_camera) return true;
+    const CameraField* prev = at(cam, 1);
+    const double period = prev ? r.latest_sample_us - prev->sample_device_us : opt_.field_period_us;
+    return !(period > 0.0 && r.latest_sample_us + period <= T + opt_.max_skew_us);
 }
 
 bool FrameSync::ready() const {
     if (pending_count_ == 0) return false;
     const double T = pending_[0].T;
     if (finished_ || newest_device_us_ > T + opt_.max_wait_us) return true;
+    // A field due with T's that has not come by half a period after the reference field's end is lost.
+    if (opt_.mode != SyncMode::Interpolate && newest_device_us_ > pending_[0].end_us + 0.5 * opt_.field_period_us)
+        return true;
     for (int c = 0; c < n_; ++c)
         if (!decided(c, T)) return false;
     return true;

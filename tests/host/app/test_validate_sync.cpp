@@ -37,6 +37,16 @@ fs::path recording(const std::string& scenario, double seconds, int seed) {
 /// A 1 s sweep (50 fields per camera).
 fs::path sweep() { return recording("sweep", 1, 3); }
 
+/// The same sweep from a genlocked rig (`synth --synchronised`: every camera's field exposed at once).
+fs::path genlocked_sweep() {
+    const fs::path d = scratch() / "sweep_genlocked_1000ms_3";
+    if (fs::exists(d / "rig.yaml")) return d;
+    const Result r = run_eyesim("synth --scenario sweep --seconds 1 --seed 3 --synchronised --out " + d.string());
+    INFO(r.err);
+    REQUIRE(r.rc == 0);
+    return d;
+}
+
 // Frames in which either instrument of an `occlusion` recording (injection, light pipe) was not measured.
 int instrument_frames_held(const nlohmann::json& chain) {
     const nlohmann::json& h = chain["instrument_not_measured_frames"];
@@ -343,6 +353,39 @@ TEST_CASE("validate --sync async --emit blob --refine: a field whose images the 
     CHECK(j["marker3d_all_rms_um"].get<double>() < 35.0);
     CHECK(instrument_frames_held(c) < 35);
     CHECK(c["frames"].get<int>() == 100);
+}
+
+TEST_CASE("validate on a genlocked rig: every mode uses each camera's field of the frame's time", "[host][validate]") {
+    // With every camera's field exposed at once, the reference camera's field arrives first and the others just
+    // after it. Before, `--sync nearest` built each frame from the reference field alone (no marker matched, exit
+    // 1), `extrapolate` carried the other cameras a whole field ahead, and `async` reported each frame before the
+    // other cameras' fields of its time were in (the light pipe, which camera 0 does not see, held in all 50).
+    const fs::path d = genlocked_sweep();
+    const nlohmann::json in = validate_dir_json(d, "interpolate");
+    const double in_3d = in["marker3d_all_rms_um"].get<double>();
+    for (const char* mode : {"nearest", "extrapolate"}) {
+        const nlohmann::json j = validate_dir_json(d, mode);
+        const nlohmann::json& m = j["fpga_chain"]["markers"];
+        INFO(mode << ": " << j.dump() << "\ninterpolate: " << in.dump());
+        // Measured: 683 of 700 markers, 3D 22.4 um, tip 34.3 um (interpolate, which needs no later field here:
+        // 697, 22.4, 34.4); extrapolate before 36.8 / 57.5 um.
+        CHECK(m["found"].get<int>() >= 0.95 * m["truth_visible_in_2_cameras"].get<int>());
+        CHECK(j["marker3d_all_rms_um"].get<double>() < 1.05 * in_3d);
+        CHECK(j["tip_rms_um"].get<double>() < 40.0);
+        CHECK(j["exposure_to_pose_us"]["p50"].get<double>() < 23000.0);
+    }
+    for (const char* emit : {"field", "blob"}) {
+        const nlohmann::json j = validate_dir_json(d, "async", std::string(" --emit ") + emit);
+        const nlohmann::json& c = j["fpga_chain"];
+        INFO("async --emit " << emit << ": " << j.dump());
+        // Measured: light pipe and pick held in 2 and 2 frames of 50 (50 and 3 before), 3D 18.6 um, tip 28.6 um,
+        // eye 0.0093 deg; the frame waits for its fields: exposure to pose p50 21.8-21.9 ms.
+        CHECK(c["instrument_not_measured_frames"]["light_pipe"].get<int>() <= 5);
+        CHECK(j["tip_rms_um"].get<double>() < 35.0);
+        CHECK(j["marker3d_all_rms_um"].get<double>() < in_3d);
+        CHECK(j["exposure_to_pose_us"]["p50"].get<double>() > 21000.0);
+        CHECK(j["exposure_to_pose_us"]["p99"].get<double>() < 23000.0);
+    }
 }
 
 TEST_CASE("validate --sync with an unknown mode is a usage error", "[host][validate]") {

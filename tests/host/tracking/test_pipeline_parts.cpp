@@ -355,6 +355,86 @@ TEST_CASE("interpolation bends with the image's acceleration and keeps a parity 
     }
 }
 
+TEST_CASE("genlocked cameras: extrapolate and nearest wait for the fields exposed with the reference field only",
+          "[tracking][sync]") {
+    // A genlocked rig's three fields share their exposure and end; the reference camera's arrives first. Frames
+    // built from it alone had the other cameras extrapolated a whole field (extrapolate) or missing (nearest):
+    // `eyesim validate --sync nearest` on a `synth --synchronised` recording matched no marker at all.
+    auto field = [](int cam, std::uint32_t k, double t_us) {
+        CameraField f;
+        f.camera = cam;
+        f.field_counter = k;
+        f.parity = int(k & 1u);
+        f.sample_device_us = t_us;
+        f.field_end_device_us = t_us + 21000.0;
+        f.count = 1;
+        f.images[0].colour_class = 2;
+        f.images[0].frame_px = Eigen::Vector2d(100.0 + 10.0 * cam + 0.01 * t_us * 1e-3, 300.0);
+        f.images[0].area_px = 30.0f;
+        return f;
+    };
+    double T = 0, end = 0, recv = 0;
+    std::uint32_t ref = 0;
+    std::array<AlignedCamera, kMaxCameras> cams;
+    std::array<CameraField, kMaxCameras> images;
+    for (SyncMode mode : {SyncMode::Extrapolate, SyncMode::Nearest}) {
+        SyncOptions opt;
+        opt.mode = mode;
+        INFO("mode " << int(mode));
+        SECTION("genlocked: the frame waits for the two fields exposed with it, and uses them as they are") {
+            FrameSync sync(3, opt);
+            int frames = 0;
+            for (std::uint32_t k = 0; k < 8; ++k) {
+                const double t = 20000.0 * k;
+                sync.add(field(0, k, t));
+                if (k > 0) CHECK_FALSE(sync.pop(T, ref, cams, images, end, recv));  // the first: no period known
+                sync.add(field(1, k, t));
+                if (k > 0) CHECK_FALSE(sync.pop(T, ref, cams, images, end, recv));
+                sync.add(field(2, k, t));
+                while (sync.pop(T, ref, cams, images, end, recv)) {
+                    if (T < 1.0) continue;
+                    ++frames;
+                    CHECK(T == t);
+                    for (int c = 0; c < 3; ++c) {
+                        CHECK(cams[std::size_t(c)].state == CameraSyncState::Direct);
+                        CHECK(cams[std::size_t(c)].dt_us == 0.0);
+                        REQUIRE(images[std::size_t(c)].count == 1);
+                        CHECK(images[std::size_t(c)].images[0].frame_px.x() == field(c, k, t).images[0].frame_px.x());
+                    }
+                }
+            }
+            CHECK(frames == 7);
+        }
+        SECTION("a genlocked field lost: the frame goes out once a later field ends half a period past it") {
+            FrameSync sync(3, opt);
+            for (std::uint32_t k = 0; k < 3; ++k)
+                for (int c = 0; c < 3; ++c) sync.add(field(c, k, 20000.0 * k));
+            while (sync.pop(T, ref, cams, images, end, recv)) {}
+            sync.add(field(0, 3, 60000.0));
+            sync.add(field(1, 3, 60000.0));  // camera 2's field 3 never comes
+            CHECK_FALSE(sync.pop(T, ref, cams, images, end, recv));
+            sync.add(field(0, 4, 80000.0));
+            REQUIRE(sync.pop(T, ref, cams, images, end, recv));
+            CHECK(T == 60000.0);
+            CHECK(cams[0].state == CameraSyncState::Direct);
+            CHECK(cams[1].state == CameraSyncState::Direct);
+            CHECK(cams[2].state != CameraSyncState::Direct);
+        }
+        SECTION("unsynchronised: nothing waits for a later field") {
+            FrameSync sync(3, opt);
+            for (std::uint32_t k = 0; k < 8; ++k) {
+                const double t = 20000.0 * k;
+                sync.add(field(1, k, t - 13000.0));
+                sync.add(field(2, k, t - 6500.0));
+                sync.add(field(0, k, t));
+                bool got = false;
+                while (sync.pop(T, ref, cams, images, end, recv)) got = T == t;
+                CHECK(got);
+            }
+        }
+    }
+}
+
 TEST_CASE("one camera's images and the trocar place an instrument's shaft, inside the eye or withdrawn",
           "[tracking][pose]") {
     // Truth: a shaft through the trocar (DeepShaft's), the markers projected exactly by one camera of the test rig.

@@ -158,7 +158,7 @@ private:
     int n_;
     SyncOptions opt_;
     std::array<Ring, kMaxCameras> rings_{};
-    struct Pending { double T; std::uint32_t ref_field; };
+    struct Pending { double T; std::uint32_t ref_field; double end_us; };  // end_us: the reference field's end
     std::array<Pending, kMaxPending> pending_{};
     int pending_count_ = 0;
     bool have_ref_ = false;

@@ -263,6 +263,7 @@ private:
     std::unique_ptr<ReplayHistory[]> replay_;               // one per body, with time_order_parts
     std::uint64_t replayed_parts_ = 0;
     void acquire(const CameraField& f);
+    void acquire_due_frame();  // the acquisition at acquire_due_us_ once the synchroniser's frame is ready
     static constexpr int kBodies = 1 + kMaxInstruments;  ///< eye, then the instruments
     // Fixed-lag reports (AsyncOptions::report_delay_us): a reference field's frame waits until the host clock is
     // report_delay_us past its exposure; its poses are then smoothed from the parts history's filter at its time.
@@ -270,6 +271,7 @@ private:
         CameraField field;  // as its newest accepted part left it
         bool last = false;
     };
+    bool genlocked_fields_due(const PendingFrame& p) const;  // a genlocked rig's fields of p's time still to come
     static constexpr int kPending = 4;  // report_delay_us is under a field period: one or two wait at a time
     std::array<PendingFrame, kPending> pending_{};
     int pending_head_ = 0, pending_count_ = 0;
@@ -362,6 +364,8 @@ private:
     std::array<Eigen::Quaterniond, kBodies> acquire_R_{};
     std::array<Eigen::Vector3d, kBodies> acquire_t_mm_{};
     bool acquired_this_field_ = false;
+    bool acquire_due_ = false;     // a reference field's acquisition waits for its frame (acquire_due_frame)
+    double acquire_due_us_ = 0.0;  // that field's exposure time
     std::uint64_t async_frames_ = 0;
 };
 
