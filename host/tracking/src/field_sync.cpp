@@ -135,9 +135,11 @@ bool FrameSync::decided(int cam, double T) const {
     // T's (a genlocked rig: every camera's field ends with the reference camera's and arrives just after it) is
     // the one they need. Wait for this camera only where its next field is due within max_skew_us of T.
     if (r.count == 0 || cam == opt_.reference_camera) return true;
+    // Its period from its last two fields, the nominal one where a field between them was lost.
     const CameraField* prev = at(cam, 1);
-    const double period = prev ? r.latest_sample_us - prev->sample_device_us : opt_.field_period_us;
-    return !(period > 0.0 && r.latest_sample_us + period <= T + opt_.max_skew_us);
+    double period = prev ? r.latest_sample_us - prev->sample_device_us : opt_.field_period_us;
+    if (!(period > 0.5 * opt_.field_period_us && period < 1.5 * opt_.field_period_us)) period = opt_.field_period_us;
+    return r.latest_sample_us + period > T + opt_.max_skew_us;
 }
 
 bool FrameSync::ready() const {

@@ -419,6 +419,17 @@ TEST_CASE("genlocked cameras: extrapolate and nearest wait for the fields expose
             CHECK(cams[0].state == CameraSyncState::Direct);
             CHECK(cams[1].state == CameraSyncState::Direct);
             CHECK(cams[2].state != CameraSyncState::Direct);
+            // Camera 2 back: its last two fields 40 ms apart, its period still taken as one field.
+            sync.add(field(1, 4, 80000.0));
+            sync.add(field(2, 4, 80000.0));
+            while (sync.pop(T, ref, cams, images, end, recv)) {}
+            sync.add(field(0, 5, 100000.0));
+            sync.add(field(1, 5, 100000.0));
+            CHECK_FALSE(sync.pop(T, ref, cams, images, end, recv));
+            sync.add(field(2, 5, 100000.0));
+            REQUIRE(sync.pop(T, ref, cams, images, end, recv));
+            CHECK(T == 100000.0);
+            CHECK(cams[2].state == CameraSyncState::Direct);
         }
         SECTION("unsynchronised: nothing waits for a later field") {
             FrameSync sync(3, opt);
