@@ -289,23 +289,28 @@ TEST_CASE("a marker flagged partly hidden carries little weight in its instrumen
 namespace {
 
 /// Interpolated x of camera 1's marker at each frame of camera 0 (fields 20 ms apart, camera 1 half a period later):
+/// Camera `cam`'s field `k`, exposed at `t_us` and ending `end_after_us` later, with one image at (x, 300) px.
+CameraField one_image_field(int cam, std::uint32_t k, double t_us, double x, double end_after_us) {
+    CameraField f;
+    f.camera = cam;
+    f.field_counter = k;
+    f.parity = int(k & 1u);
+    f.sample_device_us = t_us;
+    f.field_end_device_us = t_us + end_after_us;
+    f.count = 1;
+    f.images[0].colour_class = 2;
+    f.images[0].frame_px = Eigen::Vector2d(x, 300.0);
+    f.images[0].area_px = 30.0f;
+    return f;
+}
+
 /// x(t) = 100 + 200·t + ½·accel·(t − 0.12 s)² px plus a bias of ±`parity_bias_px` that alternates with the field.
 std::vector<std::pair<double, double>> interpolated_x(double accel_px_s2, double parity_bias_px, bool curvature) {
     SyncOptions opt;
     opt.curvature = curvature;
     FrameSync sync(2, opt);
     auto field = [](int cam, std::uint32_t k, double t_us, double x) {
-        CameraField f;
-        f.camera = cam;
-        f.field_counter = k;
-        f.parity = int(k & 1u);
-        f.sample_device_us = t_us;
-        f.field_end_device_us = t_us + 5000.0;
-        f.count = 1;
-        f.images[0].colour_class = 2;
-        f.images[0].frame_px = Eigen::Vector2d(x, 300.0);
-        f.images[0].area_px = 30.0f;
-        return f;
+        return one_image_field(cam, k, t_us, x, 5000.0);
     };
     auto truth_x = [&](double t_us) {
         const double t = t_us * 1e-6;  // within the pairing gate: ≤ 25 px a field
@@ -361,17 +366,7 @@ TEST_CASE("genlocked cameras: extrapolate and nearest wait for the fields expose
     // built from it alone had the other cameras extrapolated a whole field (extrapolate) or missing (nearest):
     // `eyesim validate --sync nearest` on a `synth --synchronised` recording matched no marker at all.
     auto field = [](int cam, std::uint32_t k, double t_us) {
-        CameraField f;
-        f.camera = cam;
-        f.field_counter = k;
-        f.parity = int(k & 1u);
-        f.sample_device_us = t_us;
-        f.field_end_device_us = t_us + 21000.0;
-        f.count = 1;
-        f.images[0].colour_class = 2;
-        f.images[0].frame_px = Eigen::Vector2d(100.0 + 10.0 * cam + 0.01 * t_us * 1e-3, 300.0);
-        f.images[0].area_px = 30.0f;
-        return f;
+        return one_image_field(cam, k, t_us, 100.0 + 10.0 * cam + 1e-5 * t_us, 21000.0);
     };
     double T = 0, end = 0, recv = 0;
     std::uint32_t ref = 0;
