@@ -23,12 +23,13 @@ const fs::path& scratch() {
 
 Result run_eyesim(const std::string& args) { return eyesim::test::run_cli(scratch(), EYESIM_EXE, args, 180); }
 
-/// A recording of `scenario` (made once per test run).
-fs::path recording(const std::string& scenario, double seconds, int seed) {
-    const fs::path d = scratch() / (scenario + "_" + std::to_string(int(seconds * 1000.0)) + "ms_" + std::to_string(seed));
+/// A recording of `scenario` (made once per test run); `genlocked`: every camera's field exposed at once.
+fs::path recording(const std::string& scenario, double seconds, int seed, bool genlocked = false) {
+    const fs::path d = scratch() / (scenario + (genlocked ? "_genlocked_" : "_") +
+                                    std::to_string(int(seconds * 1000.0)) + "ms_" + std::to_string(seed));
     if (fs::exists(d / "rig.yaml")) return d;
     const Result r = run_eyesim("synth --scenario " + scenario + " --seconds " + std::to_string(seconds) + " --seed " +
-                                std::to_string(seed) + " --out " + d.string());
+                                std::to_string(seed) + (genlocked ? " --synchronised" : "") + " --out " + d.string());
     INFO(r.err);
     REQUIRE(r.rc == 0);
     return d;
@@ -36,16 +37,6 @@ fs::path recording(const std::string& scenario, double seconds, int seed) {
 
 /// A 1 s sweep (50 fields per camera).
 fs::path sweep() { return recording("sweep", 1, 3); }
-
-/// The same sweep from a genlocked rig (`synth --synchronised`: every camera's field exposed at once).
-fs::path genlocked_sweep() {
-    const fs::path d = scratch() / "sweep_genlocked_1000ms_3";
-    if (fs::exists(d / "rig.yaml")) return d;
-    const Result r = run_eyesim("synth --scenario sweep --seconds 1 --seed 3 --synchronised --out " + d.string());
-    INFO(r.err);
-    REQUIRE(r.rc == 0);
-    return d;
-}
 
 // Frames in which either instrument of an `occlusion` recording (injection, light pipe) was not measured.
 int instrument_frames_held(const nlohmann::json& chain) {
@@ -360,7 +351,7 @@ TEST_CASE("validate on a genlocked rig: every mode uses each camera's field of t
     // after it. Before, `--sync nearest` built each frame from the reference field alone (no marker matched, exit
     // 1), `extrapolate` carried the other cameras a whole field ahead, and `async` reported each frame before the
     // other cameras' fields of its time were in (with whole fields the light pipe held in 49 of 50 frames).
-    const fs::path d = genlocked_sweep();
+    const fs::path d = recording("sweep", 1, 3, true);  // `synth --synchronised`
     const nlohmann::json in = validate_dir_json(d, "interpolate");
     const double in_3d = in["marker3d_all_rms_um"].get<double>();
     for (const char* mode : {"nearest", "extrapolate"}) {
