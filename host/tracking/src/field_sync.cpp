@@ -127,19 +127,34 @@ void FrameSync::add(const CameraField& f) {
     last_ref_T_ = f.sample_device_us;
 }
 
+bool FrameSync::has_field_at(int cam, double T) const {
+    if (cam < 0 || cam >= n_) return false;
+    for (int age = 0; age < rings_[std::size_t(cam)].count; ++age)
+        if (std::abs(at(cam, age)->sample_device_us - T) <= opt_.max_skew_us) return true;
+    return false;
+}
+
+bool FrameSync::field_due(int cam, double T) const {
+    if (cam < 0 || cam >= n_) return false;
+    const Ring& r = rings_[std::size_t(cam)];
+    if (r.count == 0 || r.latest_sample_us > T - opt_.max_skew_us) return false;
+    // Its period from its last two fields, the nominal one where a field between them was lost.
+    const CameraField* prev = at(cam, 1);
+    const double nominal = opt_.field_period_us;
+    double period = prev ? r.latest_sample_us - prev->sample_device_us : nominal;
+    if (!(period > 0.5 * nominal && period < 1.5 * nominal)) period = nominal;
+    // Its first field time from T − max_skew_us on.
+    const double next = r.latest_sample_us + period * std::ceil((T - opt_.max_skew_us - r.latest_sample_us) / period);
+    return next <= T + opt_.max_skew_us;
+}
+
 bool FrameSync::decided(int cam, double T) const {
     const Ring& r = rings_[std::size_t(cam)];
     if (r.count > 0 && r.latest_sample_us > T - 1.0) return true;  // a field at T or after it
     if (opt_.mode == SyncMode::Interpolate) return false;
     // The other modes use fields at or before T only, so they wait for no later field; but a field exposed with
-    // T's (a genlocked rig: every camera's field ends with the reference camera's and arrives just after it) is
-    // the one they need. Wait for this camera only where its next field is due within max_skew_us of T.
-    if (r.count == 0 || cam == opt_.reference_camera) return true;
-    // Its period from its last two fields, the nominal one where a field between them was lost.
-    const CameraField* prev = at(cam, 1);
-    double period = prev ? r.latest_sample_us - prev->sample_device_us : opt_.field_period_us;
-    if (!(period > 0.5 * opt_.field_period_us && period < 1.5 * opt_.field_period_us)) period = opt_.field_period_us;
-    return r.latest_sample_us + period > T + opt_.max_skew_us;
+    // T's (a genlocked rig) is the one they need.
+    return cam == opt_.reference_camera || !field_due(cam, T);
 }
 
 bool FrameSync::ready() const {

@@ -1012,24 +1012,20 @@ double Tracker::next_report_host_us() const {
 }
 
 bool Tracker::genlocked_fields_due(const PendingFrame& p) const {
-    // A genlocked rig: every other camera's fields end with the reference camera's (within max_skew_us). Its
-    // frame's time has no other camera's field after it, so a frame reported before its own fields are in holds
-    // only the fields a period older (1 s `sweep` with `synth --synchronised`, whole fields: the light pipe, which
-    // camera 0 does not see, held in 49 of 50 frames; held-out 2 s `sweep`: tip 28.3 µm, 22.7 waiting). Such a
-    // frame waits for them; an unsynchronised rig, or one only partly genlocked, never waits.
-    const double E = p.field.field_end_device_us, skew = config_.sync.max_skew_us;
-    if (!std::isfinite(E)) return false;
+    // A genlocked rig: every camera's fields exposed with the reference camera's. Its frame's time has no other
+    // camera's field after it, so a frame reported before its own fields are in holds only the fields a period
+    // older (1 s `sweep` with `synth --synchronised`, whole fields: the light pipe, which camera 0 does not see,
+    // held in 49 of 50 frames; held-out 2 s `sweep`: tip 28.3 µm, 22.7 waiting). Such a frame waits for them; an
+    // unsynchronised rig, or one only partly genlocked, never waits. The synchroniser holds every complete field.
+    const double T = p.field.sample_device_us;
+    if (!std::isfinite(T) || !std::isfinite(p.field.field_end_device_us) || cameras_.size() < 2) return false;
     bool waiting = false;
     for (int c = 0; c < int(cameras_.size()); ++c) {
-        if (!have_done_[std::size_t(c)]) return false;
-        const double period =
-            done_period_us_[std::size_t(c)] > 0.0 ? done_period_us_[std::size_t(c)] : config_.sync.field_period_us;
-        const double end = done_end_us_[std::size_t(c)];
-        if (std::abs(end - E) <= skew) continue;  // its field of this time is in
-        if (std::abs(end + period - E) > skew) return false;  // not genlocked
+        if (sync_.has_field_at(c, T)) continue;   // its field of this time is in
+        if (!sync_.field_due(c, T)) return false;  // not genlocked
         waiting = true;
     }
-    return waiting && cameras_.size() > 1;
+    return waiting;
 }
 
 bool Tracker::report_due(TrackingFrame& out, double now_host_us) {

@@ -426,11 +426,11 @@ TEST_CASE("genlocked cameras: extrapolate and nearest wait for the fields expose
             CHECK(T == 100000.0);
             CHECK(cams[2].state == CameraSyncState::Direct);
         }
-        SECTION("unsynchronised: nothing waits for a later field") {
+        SECTION("unsynchronised: nothing waits for a later field, nor for one lost") {
             FrameSync sync(3, opt);
             for (std::uint32_t k = 0; k < 8; ++k) {
                 const double t = 20000.0 * k;
-                sync.add(field(1, k, t - 13000.0));
+                if (k != 4) sync.add(field(1, k, t - 13000.0));  // camera 1's field 4 lost
                 sync.add(field(2, k, t - 6500.0));
                 sync.add(field(0, k, t));
                 bool got = false;

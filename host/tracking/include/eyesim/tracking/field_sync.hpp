@@ -143,6 +143,13 @@ public:
              double& latest_received_host_us);
     /// The options in use.
     const SyncOptions& options() const { return opt_; }
+    /// Camera `cam` has a complete field exposed within max_skew_us of T.
+    bool has_field_at(int cam, double T) const;
+    /// Camera `cam`'s field exposed within max_skew_us of T is still to come: none at or after T is in, and its
+    /// field clock (its newest field and period, the nominal one across a lost field) puts one there — a genlocked
+    /// rig's, which ends with the reference camera's field and arrives just after it. A free-running camera whose
+    /// newest field is lost is not due: its next field falls elsewhere.
+    bool field_due(int cam, double T) const;
 
 private:
     struct Ring {
