@@ -62,6 +62,7 @@ struct ValidateOptions {
     int max_fields = 0;
     std::string sync = "interpolate";
     bool no_trocar = false;
+    bool no_image_model = false;
     double truth_noise_px = 0.02;
     bool truth_projected = false;
     std::string write_capture;
@@ -1033,6 +1034,7 @@ int run_validate_capture(const ValidateOptions& opt) {
     cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
     cfg.async.report_delay_us = 1000.0 * opt.report_delay_ms;
     cfg.pose.trocar_constraint = !opt.no_trocar;
+    cfg.marker_image_model = !opt.no_image_model;
     cfg.centroid_sigma_px = opt.sigma_px;
     const int ncam = int(cfg.cameras.size());
     std::unique_ptr<eyesim::frame::HostRun> run;
@@ -1089,6 +1091,7 @@ int run_validate_capture(const ValidateOptions& opt) {
     j["fields_per_s"] = double(st.fields) / std::max(wall_s, 1e-9);
     j["sync"] = opt.sync;
     j["trocar_constraint"] = !opt.no_trocar;
+    j["marker_image_model"] = !opt.no_image_model;
     // Truth figures, and the exposure → pose latency (a capture's replay has no exposure times on the host clock).
     for (const char* k : {"centroid_rms_px", "marker3d_rms_um", "marker3d_all_rms_um", "tip_rms_um", "tip_in_eye_rms_um",
                           "eye_rot_rms_deg"})
@@ -1228,6 +1231,7 @@ int run_validate(const ValidateOptions& opt) {
     cfg.sync.mode = tr::sync_mode_from_name(opt.sync);
     cfg.async.report_delay_us = 1000.0 * opt.report_delay_ms;
     cfg.pose.trocar_constraint = !opt.no_trocar;
+    cfg.marker_image_model = !opt.no_image_model;
     cfg.centroid_sigma_px = opt.sigma_px;
     for (const auto& g : cfg.cameras)
         if (!g.valid()) throw Error(rig_path + ": a camera has invalid intrinsics or rotation");
@@ -1541,6 +1545,7 @@ int run_validate(const ValidateOptions& opt) {
     j["emit"] = opt.emit;
     j["report_delay_ms"] = opt.report_delay_ms;
     j["trocar_constraint"] = !opt.no_trocar;
+    j["marker_image_model"] = !opt.no_image_model;
     nlohmann::json cams = nlohmann::json::array();
     std::vector<double> all_c;
     for (int c = 0; c < ncam; ++c) {
@@ -1712,6 +1717,9 @@ eyesim::app::Registrar reg{"validate",
         ->check(CLI::IsMember({"field", "blob"}));
     eyesim::app::add_report_delay_option(sub, opt->report_delay_ms, tr::AsyncOptions::kMaxReportDelayUs * 1e-3);
     sub.add_flag("--no-trocar", opt->no_trocar, "do not use the trocar as a point on the instrument shaft");
+    sub.add_flag("--no-image-model", opt->no_image_model,
+                 "move each marker's centroid back by a uniform disc less its shaft only, not by the shaded sphere's "
+                 "image less its shaft sampled on the field's lines (the eye's correction at its outline stays)");
     sub.add_option("--truth-noise-px", opt->truth_noise_px, "noise added to truth centroids in the comparison run")
         ->check(eyesim::app::finite_in(0.0, 10.0));
     sub.add_flag("--truth-projected", opt->truth_projected,

@@ -279,6 +279,7 @@ void FrameSync::align(int cam, double T, AlignedCamera& ac, CameraField& out, do
         ac.dropped_images = blend(*f0, *f1, alpha, opt_.pair_gate_px, out, fp, fpp, opt_.curvature_sigma_px);
         out.camera = cam;
         out.parity = f1->parity;
+        out.parity_weight = (f0->parity & 1) == (f1->parity & 1) ? 1.0 : alpha;  // p0 + α·(p1 − p0)
         out.field_counter = f1->field_counter;
         ac.state = st;
         ac.dt_us = (alpha < 0.5 ? f0 : f1)->sample_device_us - T;

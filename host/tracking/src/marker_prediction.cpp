@@ -159,6 +159,12 @@ bool predict_shaft_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& ce
     return disc_rim_covered(eye_only);
 }
 
+bool predict_clear_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                        MarkerHint& out) {
+    Eigen::Vector3d ex, ey, d;
+    return view_frame(cam, centre_rig_mm, radius_mm, out, ex, ey, d);
+}
+
 bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
                       const Eigen::Vector3d& eye_centre_rig_mm, double eye_radius_mm, MarkerHint& out) {
     Eigen::Vector3d ex, ey, d;

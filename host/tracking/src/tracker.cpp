@@ -244,6 +244,7 @@ void Tracker::track_images(std::span<const CameraField> images, std::span<const 
         ++out.cameras_used;
         const CameraField& f = images[std::size_t(c)];
         view_parity_[std::size_t(c)] = f.parity & 1;
+        view_parity_weight_[std::size_t(c)] = f.parity_weight;
         for (int i = 0; i < f.count && v.count < kMaxMarkersPerCamera; ++i) {
             const FieldImage& im = f.images[std::size_t(i)];
             if (!im.frame_px.allFinite()) {
@@ -338,6 +339,33 @@ bool eye_hidden_offset(const SphereFitConfig& shading, const CameraGeometry& g, 
            (shaft_radius_mm > 0.0 ? predict_shaft_eye_hint(g, X, r_mm, axis_rig, shaft_radius_mm, E, eye_r, hint)
                                   : predict_eye_hint(g, X, r_mm, E, eye_r, hint)) &&
            hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible);
+}
+
+// The same for a marker the eye does not hide: where the pipeline's centroid of the shaded sphere (X, r_mm) lies from
+// its centre (frame px, on a field of `parity`), less the shaft along axis_rig it is threaded on where
+// shaft_radius_mm > 0, and the visible share. Perspective, shading and the field's sampling move it by hundredths of
+// a pixel, and the last alternates with the parity (a field's lines are two frame rows apart); the shaft by tenths.
+bool image_model_offset(const SphereFitConfig& shading, const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm,
+                        const Eigen::Vector3d& axis_rig, double shaft_radius_mm, int parity, double& dx_px,
+                        double& dv_px, double& visible) {
+    MarkerHint hint;
+    return (shaft_radius_mm > 0.0 ? predict_shaft_hint(g, X, r_mm, axis_rig, shaft_radius_mm, hint)
+                                  : predict_clear_hint(g, X, r_mm, hint)) &&
+           hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible);
+}
+
+// An offset that depends on the field's parity (the sampling's part), on a view blended from two fields of opposite
+// parity (interpolate, extrapolate): mixed by the blend's weights (CameraField::parity_weight) of
+// `offset(parity, dx_px, dv_px, visible)`, which the field of `parity` decides where the other's fails.
+template <class Offset>
+bool parity_mixed(int parity, double weight, Offset&& offset, double& dx_px, double& dv_px, double& visible) {
+    if (!offset(parity, dx_px, dv_px, visible)) return false;
+    double dx2 = 0, dv2 = 0, visible2 = 0;
+    if (weight == 1.0 || !offset(parity ^ 1, dx2, dv2, visible2)) return true;
+    dx_px = weight * dx_px + (1.0 - weight) * dx2;
+    dv_px = weight * dv_px + (1.0 - weight) * dv2;
+    visible = weight * visible + (1.0 - weight) * visible2;
+    return true;
 }
 
 // Whether the eye's sphere (E, eye_r) lies across the line of sight from o to X, in front of X.
@@ -727,7 +755,7 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
                     relieved = std::uint8_t(relieved | (1u << c));
             }
         }
-        int n = 0, hidden = 0;
+        int n = 0, hidden = 0, clear_moved = 0;
         std::array<std::int8_t, kMaxCameras> adopted;
         adopted.fill(-1);
         for (int c = 0; c < int(cameras_.size()); ++c) {
@@ -736,9 +764,24 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             if (merged & (1u << c)) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
             double dx = 0, dv = 0, visible = 1.0;
-            const bool eye_hides = eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
-                                                     Eigen::Vector3d::Zero(), 0.0, view_parity_[std::size_t(c)], dx, dv,
-                                                     visible);
+            const bool eye_hides = parity_mixed(
+                view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
+                [&](int parity, double& ox, double& ov, double& vis) {
+                    return eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
+                                             Eigen::Vector3d::Zero(), 0.0, parity, ox, ov, vis);
+                },
+                dx, dv, visible);
+            // A view the eye does not hide: the sphere's own image model (TrackerConfig::marker_image_model).
+            const bool modelled =
+                !eye_hides && config_.marker_image_model &&
+                parity_mixed(
+                    view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
+                    [&](int parity, double& ox, double& ov, double& vis) {
+                        return image_model_offset(shading, g, X, radius_mm, Eigen::Vector3d::Zero(), 0.0, parity, ox, ov,
+                                                  vis);
+                    },
+                    dx, dv, visible);
+            if (!eye_hides && !modelled) dx = dv = 0.0, visible = 1.0;
             if (i < 0 && m.occluded) {  // the unused image where the pose puts the marker's visible part
                 i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, X,
                                       eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, kAdoptGatePx);
@@ -749,9 +792,10 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             // A view judged occluded that the eye does not hide has something else across it: it stays out. One
             // the eye hides almost whole has too little left to place it.
             if (eye_hides ? visible < kMinVisibleShare : (m.occluded_views & ~relieved & (1u << c)) != 0) continue;
-            if (!shifted_observation(c, p, eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, obs[std::size_t(n)])) continue;
+            if (!shifted_observation(c, p, dx, dv, obs[std::size_t(n)])) continue;
             hidden += eye_hides;
-            moved[std::size_t(n)] = eye_hides;
+            clear_moved += modelled;
+            moved[std::size_t(n)] = eye_hides || modelled;
             obs_view[std::size_t(n++)] = c;
         }
         // Too few views apart from the joined ones: a joined view is moved back by its neighbours' predicted share
@@ -764,7 +808,8 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             moved[std::size_t(n)] = 1;
             obs_view[std::size_t(n++)] = c;
         }
-        if ((hidden == 0 && merged == 0) || n < 2) continue;
+        // A marker judged occluded keeps its flag unless the eye's model or a joined blob placed it.
+        if ((hidden == 0 && merged == 0 && (clear_moved == 0 || m.occluded)) || n < 2) continue;
         const TriangulatedPoint tp = triangulate(cameras_, std::span<const Observation>(obs.data(), std::size_t(n)),
                                                  config_.correspondence.triangulation);
         if (!tp.usable()) continue;
@@ -851,9 +896,14 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             // The eye hides part of it in this view (a marker seen past the eye's outline): the shaded sphere less
             // the eye and the shaft gives the shift, in a view judged occluded too.
             double dx = 0, dv = 0, visible = 0;
-            const bool eye_hides = eye_known && eye_hidden_offset(shading, g, Xp, R, out.eye.centre_rig_mm,
-                                                                  bodies.eye.radius_mm, a, model.shaft_radius_mm,
-                                                                  view_parity_[std::size_t(c)], dx, dv, visible);
+            const bool eye_hides =
+                eye_known && parity_mixed(view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
+                                          [&](int parity, double& ox, double& ov, double& vis) {
+                                              return eye_hidden_offset(shading, g, Xp, R, out.eye.centre_rig_mm,
+                                                                       bodies.eye.radius_mm, a, model.shaft_radius_mm,
+                                                                       parity, ox, ov, vis);
+                                          },
+                                          dx, dv, visible);
             if (i < 0 && unassigned) {  // the unused image where the pose puts the marker's visible part
                 i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, Xp,
                                       eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, kAdoptGatePx);
@@ -868,6 +918,19 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
                 continue;
             }
             if (m.occluded_views & (1u << c)) continue;
+            // The marker's image model (TrackerConfig::marker_image_model): the shaded sphere less the shaft, sampled
+            // on the field's lines; the strip below where it does not place the marker.
+            if (config_.marker_image_model &&
+                parity_mixed(view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
+                             [&](int parity, double& ox, double& ov, double& vis) {
+                                 return image_model_offset(shading, g, X, R, a, model.shaft_radius_mm, parity, ox, ov,
+                                                           vis);
+                             },
+                             dx, dv, visible)) {
+                if (visible < kMinVisibleShare || !shifted_observation(c, p, dx, dv, obs[std::size_t(n)])) continue;
+                obs_view[std::size_t(n++)] = c;
+                continue;
+            }
             const Eigen::Vector3d Xc = g.R_cam_rig * X + g.t_cam_rig_mm;
             const Eigen::Vector3d v = (g.centre_rig_mm() - X).normalized();  // towards the camera
             const Eigen::Vector3d e = a.dot(v) > 0.0 ? a : Eigen::Vector3d(-a);  // the half-shaft in front
@@ -1189,14 +1252,25 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
             // sphere less the eye (and the shaft) at the predicted pose, as the sync chain's correct_eye_occlusion.
             double ex_px = 0, ev_px = 0, visible = 1.0;
             bool eye_hides = false;
+            const double r_mm = ms[k].radius_mm > 0.0 ? ms[k].radius_mm : Rm;
+            const bool shaft = model && model->shaft_radius_mm > 0.0;
             if (eye_model) {
-                const double r_mm = ms[k].radius_mm > 0.0 ? ms[k].radius_mm : Rm;
-                const bool shaft = model && model->shaft_radius_mm > 0.0;
                 eye_hides = r_mm > 0.0 &&
                             eye_hidden_offset(shading, g, X, r_mm, eye_centre, bodies.eye.radius_mm,
                                               shaft ? Eigen::Vector3d(flt.rotation() * model->axis_body.normalized())
                                                     : Eigen::Vector3d::Zero(),
                                               shaft ? model->shaft_radius_mm : 0.0, f.parity & 1, ex_px, ev_px, visible);
+            }
+            // Elsewhere the marker's image model at the predicted pose (TrackerConfig::marker_image_model): the
+            // shaded sphere less its shaft, sampled on the field's lines.
+            bool modelled = false;
+            if (!eye_hides && config_.marker_image_model && r_mm > 0.0) {
+                const bool strip = shaft && config_.shaft_occlusion_correction;
+                modelled = image_model_offset(shading, g, X, r_mm,
+                                              strip ? Eigen::Vector3d(flt.rotation() * model->axis_body.normalized())
+                                                    : Eigen::Vector3d::Zero(),
+                                              strip ? model->shaft_radius_mm : 0.0, f.parity & 1, ex_px, ev_px, visible);
+                if (!modelled) ex_px = ev_px = 0.0, visible = 1.0;
             }
             if (eye_hides) {
                 if (visible < kMinVisibleShare) continue;  // too little left to place it
@@ -1206,14 +1280,20 @@ int Tracker::fuse_field(const CameraField& f, int first, bool last, double T) {
                 const double expected = 3.141592653589793 * (g.fx * r) * (g.fy * r) * 0.5;  // field pixels
                 if (double(im.area_px) < ao.min_area_ratio * expected) continue;
             }
+            if (modelled && visible < kMinVisibleShare) continue;  // its shaft hides almost all of it
             // Moved back by the eye's model, the image's σ grows with the shift: the correction is as good as the
-            // outline is placed. The eye's model holds the shaft too, so the strip shift below is not added again.
-            const Eigen::Vector2d px = eye_hides ? Eigen::Vector2d(im.frame_px - Eigen::Vector2d(ex_px, ev_px)) : im.frame_px;
+            // outline is placed. The marker's own image model keeps the σ, as the strip shift did: its shift, the
+            // shaft's, is placed by the pose within hundredths of a pixel, and a σ grown with it let the gate pass
+            // images of an instrument pulled out of the eye that a miss should hold (`occlusion` seed 171: tip 26 ->
+            // 99 um). The models hold the shaft, so the strip shift (apply_point) is not added again; it stays where
+            // no model placed the marker.
+            const bool moved = eye_hides || modelled;
+            const Eigen::Vector2d px = moved ? Eigen::Vector2d(im.frame_px - Eigen::Vector2d(ex_px, ev_px)) : im.frame_px;
             const double grow_px = eye_hides ? kEyeCorrectionRelError * std::hypot(ex_px, ev_px) : 0.0;
             ReplayObs o;
             o.camera = std::int8_t(c);
             o.marker = std::int8_t(k);
-            o.shaft = !(eye_hides || !model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0));
+            o.shaft = !(moved || !model || !config_.shaft_occlusion_correction || !(model->shaft_radius_mm > 0.0));
             o.px = o.shaft ? im.frame_px : px;
             o.sigma_x_px = ao.sigma_x_px + (o.shaft ? 0.0 : grow_px);
             o.sigma_y_px = ao.sigma_y_px + (o.shaft ? 0.0 : grow_px);

@@ -20,9 +20,11 @@ TrackerConfig SyntheticScene::tracker_config() const {
         cfg.timing.push_back(camera_timing(c));
     }
     cfg.bodies = set_;
-    // The synthetic stream carries exact projected centres (no shaft or eye hides part of a marker): no correction.
+    // The synthetic stream carries exact projected centres (no shaft or eye hides part of a marker, no image is
+    // sampled): no correction.
     cfg.shaft_occlusion_correction = false;
     cfg.eye_occlusion_correction = false;
+    cfg.marker_image_model = false;
     return cfg;
 }
 

@@ -531,3 +531,38 @@ TEST_CASE("a second camera's images fix the depth one view leaves loose", "[trac
     CHECK(rms_two_mm < 0.05);
     CHECK(rms_two_mm < 0.5 * rms_one_mm);
 }
+
+TEST_CASE("a field brought to the frame's time by two fields weighs each parity as the blend does", "[tracking][sync]") {
+    // Camera 1 exposes 6 ms after camera 0: interpolated to camera 0's time T from its fields at T − 14 ms and
+    // T + 6 ms (α = 0.7 of the later one), extrapolated from the two before T, at T − 34 and T − 14 ms (α = 1.7).
+    // The tracker mixes an offset that depends on the field's parity (the marker's image model: the field lines'
+    // sampling) by the same weights (CameraField::parity_weight); a field used as it is weighs 1.
+    for (SyncMode mode : {SyncMode::Interpolate, SyncMode::Extrapolate}) {
+        SyncOptions opt;
+        opt.mode = mode;
+        FrameSync sync(2, opt);
+        double T = 0, end = 0, recv = 0;
+        std::uint32_t ref = 0;
+        std::array<AlignedCamera, kMaxCameras> cams;
+        std::array<CameraField, kMaxCameras> images;
+        int blended = 0;
+        for (std::uint32_t k = 0; k < 8; ++k) {
+            sync.add(one_image_field(0, k, 20000.0 * k, 50.0, 5000.0));
+            sync.add(one_image_field(1, k, 20000.0 * k + 6000.0, 100.0 + 0.001 * k, 5000.0));
+            while (sync.pop(T, ref, cams, images, end, recv)) {
+                INFO("mode " << int(mode) << " T " << T);
+                CHECK(images[0].parity_weight == 1.0);
+                if (cams[1].state == CameraSyncState::Direct) CHECK(images[1].parity_weight == 1.0);
+                if (cams[1].state != CameraSyncState::Interpolated && cams[1].state != CameraSyncState::Extrapolated)
+                    continue;
+                ++blended;
+                const double alpha = mode == SyncMode::Interpolate ? 0.7 : 1.7;
+                CHECK(images[1].parity_weight == Approx(alpha).margin(1e-12));
+                // The weight is of the later field's parity, which the blend carries.
+                const std::uint32_t later = mode == SyncMode::Interpolate ? ref : ref - 1;
+                CHECK(images[1].parity == int(later & 1u));
+            }
+        }
+        CHECK(blended >= 5);
+    }
+}

@@ -40,6 +40,10 @@ struct CameraField {
     int camera = 0;                   ///< camera id
     std::uint32_t field_counter = 0;  ///< device field number
     int parity = 0;                   ///< 0 top, 1 bottom
+    /// A field brought to another time by two of its camera's fields (interpolate, extrapolate): the weight of the
+    /// field of `parity` in the blend, 1 − it the other's (of the other parity where the two are consecutive). A
+    /// centroid's offset from the marker's centre that depends on the parity mixes by the same weights.
+    double parity_weight = 1.0;
     double field_end_device_us = 0;   ///< device time of the field's last active pixel
     double sample_device_us = 0;      ///< exposure mid-time (device clock): the field's instant
     double received_host_us = 0;      ///< host time the field's last part arrived

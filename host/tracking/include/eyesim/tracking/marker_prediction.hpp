@@ -31,6 +31,11 @@ bool project_sphere_outline(const CameraGeometry& cam, const Eigen::Vector3d& ce
 bool predict_shaft_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
                         const Eigen::Vector3d& axis_rig, double shaft_radius_mm, MarkerHint& out);
 
+/// MarkerHint of a marker nothing hides (radius `radius_mm`, at `centre_rig_mm`): its outline alone. False when the
+/// marker does not project.
+bool predict_clear_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,
+                        MarkerHint& out);
+
 /// MarkerHint of an eye marker (radius `radius_mm`, at `centre_rig_mm`) with the eye's sphere as the occluder; false
 /// when the marker does not project or the eye hides none of it (a plain fit).
 bool predict_eye_hint(const CameraGeometry& cam, const Eigen::Vector3d& centre_rig_mm, double radius_mm,

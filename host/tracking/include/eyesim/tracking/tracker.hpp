@@ -55,6 +55,15 @@ struct TrackerConfig {
     /// views judged occluded included, the marker re-triangulated and the bodies refitted. Instrument markers are
     /// corrected within the shaft correction's pass (both on).
     bool eye_occlusion_correction = true;
+    /// Every marker view the eye does not hide is moved back by where the pipeline's centroid of its image lies from
+    /// its centre at the pose — the shaded sphere less its shaft (an instrument marker), sampled on the field's
+    /// lines two frame rows apart (refine.hpp hinted_centroid_offset, the eye's correction's model; on a view blended
+    /// from two fields, mixed by their weights) — in the filters (--sync async, at the predicted pose) and in the
+    /// shaft and eye corrections of the other modes (at the first fit's poses). Off: a uniform disc less a strip of
+    /// the shaft's width, and clear eye markers as they are, which leaves the shading's and the sampling's parts —
+    /// an error that alternates with the field parity (the eye's rotation 0.005° from field to field) and
+    /// instrument markers biased by 10–20 µm (docs/validation.md, "The marker's image model").
+    bool marker_image_model = true;
 };
 
 /// Bit flags of a tracking frame.
@@ -309,6 +318,7 @@ private:
     std::array<CameraField, kMaxCameras> aligned_{};
     std::array<CameraObservations, kMaxCameras> views_{};
     std::array<int, kMaxCameras> view_parity_{};  // each view's field parity (0 top, 1 bottom)
+    std::array<double, kMaxCameras> view_parity_weight_{};  // that parity's weight in a blended view (CameraField)
     // Views the shaft-occlusion correction moved (bit c of marker k) and the normalised images it used.
     std::array<std::uint8_t, kMaxMarkersPerFrame> corrected_views_{};
     std::array<std::array<Eigen::Vector2d, kMaxCameras>, kMaxMarkersPerFrame> corrected_xn_{};
