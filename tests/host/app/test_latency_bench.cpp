@@ -99,12 +99,15 @@ TEST_CASE("the latency gate passes an unchanged run and flags a 30 % slowdown", 
         CHECK(hc.change() < 0.6);
         // Under AddressSanitizer the stages' shares move (instrumentation slows some code more than other), so
         // a stage may fall below the 10 % share that gates it: there only host compute is asserted.
-        if (!kSanitized) CHECK(row(g.rows, scene, "collision").regression);
+        // Since the markers' image model (2026-12-08) tracking takes ≈ 0.42 of the 0.47–0.57 ms frames, and
+        // collision may fall below that share: asserted where it is gated.
+        const auto& col = row(g.rows, scene, "collision");
+        if (!kSanitized && col.gated) CHECK(col.regression);
         CHECK_FALSE(row(g.rows, scene, "tracking").regression);
     }
-    // Host compute and collision of both scenes; a stage that merely shared a slower machine (tissue) may be
-    // flagged too, tracking (asserted above) never.
-    if (!kSanitized) REQUIRE(g.regressions.size() >= 4);
+    // Host compute of both scenes (and collision where gated); a stage that merely shared a slower machine
+    // (tissue) may be flagged too, tracking (asserted above) never.
+    if (!kSanitized) REQUIRE(g.regressions.size() >= 2);
     REQUIRE(!g.regressions.empty());
     CHECK(g.regressions[0].find("abstract-shadow host_compute") == 0);
 }
