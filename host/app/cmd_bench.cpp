@@ -142,7 +142,11 @@ int run_latency(const BenchOptions& o) {
     if (!o.write_baseline.empty()) {
         std::ofstream out(o.write_baseline);
         if (!out) throw Error(o.write_baseline + ": cannot write");
-        out << j.dump(2) << "\n";
+        // Each scene's file is where this checkout keeps it (the gate measures a flagged scene again from the
+        // current run's path, never the baseline's): a committed baseline names its scenes only.
+        nlohmann::json base = j;
+        for (auto& [name, sc] : base["scenes"].items()) sc.erase("file");
+        out << base.dump(2) << "\n";
     }
     if (o.json) {
         nlohmann::json r = j;
