@@ -331,37 +331,46 @@ bool near_eye_outline(const Eigen::Vector3d& o, const Eigen::Vector3d& X, double
 // pipeline's centroid of what is left lies, less the sphere's centre (frame px, on a field of `parity`), and that
 // part's share of the light (hinted_centroid_offset with the shaded sphere less the eye and, with shaft_radius_mm
 // > 0, the shaft along axis_rig the marker is threaded on). False where the eye's outline does not cross the image.
+bool eye_hidden_hint(const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm, const Eigen::Vector3d& E,
+                     double eye_r, const Eigen::Vector3d& axis_rig, double shaft_radius_mm, MarkerHint& hint) {
+    return near_eye_outline(g.centre_rig_mm(), X, r_mm, E, eye_r) &&
+           (shaft_radius_mm > 0.0 ? predict_shaft_eye_hint(g, X, r_mm, axis_rig, shaft_radius_mm, E, eye_r, hint)
+                                  : predict_eye_hint(g, X, r_mm, E, eye_r, hint));
+}
+
 bool eye_hidden_offset(const SphereFitConfig& shading, const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm,
                        const Eigen::Vector3d& E, double eye_r, const Eigen::Vector3d& axis_rig, double shaft_radius_mm,
                        int parity, double& dx_px, double& dv_px, double& visible) {
     MarkerHint hint;
-    return near_eye_outline(g.centre_rig_mm(), X, r_mm, E, eye_r) &&
-           (shaft_radius_mm > 0.0 ? predict_shaft_eye_hint(g, X, r_mm, axis_rig, shaft_radius_mm, E, eye_r, hint)
-                                  : predict_eye_hint(g, X, r_mm, E, eye_r, hint)) &&
+    return eye_hidden_hint(g, X, r_mm, E, eye_r, axis_rig, shaft_radius_mm, hint) &&
            hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible);
 }
 
-// The same for a marker the eye does not hide: where the pipeline's centroid of the shaded sphere (X, r_mm) lies from
-// its centre (frame px, on a field of `parity`), less the shaft along axis_rig it is threaded on where
-// shaft_radius_mm > 0, and the visible share. Perspective, shading and the field's sampling move it by hundredths of
-// a pixel, and the last alternates with the parity (a field's lines are two frame rows apart); the shaft by tenths.
+// The same for a marker the eye does not hide: the shaded sphere (X, r_mm), less the shaft along axis_rig it is
+// threaded on where shaft_radius_mm > 0. Perspective, shading and the field's sampling move its centroid by hundredths
+// of a pixel, and the last alternates with the parity (a field's lines are two frame rows apart); the shaft by tenths.
+bool image_model_hint(const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm, const Eigen::Vector3d& axis_rig,
+                      double shaft_radius_mm, MarkerHint& hint) {
+    return shaft_radius_mm > 0.0 ? predict_shaft_hint(g, X, r_mm, axis_rig, shaft_radius_mm, hint)
+                                 : predict_clear_hint(g, X, r_mm, hint);
+}
+
 bool image_model_offset(const SphereFitConfig& shading, const CameraGeometry& g, const Eigen::Vector3d& X, double r_mm,
                         const Eigen::Vector3d& axis_rig, double shaft_radius_mm, int parity, double& dx_px,
                         double& dv_px, double& visible) {
     MarkerHint hint;
-    return (shaft_radius_mm > 0.0 ? predict_shaft_hint(g, X, r_mm, axis_rig, shaft_radius_mm, hint)
-                                  : predict_clear_hint(g, X, r_mm, hint)) &&
+    return image_model_hint(g, X, r_mm, axis_rig, shaft_radius_mm, hint) &&
            hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible);
 }
 
-// An offset that depends on the field's parity (the sampling's part), on a view blended from two fields of opposite
-// parity (interpolate, extrapolate): mixed by the blend's weights (CameraField::parity_weight) of
-// `offset(parity, dx_px, dv_px, visible)`, which the field of `parity` decides where the other's fails.
-template <class Offset>
-bool parity_mixed(int parity, double weight, Offset&& offset, double& dx_px, double& dv_px, double& visible) {
-    if (!offset(parity, dx_px, dv_px, visible)) return false;
+// hinted_centroid_offset on a view blended from two fields of opposite parity (interpolate, extrapolate): the two
+// parities' offsets mixed by the blend's weights (CameraField::parity_weight; 1: one field), the field of `parity`
+// deciding where the other's fails. The hint, the marker's image at the pose, is the same for both.
+bool mixed_centroid_offset(const SphereFitConfig& shading, const MarkerHint& hint, int parity, double weight,
+                           double& dx_px, double& dv_px, double& visible) {
+    if (!hinted_centroid_offset(shading, hint, parity, dx_px, dv_px, visible)) return false;
     double dx2 = 0, dv2 = 0, visible2 = 0;
-    if (weight == 1.0 || !offset(parity ^ 1, dx2, dv2, visible2)) return true;
+    if (weight == 1.0 || !hinted_centroid_offset(shading, hint, parity ^ 1, dx2, dv2, visible2)) return true;
     dx_px = weight * dx_px + (1.0 - weight) * dx2;
     dv_px = weight * dv_px + (1.0 - weight) * dv2;
     visible = weight * visible + (1.0 - weight) * visible2;
@@ -764,23 +773,16 @@ bool Tracker::correct_eye_occlusion(TrackingFrame& out) {
             if (merged & (1u << c)) continue;
             const CameraGeometry& g = cameras_[std::size_t(c)];
             double dx = 0, dv = 0, visible = 1.0;
-            const bool eye_hides = parity_mixed(
-                view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
-                [&](int parity, double& ox, double& ov, double& vis) {
-                    return eye_hidden_offset(shading, g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
-                                             Eigen::Vector3d::Zero(), 0.0, parity, ox, ov, vis);
-                },
-                dx, dv, visible);
+            const int parity = view_parity_[std::size_t(c)];
+            const double weight = view_parity_weight_[std::size_t(c)];
+            MarkerHint hint;
+            const bool eye_hides = eye_hidden_hint(g, X, radius_mm, out.eye.centre_rig_mm, bodies.eye.radius_mm,
+                                                   Eigen::Vector3d::Zero(), 0.0, hint) &&
+                                   mixed_centroid_offset(shading, hint, parity, weight, dx, dv, visible);
             // A view the eye does not hide: the sphere's own image model (TrackerConfig::marker_image_model).
-            const bool modelled =
-                !eye_hides && config_.marker_image_model &&
-                parity_mixed(
-                    view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
-                    [&](int parity, double& ox, double& ov, double& vis) {
-                        return image_model_offset(shading, g, X, radius_mm, Eigen::Vector3d::Zero(), 0.0, parity, ox, ov,
-                                                  vis);
-                    },
-                    dx, dv, visible);
+            const bool modelled = !eye_hides && config_.marker_image_model &&
+                                  image_model_hint(g, X, radius_mm, Eigen::Vector3d::Zero(), 0.0, hint) &&
+                                  mixed_centroid_offset(shading, hint, parity, weight, dx, dv, visible);
             if (!eye_hides && !modelled) dx = dv = 0.0, visible = 1.0;
             if (i < 0 && m.occluded) {  // the unused image where the pose puts the marker's visible part
                 i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, X,
@@ -896,14 +898,13 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             // The eye hides part of it in this view (a marker seen past the eye's outline): the shaded sphere less
             // the eye and the shaft gives the shift, in a view judged occluded too.
             double dx = 0, dv = 0, visible = 0;
-            const bool eye_hides =
-                eye_known && parity_mixed(view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
-                                          [&](int parity, double& ox, double& ov, double& vis) {
-                                              return eye_hidden_offset(shading, g, Xp, R, out.eye.centre_rig_mm,
-                                                                       bodies.eye.radius_mm, a, model.shaft_radius_mm,
-                                                                       parity, ox, ov, vis);
-                                          },
-                                          dx, dv, visible);
+            const int parity = view_parity_[std::size_t(c)];
+            const double weight = view_parity_weight_[std::size_t(c)];
+            MarkerHint hint;
+            const bool eye_hides = eye_known &&
+                                   eye_hidden_hint(g, Xp, R, out.eye.centre_rig_mm, bodies.eye.radius_mm, a,
+                                                   model.shaft_radius_mm, hint) &&
+                                   mixed_centroid_offset(shading, hint, parity, weight, dx, dv, visible);
             if (i < 0 && unassigned) {  // the unused image where the pose puts the marker's visible part
                 i = unused_image_near(g, views_[std::size_t(c)], image_used[std::size_t(c)], m.colour_class, Xp,
                                       eye_hides ? dx : 0.0, eye_hides ? dv : 0.0, kAdoptGatePx);
@@ -920,13 +921,8 @@ bool Tracker::correct_shaft_occlusion(TrackingFrame& out) {
             if (m.occluded_views & (1u << c)) continue;
             // The marker's image model (TrackerConfig::marker_image_model): the shaded sphere less the shaft, sampled
             // on the field's lines; the strip below where it does not place the marker.
-            if (config_.marker_image_model &&
-                parity_mixed(view_parity_[std::size_t(c)], view_parity_weight_[std::size_t(c)],
-                             [&](int parity, double& ox, double& ov, double& vis) {
-                                 return image_model_offset(shading, g, X, R, a, model.shaft_radius_mm, parity, ox, ov,
-                                                           vis);
-                             },
-                             dx, dv, visible)) {
+            if (config_.marker_image_model && image_model_hint(g, X, R, a, model.shaft_radius_mm, hint) &&
+                mixed_centroid_offset(shading, hint, parity, weight, dx, dv, visible)) {
                 if (visible < kMinVisibleShare || !shifted_observation(c, p, dx, dv, obs[std::size_t(n)])) continue;
                 obs_view[std::size_t(n++)] = c;
                 continue;
